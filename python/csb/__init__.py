@@ -1,0 +1,62 @@
+"""csb — cloth and soft-body dynamics with Position Based Dynamics, and a testbed that holds every
+method against a trusted reference.
+
+Quick start::
+
+    import csb
+    mesh = csb.load_mesh("cloth.obj")                 # any format Assimp reads
+    b = csb.ModelBuilder()
+    cloth = b.add_mesh(mesh, mass=0.2, stretch_stiffness=1.0, bending_stiffness=0.1)
+    b.pin(cloth.nearest([-0.5, 0, -0.5]))
+    model = b.build()
+    state = model.initial_state()
+    pbd = csb.PbdStepper(dt=1 / 60, substeps=2, iterations=10)
+    pbd.step(model, state, steps=60)
+    state.x                                           # (N, 3) positions, a zero-copy view
+
+Units are SI throughout: m, kg, s, rad; time step (dt), substeps and iterations are separate.
+"""
+
+from __future__ import annotations
+
+from . import _core
+from ._core import (
+    Error,
+    MeshError,
+    Model,
+    ParameterError,
+    PbdSettings,
+    PbdStepper,
+    SimulationError,
+    State,
+    bending_violations,
+    build_info,
+    chain,
+    cloth_grid,
+    corrected_stiffness,
+    distance_violations,
+    kernels,
+    lumped_measure,
+    measure,
+    pendulum,
+    readable_extensions,
+    save_mesh,
+    topology,
+)
+from .mesh import Mesh, MeshReport, MeshWarning, clean, load_mesh, transformed
+from .model import MeshInstance, ModelBuilder
+from .runner import RunResult
+from .scene import Scene, SceneError, Simulation, bundled_scenes, find_scene, load_scene
+
+__version__ = build_info()["csb"]
+
+__all__ = [
+    "Error", "ParameterError", "MeshError", "SimulationError", "SceneError", "MeshWarning",
+    "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
+    "readable_extensions", "cloth_grid", "chain", "pendulum",
+    "Model", "ModelBuilder", "MeshInstance", "State",
+    "PbdStepper", "PbdSettings", "corrected_stiffness",
+    "measure", "distance_violations", "bending_violations", "kernels",
+    "Scene", "Simulation", "RunResult", "load_scene", "bundled_scenes", "find_scene",
+    "build_info", "__version__",
+]

@@ -1,0 +1,110 @@
+"""Meshes: import through Assimp, build from arrays, clean (weld, drop degenerate triangles), transform."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+from . import _core
+from ._core import Mesh
+
+__all__ = ["Mesh", "MeshReport", "MeshWarning", "load_mesh", "clean", "transformed"]
+
+
+class MeshWarning(UserWarning):
+    """Something in a mesh was dropped or skipped (degenerate triangles, non-manifold edges, ...)."""
+
+
+@dataclass(frozen=True)
+class MeshReport:
+    """What clean-up did to a mesh, so that nothing the user gave disappears silently."""
+
+    input_vertices: int = 0
+    input_triangles: int = 0
+    input_lines: int = 0
+    welded_vertices: int = 0
+    unreferenced_vertices: int = 0
+    degenerate_triangles: int = 0
+    degenerate_lines: int = 0
+    boundary_edges: int = 0
+    non_manifold_edges: int = 0
+    vertex_map: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    """input vertex -> output vertex, -1 where dropped"""
+    warnings: tuple[str, ...] = ()
+
+    @classmethod
+    def _from_core(cls, d: dict[str, Any]) -> "MeshReport":
+        d = dict(d)
+        d["warnings"] = tuple(d["warnings"])
+        return cls(**d)
+
+    def _emit(self, stacklevel: int = 3) -> None:
+        for message in self.warnings:
+            warnings.warn(message, MeshWarning, stacklevel=stacklevel)
+
+
+def load_mesh(path: str | os.PathLike[str], *, weld: bool = True, weld_tolerance: float = 1e-6) -> Mesh:
+    """Read every mesh in a file (any format Assimp reads: OBJ, glTF/GLB, FBX, DAE, PLY, STL, 3DS, OFF, ...).
+
+    Node transforms are applied and polygons triangulated; coordinates are taken as metres.
+    Vertices closer than ``weld_tolerance`` times the bounding-box diagonal are welded (UV and
+    normal seams), degenerate triangles and unused vertices dropped; each is reported as a
+    :class:`MeshWarning` and in ``mesh.report`` (a :class:`MeshReport`).
+
+    Raises FileNotFoundError for a missing file and :class:`csb.MeshError`, naming the file (and
+    the line, for OBJ), for an empty, corrupt or unsupported file or one without triangles.
+    """
+    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance)
+    mesh.report = MeshReport._from_core(report)
+    mesh.report._emit()
+    return mesh
+
+
+def clean(mesh: Mesh, *, weld: bool = True, weld_tolerance: float = 1e-6, drop_unreferenced: bool = True) -> Mesh:
+    """Weld coincident vertices, drop degenerate triangles and (optionally) unused vertices.
+
+    The result carries ``report`` (a :class:`MeshReport`, with ``vertex_map`` from input to
+    output vertices); everything dropped is also reported as a :class:`MeshWarning`.
+    """
+    out, report = _core._clean(mesh, weld=weld, weld_tolerance=weld_tolerance, drop_unreferenced=drop_unreferenced)
+    out.report = MeshReport._from_core(report)
+    out.report._emit()
+    return out
+
+
+def _rotation(angles: Sequence[float]) -> np.ndarray:
+    """Rotation matrix for XYZ Euler angles in radians (about x first, then y, then z)."""
+    rx, ry, rz = (float(a) for a in angles)
+    cx, sx, cy, sy, cz, sz = np.cos(rx), np.sin(rx), np.cos(ry), np.sin(ry), np.cos(rz), np.sin(rz)
+    Rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    Ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    Rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return Rz @ Ry @ Rx
+
+
+def transformed(
+    mesh: Mesh,
+    *,
+    scale: float | Sequence[float] = 1.0,
+    rotate: Sequence[float] = (0.0, 0.0, 0.0),
+    translate: Sequence[float] = (0.0, 0.0, 0.0),
+) -> Mesh:
+    """A copy of ``mesh`` scaled (dimensionless, per axis or uniform), then rotated (XYZ Euler
+    angles, rad), then translated (m). The topology and vertex numbering are unchanged."""
+    s = np.broadcast_to(np.asarray(scale, dtype=float), (3,))
+    if not np.all(np.isfinite(s)) or np.any(s == 0):
+        raise _core.ParameterError(f"{mesh.name}: scale must be finite and non-zero, got {scale!r}")
+    r = np.asarray(rotate, dtype=float)
+    t = np.asarray(translate, dtype=float)
+    if r.shape != (3,) or not np.all(np.isfinite(r)):
+        raise _core.ParameterError(f"{mesh.name}: rotate must be 3 finite angles in rad, got {rotate!r}")
+    if t.shape != (3,) or not np.all(np.isfinite(t)):
+        raise _core.ParameterError(f"{mesh.name}: translate must be 3 finite numbers in m, got {translate!r}")
+    v = (mesh.vertices * s) @ _rotation(r).T + t
+    tris = mesh.triangles if len(mesh.triangles) else None
+    lines = mesh.lines if len(mesh.lines) else None
+    return Mesh(v, tris, lines, name=mesh.name)

@@ -1,0 +1,171 @@
+"""Writing results: a VTU or XDMF time series for ParaView (through meshio), a CSV of metrics and
+a PNG summary plot."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from typing import Any, Sequence
+from xml.sax.saxutils import quoteattr
+
+import numpy as np
+
+from . import _core
+
+__all__ = ["FrameWriter", "METRIC_COLUMNS", "metrics_row", "write_csv", "plot_summary"]
+
+
+def _cells(model: _core.Model) -> list[tuple[str, np.ndarray]]:
+    """Triangles, plus a line cell for every distance constraint that is not a triangle edge
+    (chains, pendulums, springs), so that everything the model holds is visible."""
+    cells: list[tuple[str, np.ndarray]] = []
+    tris = np.asarray(model.triangles, dtype=np.int64)
+    if len(tris):
+        cells.append(("triangle", tris))
+    pairs = np.sort(np.asarray(model.distance["particles"], dtype=np.int64), axis=1)
+    if len(pairs):
+        if len(tris):
+            tri_edges = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
+            n = model.num_particles
+            on_tri = np.isin(pairs[:, 0] * n + pairs[:, 1], tri_edges[:, 0] * n + tri_edges[:, 1])
+            pairs = pairs[~on_tri]
+        if len(pairs):
+            cells.append(("line", pairs))
+    if not cells:
+        cells.append(("vertex", np.arange(model.num_particles, dtype=np.int64)[:, None]))
+    return cells
+
+
+def _particle_strain(model: _core.Model, state: _core.State) -> np.ndarray:
+    """Largest |strain| of the distance constraints at each particle (0 where there are none)."""
+    out = np.zeros(model.num_particles)
+    pairs = np.asarray(model.distance["particles"])
+    if len(pairs):
+        strain = np.abs(_core.distance_violations(model, state) / model.distance["rest_length"])
+        np.maximum.at(out, pairs[:, 0], strain)
+        np.maximum.at(out, pairs[:, 1], strain)
+    return out
+
+
+class FrameWriter:
+    """Writes one frame per call to ``write`` into an XDMF (+HDF5) series and/or a VTU series with
+    a ParaView .pvd collection."""
+
+    def __init__(self, directory: Path, name: str, model: _core.Model, *, xdmf: bool = True, vtu: bool = True):
+        import meshio
+
+        self.directory, self.name, self.model = directory, name, model
+        self.cells = _cells(model)
+        self.group = np.asarray(model.group, dtype=np.int32)
+        self.pinned = (np.asarray(model.inv_mass) == 0).astype(np.int32)
+        self.files: list[Path] = []
+        self._pvd: list[tuple[float, str]] = []
+        self._vtu = vtu
+        self._xdmf = None
+        directory.mkdir(parents=True, exist_ok=True)
+        if vtu:
+            (directory / "frames").mkdir(exist_ok=True)
+        if xdmf:
+            path = directory / f"{name}.xdmf"
+            self._xdmf = meshio.xdmf.TimeSeriesWriter(str(path))
+            self._xdmf.__enter__()
+            self._xdmf.write_points_cells(np.asarray(model.rest_positions), self.cells)
+            self.files += [path, path.with_suffix(".h5")]
+
+    def write(self, state: _core.State) -> None:
+        import meshio
+
+        point_data = {
+            "velocity": np.array(state.v),
+            "strain": _particle_strain(self.model, state),
+            "group": self.group,
+            "pinned": self.pinned,
+        }
+        if self._xdmf is not None:
+            # meshio's XDMF series keeps the points of its first frame; the motion goes in as
+            # 'displacement' from the rest positions (ParaView: Warp By Vector). The VTU series
+            # stores the moved points themselves.
+            self._xdmf.write_data(state.t, point_data={**point_data, "displacement": np.array(state.x) - np.asarray(self.model.rest_positions)})
+        if self._vtu:
+            k = len(self._pvd)
+            rel = f"frames/{self.name}_{k:05d}.vtu"
+            meshio.write(str(self.directory / rel), meshio.Mesh(np.array(state.x), self.cells, point_data=point_data))
+            self._pvd.append((state.t, rel))
+
+    def close(self) -> list[Path]:
+        if self._xdmf is not None:
+            self._xdmf.__exit__(None, None, None)
+            self._xdmf = None
+        if self._vtu:
+            pvd = self.directory / f"{self.name}.pvd"
+            entries = "\n".join(
+                f'    <DataSet timestep="{t!r}" group="" part="0" file={quoteattr(f)}/>' for t, f in self._pvd)
+            pvd.write_text(
+                '<?xml version="1.0"?>\n'
+                '<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+                f"  <Collection>\n{entries}\n  </Collection>\n</VTKFile>\n",
+                encoding="utf-8",
+            )
+            self.files.append(pvd)
+            self._vtu = False
+        return self.files
+
+
+METRIC_COLUMNS = (
+    "t", "step", "kinetic_energy", "gravitational_energy", "mechanical_energy",
+    "max_strain", "rms_strain", "distance_max", "distance_rms", "bending_max", "bending_rms",
+    "attachment_max", "momentum_x", "momentum_y", "momentum_z",
+    "angular_momentum_x", "angular_momentum_y", "angular_momentum_z",
+)
+
+
+def metrics_row(m: dict[str, Any], step: int) -> dict[str, float]:
+    p, L = m["linear_momentum"], m["angular_momentum"]
+    return {
+        "t": m["t"], "step": step,
+        "kinetic_energy": m["kinetic_energy"], "gravitational_energy": m["gravitational_energy"],
+        "mechanical_energy": m["kinetic_energy"] + m["gravitational_energy"],
+        "max_strain": m["max_strain"], "rms_strain": m["rms_strain"],
+        "distance_max": m["distance"]["max"], "distance_rms": m["distance"]["rms"],
+        "bending_max": m["bending"]["max"], "bending_rms": m["bending"]["rms"],
+        "attachment_max": m["attachment"]["max"],
+        "momentum_x": p[0], "momentum_y": p[1], "momentum_z": p[2],
+        "angular_momentum_x": L[0], "angular_momentum_y": L[1], "angular_momentum_z": L[2],
+    }
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, float]]) -> Path:
+    with open(path, "w", newline="", encoding="utf-8") as f:
+        w = csv.DictWriter(f, fieldnames=METRIC_COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: repr(float(v)) if k != "step" else int(v) for k, v in r.items()})
+    return path
+
+
+def plot_summary(path: Path, rows: Sequence[dict[str, float]], title: str) -> Path:
+    """Energy (kinetic, gravitational, their sum) and strain (max, RMS) against time."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = np.array([r["t"] for r in rows])
+    col = lambda k: np.array([r[k] for r in rows])  # noqa: E731
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7.5, 6.5), sharex=True, constrained_layout=True)
+    ax1.plot(t, col("kinetic_energy"), label="kinetic")
+    ax1.plot(t, col("gravitational_energy"), label="gravitational")
+    ax1.plot(t, col("mechanical_energy"), "k", lw=2, label="kinetic + gravitational")
+    ax1.set_ylabel("energy (J)")
+    ax1.legend(loc="best", fontsize="small")
+    ax1.grid(alpha=0.3)
+    ax1.set_title(title, fontsize="medium")
+    ax2.plot(t, 100 * col("max_strain"), label="max |strain|")
+    ax2.plot(t, 100 * col("rms_strain"), label="RMS strain")
+    ax2.set_ylabel("strain of distance constraints (%)")
+    ax2.set_xlabel("time (s)")
+    ax2.legend(loc="best", fontsize="small")
+    ax2.grid(alpha=0.3)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,566 @@
+"""Scenes: a small TOML file declares meshes, constraints, pins, the solver and the outputs.
+
+Only what a scene declares is built and stepped. The same scene files serve the command line
+(``csb run``), the tests, the benchmarks and the validation studies. Every error names the file,
+the key and, where it can be found, the line.
+
+See ``python/csb/scenes/*.toml`` for annotated examples and the README for the full schema.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Callable, Sequence
+
+import numpy as np
+
+from . import _core
+from .mesh import Mesh, load_mesh, transformed
+from .model import MeshInstance, ModelBuilder
+
+if TYPE_CHECKING:
+    from .runner import RunResult
+
+__all__ = [
+    "Scene",
+    "SceneError",
+    "Simulation",
+    "SolverSpec",
+    "MeshSpec",
+    "OutputSpec",
+    "load_scene",
+    "bundled_scenes",
+    "find_scene",
+]
+
+Vec3 = tuple[float, float, float]
+
+
+class SceneError(_core.Error, ValueError):
+    """A scene file that cannot be used; the message names the file, the key and the line."""
+
+
+_MISSING = object()
+
+
+class _Source:
+    """The scene file's text, to find the line of a key for error messages."""
+
+    _header = re.compile(r"^\s*(\[\[?)\s*([A-Za-z0-9_.\-\s]+?)\s*(\]\]?)\s*(#.*)?$")
+
+    def __init__(self, path: Path, text: str):
+        self.path = path
+        self.lines = text.splitlines()
+
+    def line_of(self, table: tuple[Any, ...], key: str | None) -> int | None:
+        """1-based line of ``key`` inside ``table`` (e.g. ("mesh", 0, "stretch")), or of the table."""
+        start, end = self._region(table)
+        if start is None:
+            return None
+        if key is None:
+            return start + 1
+        pattern = re.compile(r"(^|[\s{,])" + re.escape(key) + r"\s*=")
+        for i in range(start, end):
+            if pattern.search(self.lines[i].split("#", 1)[0]):
+                return i + 1
+        return start + 1
+
+    def _region(self, table: tuple[Any, ...]) -> tuple[int | None, int]:
+        names = [t for t in table if isinstance(t, str)]
+        if not names:
+            return 0, len(self.lines)
+        # Find the header of the outermost table (counting [[array]] occurrences), then narrow to
+        # a [sub.table] header or an inline `sub = {` line inside it.
+        top, index = names[0], next((t for t in table if isinstance(t, int)), 0)
+        seen, start = -1, None
+        for i, line in enumerate(self.lines):
+            m = self._header.match(line)
+            if m and m.group(2).replace(" ", "") == top:
+                seen += 1
+                if seen == index:
+                    start = i
+                    break
+        if start is None:
+            return None, 0
+        end = len(self.lines)
+        for i in range(start + 1, len(self.lines)):
+            m = self._header.match(self.lines[i])
+            if m and not m.group(2).replace(" ", "").startswith(top + "."):
+                end = i
+                break
+        for sub in names[1:]:
+            full = ".".join(names[: names.index(sub) + 1])
+            inline = re.compile(r"(^|[\s{,])" + re.escape(sub) + r"\s*=")
+            for i in range(start, end):
+                m = self._header.match(self.lines[i])
+                if (m and m.group(2).replace(" ", "") == full) or inline.search(self.lines[i].split("#", 1)[0]):
+                    start = i
+                    break
+        return start, end
+
+
+class _Table:
+    """A TOML table being read: typed getters that raise SceneError naming file, key and line."""
+
+    def __init__(self, source: _Source, data: dict[str, Any], path: tuple[Any, ...], label: str):
+        self.source, self.data, self.path, self.label = source, data, path, label
+        self.used: set[str] = set()
+
+    def error(self, key: str | None, message: str) -> SceneError:
+        line = self.source.line_of(self.path, key)
+        where = f"{self.source.path}:{line}" if line else f"{self.source.path}"
+        name = f"{self.label}.{key}" if key else self.label
+        return SceneError(f"{where}: {name}: {message}")
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = _MISSING) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if default is _MISSING:
+                raise self.error(None, f"missing key '{key}'")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = _MISSING, *, check: Callable[[float], bool] | None = None,
+               expect: str = "a number") -> float:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            raise self.error(key, f"must be {expect}, got {v!r}")
+        if check is not None and not check(float(v)):
+            raise self.error(key, f"must be {expect}, got {v!r}")
+        return float(v)
+
+    def integer(self, key: str, default: Any = _MISSING, *, minimum: int | None = None) -> int:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        expect = "an integer" + (f" >= {minimum}" if minimum is not None else "")
+        if isinstance(v, bool) or not isinstance(v, int) or (minimum is not None and v < minimum):
+            raise self.error(key, f"must be {expect}, got {v!r}")
+        return v
+
+    def boolean(self, key: str, default: Any = _MISSING) -> bool:
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            raise self.error(key, f"must be true or false, got {v!r}")
+        return v
+
+    def string(self, key: str, default: Any = _MISSING, *, choices: Sequence[str] | None = None) -> str:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        if not isinstance(v, str):
+            raise self.error(key, f"must be a string, got {v!r}")
+        if choices is not None and v not in choices:
+            raise self.error(key, f"must be one of {', '.join(repr(c) for c in choices)}, got {v!r}")
+        return v
+
+    def vector(self, key: str, default: Any = _MISSING, *, size: int = 3) -> tuple[float, ...]:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        if (not isinstance(v, list) or len(v) != size
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v)):
+            raise self.error(key, f"must be a list of {size} finite numbers, got {v!r}")
+        return tuple(float(x) for x in v)
+
+    def vectors(self, key: str, default: Any = _MISSING) -> tuple[Vec3, ...]:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        if not isinstance(v, list) or not all(
+            isinstance(p, list) and len(p) == 3
+            and all(not isinstance(x, bool) and isinstance(x, (int, float)) and math.isfinite(x) for x in p)
+            for p in v
+        ):
+            raise self.error(key, f"must be a list of [x, y, z] points (m), got {v!r}")
+        return tuple((float(p[0]), float(p[1]), float(p[2])) for p in v)
+
+    def integers(self, key: str, default: Any = _MISSING) -> tuple[int, ...]:
+        v = self.raw(key, default)
+        if v is default and default is not _MISSING:
+            return v
+        if not isinstance(v, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
+            raise self.error(key, f"must be a list of integers, got {v!r}")
+        return tuple(v)
+
+    def table(self, key: str, label: str | None = None) -> "_Table | None":
+        v = self.raw(key, None)
+        if v is None:
+            return None
+        if not isinstance(v, dict):
+            raise self.error(key, f"must be a table, got {v!r}")
+        return _Table(self.source, v, self.path + (key,), label or f"{self.label}.{key}")
+
+    def finish(self) -> None:
+        """Unknown keys are errors: a misspelt key must not be silently ignored."""
+        for key in self.data:
+            if key not in self.used:
+                allowed = ", ".join(sorted(self.used))
+                raise self.error(key, f"unknown key; expected one of: {allowed}")
+
+
+# ---------------------------------------------------------------------------------------------
+# The scene description
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    method: str = "pbd"
+    dt: float = 1.0 / 60.0          # s
+    substeps: int = 1
+    iterations: int = 10
+    gravity: Vec3 = (0.0, -9.81, 0.0)  # m/s²
+    damping: float = 0.0            # Müller 2007 §3.5 k_damping, per substep
+    stiffness_correction: bool = True
+
+    def stepper(self) -> _core.PbdStepper:
+        return _core.PbdStepper(
+            dt=self.dt, substeps=self.substeps, iterations=self.iterations, gravity=self.gravity,
+            damping=self.damping, stiffness_correction=self.stiffness_correction,
+        )
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Particles of one mesh chosen by vertex index or by the vertex nearest to points (m)."""
+
+    indices: tuple[int, ...] = ()
+    near: tuple[Vec3, ...] = ()
+    max_distance: float | None = None   # m; None: 2 % of the mesh's bounding-box diagonal
+
+
+@dataclass(frozen=True)
+class AttachSpec:
+    selection: Selection
+    targets: tuple[Vec3, ...] | None = None   # m; None: where the particles start
+    stiffness: float = 1.0
+
+
+@dataclass(frozen=True)
+class MeshSpec:
+    name: str
+    file: Path | None = None
+    shape: str | None = None
+    shape_args: dict[str, Any] = field(default_factory=dict)
+    group: str | None = None
+    mass_kind: str = "mass"          # "mass" (kg), "density" (kg/m² or kg/m), "particle_mass" (kg)
+    mass_value: float = 1.0
+    weld: bool = True
+    weld_tolerance: float = 1e-6
+    scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    rotate: Vec3 = (0.0, 0.0, 0.0)   # rad, XYZ Euler
+    translate: Vec3 = (0.0, 0.0, 0.0)  # m
+    stretch: float | None = None
+    bending: float | None = None
+    pin: Selection | None = None
+    attach: AttachSpec | None = None
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    fps: float = 30.0     # frames per simulated second
+    xdmf: bool = True
+    vtu: bool = True
+    csv: bool = True
+    plot: bool = True
+
+
+@dataclass
+class Simulation:
+    """A scene made ready to step: the model, its state, the stepper and where each mesh landed."""
+
+    scene: "Scene"
+    model: _core.Model
+    state: _core.State
+    stepper: _core.PbdStepper
+    meshes: dict[str, MeshInstance]
+
+    @property
+    def gravity(self) -> Vec3:
+        return self.scene.solver.gravity
+
+    def measure(self) -> dict[str, Any]:
+        return _core.measure(self.model, self.state, self.gravity)
+
+
+_SHAPES = ("cloth", "chain", "pendulum")
+
+
+@dataclass(frozen=True)
+class Scene:
+    path: Path
+    name: str
+    duration: float               # s
+    solver: SolverSpec
+    meshes: tuple[MeshSpec, ...]
+    output: OutputSpec
+    description: str = ""
+
+    @property
+    def steps(self) -> int:
+        """Steps of solver.dt that cover the duration (the last one may end past it)."""
+        return max(1, math.ceil(self.duration / self.solver.dt - 1e-9))
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> "Scene":
+        return load_scene(path)
+
+    def build(self) -> Simulation:
+        """Read the meshes and build the model, the initial state and the stepper."""
+        builder = ModelBuilder()
+        groups: dict[str, int] = {}
+        instances: dict[str, MeshInstance] = {}
+        for spec in self.meshes:
+            mesh = _make_mesh(self, spec)
+            group_name = spec.group or spec.name
+            if group_name not in groups:
+                groups[group_name] = builder.add_group(group_name)
+            inst = builder.add_mesh(
+                mesh, group=groups[group_name], stretch_stiffness=spec.stretch,
+                bending_stiffness=spec.bending, **{spec.mass_kind: spec.mass_value},
+            )
+            instances[spec.name] = inst
+            if spec.pin is not None:
+                for i in _select(self, spec, spec.pin, inst, "pin"):
+                    builder.pin(i)
+            if spec.attach is not None:
+                chosen = _select(self, spec, spec.attach.selection, inst, "attach")
+                targets = spec.attach.targets
+                if targets is not None and len(targets) != len(chosen):
+                    raise SceneError(
+                        f"{self.path}: mesh '{spec.name}' attach: {len(chosen)} particles selected but "
+                        f"{len(targets)} targets given")
+                for k, i in enumerate(chosen):
+                    target = targets[k] if targets is not None else inst.vertices[i - inst.first_particle]
+                    builder.attach(i, target, stiffness=spec.attach.stiffness)
+        model = builder.build()
+        return Simulation(self, model, model.initial_state(), self.solver.stepper(), instances)
+
+    def run(self, out_dir: str | os.PathLike[str] | None = None, *, progress: bool = False) -> "RunResult":
+        """Step the scene for its duration, recording metrics (and writing outputs if out_dir)."""
+        from .runner import run_scene
+
+        return run_scene(self, out_dir, progress=progress)
+
+
+def _make_mesh(scene: Scene, spec: MeshSpec) -> Mesh:
+    if spec.file is not None:
+        mesh = load_mesh(spec.file, weld=spec.weld, weld_tolerance=spec.weld_tolerance)
+    else:
+        a = spec.shape_args
+        if spec.shape == "cloth":
+            mesh = _core.cloth_grid(a["size"][0], a["size"][1], a["resolution"][0], a["resolution"][1],
+                                    plane=a["plane"])
+        elif spec.shape == "chain":
+            mesh = _core.chain(a["links"], a["link_length"], direction=a["direction"])
+        else:
+            mesh = _core.pendulum(a["length"], a["angle"])
+    return transformed(mesh, scale=spec.scale, rotate=spec.rotate, translate=spec.translate)
+
+
+def _select(scene: Scene, spec: MeshSpec, sel: Selection, inst: MeshInstance, what: str) -> list[int]:
+    chosen: list[int] = []
+    for i in sel.indices:
+        if not 0 <= i < inst.num_particles:
+            raise SceneError(
+                f"{scene.path}: mesh '{spec.name}' {what}.indices: vertex {i} is out of range "
+                f"(the mesh has {inst.num_particles} vertices after welding)")
+        chosen.append(inst.first_particle + i)
+    if sel.near:
+        v = inst.vertices
+        diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+        limit = sel.max_distance if sel.max_distance is not None else 0.02 * diag
+        for p in sel.near:
+            i = inst.nearest(p)
+            d = float(np.linalg.norm(v[i - inst.first_particle] - np.asarray(p)))
+            if d > limit:
+                raise SceneError(
+                    f"{scene.path}: mesh '{spec.name}' {what}.near: the vertex nearest to {list(p)} is "
+                    f"{d:.4g} m away, more than max_distance = {limit:.4g} m (is the point in world "
+                    f"coordinates, after scale/rotate/translate?)")
+            chosen.append(i)
+    return chosen
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading the TOML
+
+
+def _read_selection(t: _Table, with_targets: bool = False) -> tuple[Selection, _Table]:
+    sel = Selection(
+        indices=t.integers("indices", ()),
+        near=t.vectors("near", ()),
+        max_distance=t.number("max_distance", None, check=lambda x: x > 0, expect="a distance > 0 m"),
+    )
+    if not sel.indices and not sel.near:
+        raise t.error(None, "give 'indices' (vertex numbers) or 'near' (points in m)")
+    return sel, t
+
+
+def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
+    if not isinstance(data, dict):
+        raise SceneError(f"{source.path}: mesh[{k}] must be a table")
+    t = _Table(source, data, ("mesh", k), f"mesh[{k}]")
+    name = t.string("name", f"mesh{k}")
+    t.label = f"mesh[{k}] ({name})"
+    file = t.string("file", None)
+    shape = t.string("shape", None, choices=_SHAPES)
+    if (file is None) == (shape is None):
+        raise t.error(None, "give exactly one of 'file' (a mesh file) or 'shape' (cloth, chain, pendulum)")
+    shape_args: dict[str, Any] = {}
+    path: Path | None = None
+    if file is not None:
+        path = (base / file) if not os.path.isabs(file) else Path(file)
+    elif shape == "cloth":
+        shape_args["size"] = t.vector("size", size=2)
+        if min(shape_args["size"]) <= 0:
+            raise t.error("size", f"must be two lengths > 0 m, got {list(shape_args['size'])}")
+        res = t.integers("resolution")
+        if len(res) != 2 or min(res) < 2:
+            raise t.error("resolution", f"must be [nx, ny] with at least 2 particles each, got {list(res)}")
+        shape_args["resolution"] = res
+        shape_args["plane"] = t.string("plane", "xz", choices=("xy", "xz", "yz"))
+    elif shape == "chain":
+        shape_args["links"] = t.integer("links", minimum=1)
+        shape_args["link_length"] = t.number("link_length", check=lambda x: x > 0, expect="a length > 0 m")
+        shape_args["direction"] = t.vector("direction", (1.0, 0.0, 0.0))
+    else:
+        shape_args["length"] = t.number("length", check=lambda x: x > 0, expect="a length > 0 m")
+        shape_args["angle"] = t.number("angle", 0.0, expect="an angle in rad")
+
+    masses = [key for key in ("mass", "density", "particle_mass") if t.has(key)]
+    if len(masses) != 1:
+        raise t.error(None, "give exactly one of 'mass' (kg), 'density' (kg/m²) or 'particle_mass' (kg)")
+    mass_kind = masses[0]
+    mass_value = t.number(mass_kind, check=lambda x: x > 0, expect="> 0 (" + {
+        "mass": "kg", "density": "kg/m²", "particle_mass": "kg"}[mass_kind] + ")")
+
+    scale_raw = t.raw("scale", 1.0)
+    if isinstance(scale_raw, list):
+        scale = t.vector("scale")
+    else:
+        s = t.number("scale", 1.0, check=lambda x: x != 0, expect="a non-zero factor")
+        scale = (s, s, s)
+
+    def stiffness_of(key: str) -> float | None:
+        sub = t.table(key)
+        if sub is None:
+            return None
+        k_ = sub.number("stiffness", check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
+        sub.finish()
+        return k_
+
+    pin = None
+    pin_t = t.table("pin")
+    if pin_t is not None:
+        pin, _ = _read_selection(pin_t)
+        pin_t.finish()
+    attach = None
+    att_t = t.table("attach")
+    if att_t is not None:
+        sel, _ = _read_selection(att_t)
+        targets = att_t.vectors("targets", None)
+        stiffness = att_t.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
+        att_t.finish()
+        attach = AttachSpec(sel, targets, stiffness)
+
+    spec = MeshSpec(
+        name=name, file=path, shape=shape, shape_args=shape_args, group=t.string("group", None),
+        mass_kind=mass_kind, mass_value=mass_value, weld=t.boolean("weld", True),
+        weld_tolerance=t.number("weld_tolerance", 1e-6, check=lambda x: x >= 0, expect="a relative tolerance >= 0"),
+        scale=scale, rotate=t.vector("rotate", (0.0, 0.0, 0.0)), translate=t.vector("translate", (0.0, 0.0, 0.0)),
+        stretch=stiffness_of("stretch"), bending=stiffness_of("bending"), pin=pin, attach=attach,
+    )
+    t.finish()
+    return spec
+
+
+def load_scene(path: str | os.PathLike[str]) -> Scene:
+    """Read and check a scene file (or the name of a bundled scene, see :func:`bundled_scenes`)."""
+    p = find_scene(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise SceneError(f"{p}: cannot read the scene file: {e.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{p}: not valid TOML: {e}") from None
+    source = _Source(p, text)
+    top = _Table(source, data, (), "scene file")
+
+    sc = top.table("scene", "scene")
+    if sc is None:
+        raise top.error(None, "missing [scene] table (name, duration)")
+    name = sc.string("name", p.stem)
+    duration = sc.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
+    description = sc.string("description", "")
+    sc.finish()
+
+    so = top.table("solver", "solver")
+    if so is None:
+        raise top.error(None, "missing [solver] table (method, dt, substeps, iterations, ...)")
+    solver = SolverSpec(
+        method=so.string("method", "pbd", choices=("pbd",)),
+        dt=so.number("dt", check=lambda x: x > 0, expect="a time step > 0 s"),
+        substeps=so.integer("substeps", 1, minimum=1),
+        iterations=so.integer("iterations", 10, minimum=1),
+        gravity=so.vector("gravity", (0.0, -9.81, 0.0)),
+        damping=so.number("damping", 0.0, check=lambda x: 0 <= x <= 1, expect="a damping factor in [0, 1]"),
+        stiffness_correction=so.boolean("stiffness_correction", True),
+    )
+    so.finish()
+    if solver.dt > duration:
+        raise so.error("dt", f"the time step {solver.dt} s is longer than the scene's duration {duration} s")
+
+    raw_meshes = top.raw("mesh", [])
+    if not isinstance(raw_meshes, list) or not raw_meshes:
+        raise top.error(None, "declare at least one [[mesh]]")
+    meshes = tuple(_read_mesh(source, m, k, p.parent) for k, m in enumerate(raw_meshes))
+    names = [m.name for m in meshes]
+    for n in names:
+        if names.count(n) > 1:
+            raise SceneError(f"{p}: two meshes are named '{n}'; mesh names must be unique")
+
+    out = top.table("output", "output")
+    output = OutputSpec()
+    if out is not None:
+        output = OutputSpec(
+            fps=out.number("fps", 30.0, check=lambda x: x > 0, expect="frames per second > 0"),
+            xdmf=out.boolean("xdmf", True), vtu=out.boolean("vtu", True),
+            csv=out.boolean("csv", True), plot=out.boolean("plot", True),
+        )
+        out.finish()
+    top.finish()
+    return Scene(p, name, duration, solver, meshes, output, description)
+
+
+def bundled_scenes() -> dict[str, Path]:
+    """Scenes shipped with csb, by name."""
+    root = resources.files("csb") / "scenes"
+    return {Path(str(f)).stem: Path(str(f)) for f in root.iterdir() if str(f).endswith(".toml")}
+
+
+def find_scene(name_or_path: str | os.PathLike[str]) -> Path:
+    """A path to a scene file as given, or the bundled scene of that name."""
+    p = Path(name_or_path)
+    if p.exists():
+        return p
+    bundled = bundled_scenes()
+    if str(name_or_path) in bundled:
+        return bundled[str(name_or_path)]
+    raise FileNotFoundError(
+        f"{name_or_path}: no such scene file, and no bundled scene of that name "
+        f"(bundled: {', '.join(sorted(bundled))})")
+

@@ -1,0 +1,28 @@
+// csb — attachment of a particle to a point fixed in the world.
+//
+// A one-particle distance constraint with rest length 0 (Müller et al. 2007, §3.3 with a single
+// particle): C(p) = |p - t|, grad C = (p - t)/|p - t|, s = C / (w |grad C|²), so
+//
+//   Δp = -k (p - t)
+//
+// whatever the particle's (non-zero) inverse mass. A particle with w = 0 is not moved.
+#pragma once
+
+#include "csb/types.hpp"
+
+#include <cmath>
+
+namespace csb {
+
+// Projects one attachment in place; returns its violation |p - t| before the projection (m).
+inline Real project_attachment(Real* p, Real w, const Real* target, Real stiffness) {
+  const Real dx = p[0] - target[0], dy = p[1] - target[1], dz = p[2] - target[2];
+  const Real violation = std::sqrt(dx * dx + dy * dy + dz * dz);
+  if (w <= 0) return violation;
+  p[0] -= stiffness * dx;
+  p[1] -= stiffness * dy;
+  p[2] -= stiffness * dz;
+  return violation;
+}
+
+}  // namespace csb

@@ -1,0 +1,90 @@
+// csb — dihedral bending constraint kernel.
+//
+// Müller et al. 2007, §4.2 and Appendix A: two triangles (c, a, b) and (d, b, a) share the edge
+// (a, b); the constraint keeps the dihedral angle across that edge at its rest value,
+//
+//   C(a, b, c, d) = θ(a, b, c, d) - θ0.
+//
+// The paper writes θ = acos(n1 · n2). That angle is unsigned, so a fold up and a fold down look
+// the same, and its gradient, -1/sqrt(1 - d²) times grad(n1 · n2), is 0/0 at a flat rest state,
+// which is where cloth starts. We use the signed angle instead,
+//
+//   N1 = (c - a) x (c - b),   N2 = (d - b) x (d - a),   e = b - a,
+//   θ  = atan2((n1 x n2) · e/|e|, n1 · n2),   n = N / |N|,
+//
+// which is 0 for a flat pair and smooth through it, with the closed-form gradient of Bridson,
+// Marino, Fedkiw 2003 ("Simulation of clothing with folds and wrinkles", §4):
+//
+//   grad_c θ = -|e| N1 / |N1|²
+//   grad_d θ = -|e| N2 / |N2|²
+//   grad_a θ = -( (c - b)·e/|e| N1/|N1|² + (d - b)·e/|e| N2/|N2|² )
+//   grad_b θ =  ( (c - a)·e/|e| N1/|N1|² + (d - a)·e/|e| N2/|N2|² )
+//
+// Where both are defined (θ and θ0 of one sign, not flat), the paper's angle is φ = π - |θ| and
+// the projection below equals the appendix's Δp_i = -w_i sqrt(1 - d²)(acos d - φ0) q_i /
+// Σ_j w_j |q_j|² with φ0 = π - |θ0| (tests/test_kernels.py checks this to 1e-13, and the
+// gradient by finite differences). The projection is the general one of
+// §3.3, Eq. (8): s = k C / Σ_j w_j |grad_j C|², Δp_i = -s w_i grad_i C. θ is invariant under
+// translation and rotation, so the gradients sum to zero and have no moment: momentum is kept.
+#pragma once
+
+#include "csb/types.hpp"
+
+#include <cmath>
+
+namespace csb {
+
+constexpr Real kPi = 3.14159265358979323846;
+
+// Signed dihedral angle across the edge (a, b) in (-π, π]; 0 for a flat pair (rad).
+inline Real dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
+  const Vec3 n1 = (c - a).cross(c - b).normalized();
+  const Vec3 n2 = (d - b).cross(d - a).normalized();
+  const Vec3 e = (b - a).normalized();
+  return std::atan2(n1.cross(n2).dot(e), n1.dot(n2));
+}
+
+// Wraps an angle difference into (-π, π].
+inline Real wrap_angle(Real x) {
+  if (x > kPi) x -= 2 * kPi;
+  if (x <= -kPi) x += 2 * kPi;
+  return x;
+}
+
+// Gradient of the signed dihedral angle with respect to a, b, c, d (rad/m). Returns false for a
+// degenerate configuration (zero-length edge or zero-area triangle), where θ is undefined.
+inline bool dihedral_angle_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Vec3 grad[4]) {
+  const Vec3 e = b - a;
+  const Vec3 N1 = (c - a).cross(c - b);
+  const Vec3 N2 = (d - b).cross(d - a);
+  const Real e2 = e.squaredNorm(), n1 = N1.squaredNorm(), n2 = N2.squaredNorm();
+  if (!(e2 > 0 && n1 > 0 && n2 > 0)) return false;
+  const Real elen = std::sqrt(e2);
+  const Vec3 g1 = N1 / n1, g2 = N2 / n2;
+  grad[0] = -((c - b).dot(e) / elen * g1 + (d - b).dot(e) / elen * g2);
+  grad[1] = (c - a).dot(e) / elen * g1 + (d - a).dot(e) / elen * g2;
+  grad[2] = -elen * g1;
+  grad[3] = -elen * g2;
+  return true;
+}
+
+// Projects one bending constraint in place (positions as 3-vectors of a, b, c, d); returns the
+// violation before the projection (rad).
+inline Real project_bending(Real* pa, Real* pb, Real* pc, Real* pd, Real wa, Real wb, Real wc, Real wd,
+                            Real rest_angle, Real stiffness) {
+  Eigen::Map<Vec3> a(pa), b(pb), c(pc), d(pd);
+  Vec3 grad[4];
+  if (!dihedral_angle_gradient(a, b, c, d, grad)) return 0;
+  const Real violation = wrap_angle(dihedral_angle(a, b, c, d) - rest_angle);
+  const Real denom = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
+                     wd * grad[3].squaredNorm();
+  if (!(denom > 0)) return violation;
+  const Real s = stiffness * violation / denom;
+  a -= (s * wa) * grad[0];
+  b -= (s * wb) * grad[1];
+  c -= (s * wc) * grad[2];
+  d -= (s * wd) * grad[3];
+  return violation;
+}
+
+}  // namespace csb

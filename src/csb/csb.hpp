@@ -1,0 +1,11 @@
+// csb — cloth and soft-body dynamics with Position Based Dynamics. One header for everything.
+#pragma once
+
+#include "csb/build_info.hpp"
+#include "csb/io.hpp"
+#include "csb/mesh.hpp"
+#include "csb/metrics.hpp"
+#include "csb/model.hpp"
+#include "csb/pbd.hpp"
+#include "csb/shapes.hpp"
+#include "csb/types.hpp"

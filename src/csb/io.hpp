@@ -1,0 +1,36 @@
+// csb — reading and writing meshes through Assimp (OBJ, glTF/GLB, FBX, Collada, PLY, STL, 3DS,
+// OFF and the other formats of the installed Assimp).
+#pragma once
+
+#include "csb/mesh.hpp"
+
+#include <string>
+#include <vector>
+
+namespace csb {
+
+// Reads every mesh of the file into one Mesh (node transforms applied, polygons triangulated),
+// then clean()s it: seams are welded and degenerate triangles dropped, each reported.
+// Throws FileNotFound for a missing path and MeshError (naming the file, and the line for OBJ)
+// for an empty, corrupt or unsupported file, or one without triangles.
+Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr);
+
+// Writes the triangles of a mesh; the format follows the extension (.obj .stl .ply .gltf .glb
+// .dae .3ds .fbx .x .3mf ...). Throws MeshError if Assimp cannot write it.
+void save_mesh(const Mesh& mesh, const std::string& path);
+
+// Lower-case extensions (with the dot) that load_mesh reads, as reported by Assimp.
+std::vector<std::string> readable_extensions();
+
+// Checks an OBJ file's syntax more strictly than Assimp does, naming the line of the first
+// problem: vertices with fewer than three or non-finite coordinates, faces with fewer than three
+// vertices, zero or out-of-range (including relative, negative) indices. Throws MeshError.
+void check_obj(const std::string& path);
+
+// Header consistency checks run before Assimp sees the file (Assimp 5.2 loops forever on some
+// truncated PLY headers): declared element counts must fit the file. Throw MeshError.
+void check_ply(const std::string& path);
+void check_stl(const std::string& path);
+void check_off(const std::string& path);
+
+}  // namespace csb

@@ -1,0 +1,250 @@
+#include "csb/io.hpp"
+
+#include <cctype>
+#include <cerrno>
+#include <cstdint>
+#include <filesystem>
+#include <cmath>
+#include <cstdlib>
+#include <fstream>
+#include <cstring>
+#include <sstream>
+#include <vector>
+
+namespace csb {
+namespace {
+
+std::uintmax_t size_of(const std::string& path) {
+  std::error_code ec;
+  const auto n = std::filesystem::file_size(path, ec);
+  return ec ? 0 : n;
+}
+
+// Printable form of a token from a possibly binary file, for messages.
+std::string printable(const std::string& s, std::size_t max_len = 40) {
+  std::string out;
+  for (unsigned char ch : s.substr(0, max_len)) out += std::isprint(ch) ? static_cast<char>(ch) : '?';
+  if (s.size() > max_len) out += "...";
+  return out;
+}
+
+struct Counts {
+  long long v = 0, vt = 0, vn = 0;
+};
+
+[[noreturn]] void fail(const std::string& path, long long line, const std::string& what) {
+  throw MeshError(path + ":" + std::to_string(line) + ": " + what);
+}
+
+// Parses one reference of a face ("7", "7/2", "7//3", "-1/-1/-1") and checks each index against
+// the elements defined so far (OBJ allows no forward references; negative ones are relative).
+void check_reference(const std::string& path, long long line, const std::string& token, const Counts& c) {
+  const long long count[3] = {c.v, c.vt, c.vn};
+  const char* kind[3] = {"vertex", "texture coordinate", "normal"};
+  std::size_t start = 0;
+  for (int slot = 0; slot < 3 && start <= token.size(); ++slot) {
+    const std::size_t slash = token.find('/', start);
+    const std::string part = token.substr(start, slash == std::string::npos ? std::string::npos : slash - start);
+    if (!part.empty()) {
+      char* end = nullptr;
+      errno = 0;
+      const long long idx = std::strtoll(part.c_str(), &end, 10);
+      if (*end != '\0' || errno != 0)
+        fail(path, line, "face reference '" + printable(token) + "' is not an integer index");
+      if (idx == 0) fail(path, line, "face reference '" + printable(token) + "' uses index 0; OBJ indices start at 1");
+      const long long resolved = idx > 0 ? idx : count[slot] + idx + 1;
+      if (resolved < 1 || resolved > count[slot])
+        fail(path, line,
+             "face refers to " + std::string(kind[slot]) + " " + std::to_string(idx) + ", but only " +
+                 std::to_string(count[slot]) + " " + kind[slot] + (count[slot] == 1 ? "" : "s") +
+                 " are defined before this line");
+    } else if (slot == 0) {
+      fail(path, line, "face reference '" + printable(token) + "' has no vertex index");
+    }
+    if (slash == std::string::npos) break;
+    start = slash + 1;
+  }
+}
+
+}  // namespace
+
+void check_obj(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw MeshError(path + ": cannot open the file");
+  Counts c;
+  long long faces = 0, lines = 0, line_no = 0;
+  std::string line;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    std::istringstream s(line);
+    std::string key;
+    if (!(s >> key)) continue;
+    std::vector<std::string> args;
+    for (std::string a; s >> a;) args.push_back(a);
+    if (key == "v") {
+      if (args.size() < 3)
+        fail(path, line_no, "vertex " + std::to_string(c.v + 1) + " has " + std::to_string(args.size()) +
+                                " coordinate(s); a vertex needs x, y and z");
+      for (int k = 0; k < 3; ++k) {
+        char* end = nullptr;
+        const double value = std::strtod(args[k].c_str(), &end);
+        if (*end != '\0') fail(path, line_no, "vertex coordinate '" + printable(args[k]) + "' is not a number");
+        if (!std::isfinite(value))
+          fail(path, line_no, "vertex " + std::to_string(c.v + 1) + " has a non-finite coordinate '" + printable(args[k]) + "'");
+      }
+      ++c.v;
+    } else if (key == "vt") {
+      ++c.vt;
+    } else if (key == "vn") {
+      ++c.vn;
+    } else if (key == "f") {
+      if (args.size() < 3)
+        fail(path, line_no, "face has " + std::to_string(args.size()) + " vertex/vertices; a face needs at least 3");
+      for (const auto& a : args) check_reference(path, line_no, a, c);
+      ++faces;
+    } else if (key == "l") {
+      ++lines;
+    }
+  }
+  if (line_no == 0) throw MeshError(path + ": the file is empty");
+  if (faces == 0)
+    throw MeshError(path + ": the file has no faces (" + std::to_string(c.v) + " vertices, " + std::to_string(lines) +
+                    " line elements); csb needs a surface mesh with triangles");
+}
+
+void check_ply(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw MeshError(path + ": cannot open the file");
+  const std::uintmax_t file_size = size_of(path);
+  std::string line;
+  if (!std::getline(in, line) || line.substr(0, 3) != "ply")
+    throw MeshError(path + ": not a PLY file (it does not start with 'ply')");
+  struct Element {
+    std::string name;
+    long long count = 0;
+    long long fixed_bytes = 0;  // per instance, excluding list contents
+  };
+  const auto type_size = [&](const std::string& t) -> int {
+    if (t == "char" || t == "uchar" || t == "int8" || t == "uint8") return 1;
+    if (t == "short" || t == "ushort" || t == "int16" || t == "uint16") return 2;
+    if (t == "int" || t == "uint" || t == "float" || t == "int32" || t == "uint32" || t == "float32") return 4;
+    if (t == "double" || t == "float64") return 8;
+    throw MeshError(path + ": PLY header: unknown property type '" + printable(t) + "'");
+  };
+  std::vector<Element> elements;
+  std::string format;
+  bool ended = false;
+  for (long long n = 1; n < 10000 && std::getline(in, line); ++n) {
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    std::istringstream s(line);
+    std::string key;
+    s >> key;
+    if (key == "end_header") {
+      ended = true;
+      break;
+    }
+    if (key == "format") {
+      s >> format;
+      if (format != "ascii" && format != "binary_little_endian" && format != "binary_big_endian")
+        throw MeshError(path + ": PLY header: unknown format '" + printable(format) + "'");
+    } else if (key == "element") {
+      Element e;
+      if (!(s >> e.name >> e.count) || e.count < 0 || e.count > (1LL << 31))
+        throw MeshError(path + ": PLY header: bad element line '" + printable(line) + "'");
+      elements.push_back(e);
+    } else if (key == "property") {
+      if (elements.empty()) throw MeshError(path + ": PLY header: property before any element");
+      std::string type;
+      s >> type;
+      if (type == "list") {
+        std::string count_type, item_type;
+        if (!(s >> count_type >> item_type)) throw MeshError(path + ": PLY header: bad list property '" + printable(line) + "'");
+        elements.back().fixed_bytes += type_size(count_type);
+        type_size(item_type);
+      } else {
+        elements.back().fixed_bytes += type_size(type);
+      }
+    } else if (key != "comment" && key != "obj_info" && !key.empty()) {
+      throw MeshError(path + ": PLY header: unexpected line '" + printable(line) + "'");
+    }
+  }
+  if (!ended) throw MeshError(path + ": PLY header is truncated or too long (no 'end_header' line)");
+  if (format.empty()) throw MeshError(path + ": PLY header has no 'format' line");
+  const std::uintmax_t header_bytes = static_cast<std::uintmax_t>(in.tellg());
+  const std::uintmax_t body = file_size > header_bytes ? file_size - header_bytes : 0;
+  long long needed = 0, instances = 0;
+  std::string declared;
+  for (const auto& e : elements) {
+    needed += e.count * e.fixed_bytes;
+    instances += e.count;
+    declared += (declared.empty() ? "" : ", ") + std::to_string(e.count) + " " + printable(e.name);
+  }
+  if (format == "ascii") {
+    // Every instance takes at least one line.
+    long long lines = 0;
+    for (std::string rest; std::getline(in, rest) && lines < instances;)
+      if (rest.find_first_not_of(" \t\r") != std::string::npos) ++lines;
+    if (lines < instances)
+      throw MeshError(path + ": the PLY header declares " + declared + " but the file holds only " +
+                      std::to_string(lines) + " data lines (truncated?)");
+  } else if (static_cast<std::uintmax_t>(needed) > body) {
+    throw MeshError(path + ": the PLY header declares " + declared + ", which needs at least " +
+                    std::to_string(needed) + " bytes, but the file has " + std::to_string(body) +
+                    " bytes after the header (truncated?)");
+  }
+}
+
+void check_stl(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw MeshError(path + ": cannot open the file");
+  const std::uintmax_t file_size = size_of(path);
+  char head[84] = {};
+  in.read(head, sizeof head);
+  const bool ascii = std::string(head, head + std::min<std::size_t>(5, static_cast<std::size_t>(in.gcount()))) == "solid";
+  std::uint32_t count = 0;
+  if (in.gcount() == 84) std::memcpy(&count, head + 80, 4);
+  const bool binary_consistent = in.gcount() == 84 && file_size == 84 + 50ull * count;
+  // Binary files may also start with "solid"; a size that matches the triangle count decides.
+  if (ascii && !binary_consistent) return;
+  if (in.gcount() < 84)
+    throw MeshError(path + ": a binary STL file needs an 84-byte header, the file has " + std::to_string(file_size) + " bytes");
+  if (!binary_consistent)
+    throw MeshError(path + ": the binary STL header declares " + std::to_string(count) + " triangles (" +
+                    std::to_string(84 + 50ull * count) + " bytes) but the file has " + std::to_string(file_size) +
+                    " bytes (truncated or corrupt)");
+}
+
+void check_off(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw MeshError(path + ": cannot open the file");
+  std::vector<std::string> tokens;
+  std::string line;
+  long long data_lines = 0;
+  while (std::getline(in, line)) {
+    if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    if (tokens.size() < 4) {
+      std::istringstream s(line);
+      for (std::string t; s >> t;) tokens.push_back(t);
+    } else {
+      ++data_lines;
+    }
+  }
+  if (tokens.empty() || tokens[0].find("OFF") == std::string::npos)
+    throw MeshError(path + ": not an OFF file (no 'OFF' header)");
+  long long counts[2] = {0, 0};
+  for (int k = 0; k < 2; ++k) {
+    char* end = nullptr;
+    counts[k] = tokens.size() > std::size_t(k + 1) ? std::strtoll(tokens[k + 1].c_str(), &end, 10) : -1;
+    if (counts[k] < 0 || !end || *end != '\0')
+      throw MeshError(path + ": OFF header: expected vertex and face counts after 'OFF'");
+  }
+  // The counts line may share the header's line; every vertex and face needs a line of its own.
+  if (data_lines + 1 < counts[0] + counts[1])
+    throw MeshError(path + ": the OFF header declares " + std::to_string(counts[0]) + " vertices and " +
+                    std::to_string(counts[1]) + " faces but the file holds only " + std::to_string(data_lines) +
+                    " data lines (truncated?)");
+}
+
+}  // namespace csb

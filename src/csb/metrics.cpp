@@ -1,0 +1,74 @@
+#include "csb/metrics.hpp"
+
+#include "csb/constraints/bending.hpp"
+#include "csb/constraints/distance.hpp"
+
+#include <cmath>
+
+namespace csb {
+namespace {
+
+Violation summarise(const std::vector<Real>& values) {
+  Violation v;
+  v.count = static_cast<Index>(values.size());
+  Real sum2 = 0;
+  for (Real x : values) {
+    v.max = std::max(v.max, std::abs(x));
+    sum2 += x * x;
+  }
+  if (!values.empty()) v.rms = std::sqrt(sum2 / values.size());
+  return v;
+}
+
+}  // namespace
+
+std::vector<Real> distance_violations(const Model& model, const State& state) {
+  const auto& d = model.distance;
+  std::vector<Real> out(d.size());
+  for (Index c = 0; c < d.size(); ++c) {
+    const Real len = (state.x.col(d.particles[c][0]) - state.x.col(d.particles[c][1])).norm();
+    out[c] = distance_violation(len - d.rest_length[c], d.sense[c]);
+  }
+  return out;
+}
+
+std::vector<Real> bending_violations(const Model& model, const State& state) {
+  const auto& b = model.bending;
+  std::vector<Real> out(b.size());
+  for (Index c = 0; c < b.size(); ++c) {
+    const auto& q = b.particles[c];
+    out[c] = wrap_angle(dihedral_angle(state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3])) -
+                        b.rest_angle[c]);
+  }
+  return out;
+}
+
+Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
+  if (state.x.cols() != model.num_particles() || state.v.cols() != model.num_particles())
+    throw InvalidArgument("the state does not belong to this model (particle counts differ)");
+  Metrics m;
+  m.t = state.t;
+  for (Index i = 0; i < model.num_particles(); ++i) {
+    const Real mi = model.mass[i];
+    const Vec3 x = state.x.col(i), v = state.v.col(i);
+    m.kinetic_energy += 0.5 * mi * v.squaredNorm();
+    m.gravitational_energy -= mi * gravity.dot(x);
+    m.linear_momentum += mi * v;
+    m.angular_momentum += mi * x.cross(v);
+  }
+  const std::vector<Real> dv = distance_violations(model, state);
+  m.distance = summarise(dv);
+  m.bending = summarise(bending_violations(model, state));
+  std::vector<Real> att(model.attachments.size());
+  for (Index c = 0; c < model.attachments.size(); ++c)
+    att[c] = (state.x.col(model.attachments.particle[c]) - model.attachments.target.col(c)).norm();
+  m.attachment = summarise(att);
+  std::vector<Real> strain(dv.size());
+  for (std::size_t c = 0; c < dv.size(); ++c) strain[c] = dv[c] / model.distance.rest_length[c];
+  const Violation s = summarise(strain);
+  m.max_strain = s.max;
+  m.rms_strain = s.rms;
+  return m;
+}
+
+}  // namespace csb

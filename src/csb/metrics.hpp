@@ -1,0 +1,34 @@
+// csb — quantities measured on a state: energies, momenta, constraint violations.
+#pragma once
+
+#include "csb/model.hpp"
+
+namespace csb {
+
+struct Violation {
+  Index count = 0;
+  Real max = 0;  // largest |violation|
+  Real rms = 0;  // root mean square over the constraints of the batch
+};
+
+struct Metrics {
+  Real t = 0;                      // s
+  Real kinetic_energy = 0;         // J, ½ Σ m |v|²
+  Real gravitational_energy = 0;   // J, -Σ m g·x (zero at the origin)
+  Vec3 linear_momentum = Vec3::Zero();   // kg m/s, Σ m v
+  Vec3 angular_momentum = Vec3::Zero();  // kg m²/s, Σ m x × v about the origin
+  Violation distance;              // m
+  Violation bending;               // rad
+  Violation attachment;            // m
+  Real max_strain = 0;             // max |violation| / rest length over distance constraints
+  Real rms_strain = 0;
+};
+
+// Particles with inverse mass 0 are included: they are at rest unless moved by the user.
+Metrics measure(const Model& model, const State& state, const Vec3& gravity);
+
+// Violation of every distance constraint (m) and of every bending constraint (rad).
+std::vector<Real> distance_violations(const Model& model, const State& state);
+std::vector<Real> bending_violations(const Model& model, const State& state);
+
+}  // namespace csb

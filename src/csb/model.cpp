@@ -1,0 +1,203 @@
+#include "csb/model.hpp"
+
+#include "csb/constraints/bending.hpp"
+
+#include <atomic>
+#include <cmath>
+#include <sstream>
+
+namespace csb {
+namespace {
+
+std::string str(Real v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+std::uint64_t next_model_id() {
+  static std::atomic<std::uint64_t> counter{0};
+  return ++counter;
+}
+
+}  // namespace
+
+State Model::initial_state() const {
+  State s;
+  s.x = rest_positions;
+  s.v = Positions::Zero(3, num_particles());
+  return s;
+}
+
+void ModelBuilder::require_particle(Index i, const std::string& what) const {
+  if (i < 0 || i >= num_particles())
+    throw InvalidArgument(what + ": particle index " + std::to_string(i) + " is out of range (the model has " +
+                          std::to_string(num_particles()) + " particles)");
+}
+
+void ModelBuilder::require_stiffness(Real k, const std::string& what) const {
+  if (!(k >= 0 && k <= 1))
+    throw InvalidArgument(what + ": stiffness must be in [0, 1], got " + str(k));
+}
+
+Index ModelBuilder::add_group(const std::string& name) {
+  group_names_.push_back(name);
+  return static_cast<Index>(group_names_.size() - 1);
+}
+
+Index ModelBuilder::add_particle(const Vec3& x, Real mass, Index group) {
+  const std::string what = "particle " + std::to_string(num_particles());
+  if (!x.allFinite()) throw InvalidArgument(what + ": position must be finite");
+  if (!(mass > 0) || !std::isfinite(mass)) throw InvalidArgument(what + ": mass must be > 0 kg, got " + str(mass));
+  if (group < 0 || group >= static_cast<Index>(group_names_.size()))
+    throw InvalidArgument(what + ": group " + std::to_string(group) + " does not exist (add_group first)");
+  points_.push_back(x);
+  mass_.push_back(mass);
+  pinned_.push_back(0);
+  group_.push_back(group);
+  return num_particles() - 1;
+}
+
+MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& options) {
+  const std::string& name = input.name;
+  if (options.stretch_stiffness) require_stiffness(*options.stretch_stiffness, name + " stretch");
+  if (options.bending_stiffness) require_stiffness(*options.bending_stiffness, name + " bending");
+  if (!(options.mass.value > 0) || !std::isfinite(options.mass.value))
+    throw InvalidArgument(name + ": " +
+                          (options.mass.kind == MassSpec::Kind::Total     ? "mass must be > 0 kg"
+                           : options.mass.kind == MassSpec::Kind::Density ? "density must be > 0 kg/m^2"
+                                                                          : "particle mass must be > 0 kg") +
+                          ", got " + str(options.mass.value));
+  if (options.group >= static_cast<Index>(group_names_.size()))
+    throw InvalidArgument(name + ": group " + std::to_string(options.group) + " does not exist");
+
+  MeshInstance inst;
+  CleanOptions keep_numbering;
+  keep_numbering.weld = false;
+  keep_numbering.drop_unreferenced = false;
+  const Mesh mesh = clean(input, keep_numbering, &inst.report);
+  const Index n = mesh.num_vertices();
+
+  // Masses: lumped area (or length) for Total and Density.
+  std::vector<Real> mass(n, options.mass.value);
+  if (options.mass.kind != MassSpec::Kind::PerParticle) {
+    std::vector<Real> measure = lumped_measure(mesh);
+    Real total = 0;
+    for (Real m : measure) total += m;
+    for (Index i = 0; i < n; ++i) {
+      if (!(measure[i] > 0))
+        throw MeshError(name + ": vertex " + std::to_string(i) +
+                        " belongs to no triangle (or segment), so mass and density give it no mass; "
+                        "give a per-particle mass or remove the vertex");
+      mass[i] = options.mass.kind == MassSpec::Kind::Total ? options.mass.value * measure[i] / total
+                                                           : options.mass.value * measure[i];
+    }
+  }
+  inst.group = options.group >= 0 ? options.group : add_group(name);
+  inst.first_particle = num_particles();
+  inst.num_particles = n;
+  for (Index i = 0; i < n; ++i) add_particle(mesh.vertices.col(i), mass[i], inst.group);
+
+  const Index f = inst.first_particle;
+  for (const auto& t : mesh.triangles) triangles_.push_back({f + t[0], f + t[1], f + t[2]});
+  const Topology topo = topology(mesh);
+  if (options.stretch_stiffness) {
+    for (const auto& e : topo.edges) add_distance(f + e[0], f + e[1], *options.stretch_stiffness);
+    inst.num_distance = static_cast<Index>(topo.edges.size());
+  }
+  if (options.bending_stiffness) {
+    for (const auto& q : topo.bending) add_bending(f + q[0], f + q[1], f + q[2], f + q[3], *options.bending_stiffness);
+    inst.num_bending = static_cast<Index>(topo.bending.size());
+  }
+  return inst;
+}
+
+Index ModelBuilder::add_distance(Index i, Index j, Real stiffness, Real rest_length, int sense) {
+  const std::string what = "distance constraint " + std::to_string(distance_.size()) + " (particles " +
+                           std::to_string(i) + ", " + std::to_string(j) + ")";
+  require_particle(i, what);
+  require_particle(j, what);
+  if (i == j) throw InvalidArgument(what + ": a distance constraint needs two different particles");
+  require_stiffness(stiffness, what);
+  if (sense < -1 || sense > 1) throw InvalidArgument(what + ": sense must be -1, 0 or +1, got " + std::to_string(sense));
+  if (!std::isfinite(rest_length)) throw InvalidArgument(what + ": rest length must be finite");
+  if (rest_length < 0) rest_length = (position(i) - position(j)).norm();
+  if (!(rest_length > 0))
+    throw InvalidArgument(what + ": zero rest length (coincident particles); a distance constraint needs a length > 0 m");
+  distance_.particles.push_back({i, j});
+  distance_.rest_length.push_back(rest_length);
+  distance_.stiffness.push_back(stiffness);
+  distance_.sense.push_back(static_cast<std::int8_t>(sense));
+  return distance_.size() - 1;
+}
+
+Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle) {
+  const std::string what = "bending constraint " + std::to_string(bending_.size()) + " (particles " +
+                           std::to_string(a) + ", " + std::to_string(b) + ", " + std::to_string(c) + ", " +
+                           std::to_string(d) + ")";
+  for (Index p : {a, b, c, d}) require_particle(p, what);
+  if (a == b || a == c || a == d || b == c || b == d || c == d)
+    throw InvalidArgument(what + ": needs four different particles");
+  require_stiffness(stiffness, what);
+  Vec3 grad[4];
+  if (!dihedral_angle_gradient(position(a), position(b), position(c), position(d), grad))
+    throw InvalidArgument(what + ": degenerate at rest (zero-length edge or zero-area triangle)");
+  Real angle = dihedral_angle(position(a), position(b), position(c), position(d));
+  if (rest_angle) {
+    if (!std::isfinite(*rest_angle)) throw InvalidArgument(what + ": rest angle must be finite");
+    angle = wrap_angle(*rest_angle);
+  }
+  bending_.particles.push_back({a, b, c, d});
+  bending_.rest_angle.push_back(angle);
+  bending_.stiffness.push_back(stiffness);
+  return bending_.size() - 1;
+}
+
+void ModelBuilder::pin(Index i) {
+  require_particle(i, "pin");
+  pinned_[i] = 1;
+}
+
+Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness) {
+  const std::string what = "attachment " + std::to_string(attached_.size()) + " (particle " + std::to_string(i) + ")";
+  require_particle(i, what);
+  if (!target.allFinite()) throw InvalidArgument(what + ": target must be finite");
+  require_stiffness(stiffness, what);
+  attached_.push_back(i);
+  attachment_targets_.push_back(target);
+  attachment_stiffness_.push_back(stiffness);
+  return static_cast<Index>(attached_.size() - 1);
+}
+
+std::shared_ptr<const Model> ModelBuilder::build() const {
+  if (num_particles() == 0) throw InvalidArgument("the model has no particles");
+  auto model = std::make_shared<Model>();
+  const Index n = num_particles();
+  model->id = next_model_id();
+  model->rest_positions.resize(3, n);
+  for (Index i = 0; i < n; ++i) model->rest_positions.col(i) = points_[i];
+  model->mass = mass_;
+  model->inv_mass.resize(n);
+  for (Index i = 0; i < n; ++i) model->inv_mass[i] = pinned_[i] ? 0.0 : 1.0 / mass_[i];
+  model->group = group_;
+  model->group_names = group_names_;
+  // Particles of each group, in index order (CSR).
+  const Index g = static_cast<Index>(group_names_.size());
+  model->group_offsets.assign(g + 1, 0);
+  for (Index i = 0; i < n; ++i) ++model->group_offsets[group_[i] + 1];
+  for (Index k = 0; k < g; ++k) model->group_offsets[k + 1] += model->group_offsets[k];
+  model->group_particles.resize(n);
+  std::vector<Index> cursor(model->group_offsets.begin(), model->group_offsets.end() - 1);
+  for (Index i = 0; i < n; ++i) model->group_particles[cursor[group_[i]]++] = i;
+  model->triangles = triangles_;
+  model->distance = distance_;
+  model->bending = bending_;
+  model->attachments.particle = attached_;
+  model->attachments.stiffness = attachment_stiffness_;
+  model->attachments.target.resize(3, static_cast<Eigen::Index>(attached_.size()));
+  for (std::size_t k = 0; k < attached_.size(); ++k)
+    model->attachments.target.col(static_cast<Eigen::Index>(k)) = attachment_targets_[k];
+  return model;
+}
+
+}  // namespace csb

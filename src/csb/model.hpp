@@ -1,0 +1,146 @@
+// csb — the immutable Model (particles at rest, masses, one batch per constraint type), the
+// mutable State (positions, velocities, time) and the ModelBuilder that makes a Model.
+//
+// Particles of every mesh live in one pool, structure of arrays; a mesh keeps no identity in it
+// except its group index, so that groups can differ in mass and be damped separately.
+#pragma once
+
+#include "csb/mesh.hpp"
+#include "csb/types.hpp"
+
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace csb {
+
+// Distance constraints: mesh edges (stretch), springs, chain links. Plain arrays, one entry per
+// constraint, in projection order.
+struct DistanceBatch {
+  std::vector<Edge> particles;      // (i, j)
+  std::vector<Real> rest_length;    // m
+  std::vector<Real> stiffness;      // dimensionless, in [0, 1] (Müller 2007 §3.3)
+  std::vector<std::int8_t> sense;   // 0: C = 0, +1: C >= 0, -1: C <= 0 (see constraints/distance.hpp)
+  Index size() const { return static_cast<Index>(particles.size()); }
+};
+
+// Dihedral bending across the edge (a, b) with opposite vertices c and d.
+struct BendingBatch {
+  std::vector<std::array<Index, 4>> particles;  // (a, b, c, d)
+  std::vector<Real> rest_angle;                 // rad, signed (see constraints/bending.hpp)
+  std::vector<Real> stiffness;                  // dimensionless, in [0, 1]
+  Index size() const { return static_cast<Index>(particles.size()); }
+};
+
+// Particles held at points fixed in the world.
+struct AttachmentBatch {
+  std::vector<Index> particle;
+  Positions target;                 // m, 3 x count
+  std::vector<Real> stiffness;      // dimensionless, in [0, 1]
+  Index size() const { return static_cast<Index>(particle.size()); }
+};
+
+// Mutable simulation state; sized for one Model.
+struct State {
+  Positions x;            // m, 3 x N
+  Positions v;            // m/s, 3 x N
+  Real t = 0;             // s
+  std::int64_t step = 0;  // number of completed steps
+};
+
+class Model {
+ public:
+  Index num_particles() const { return static_cast<Index>(mass.size()); }
+  Index num_constraints() const { return distance.size() + bending.size() + attachments.size(); }
+  Index num_groups() const { return static_cast<Index>(group_names.size()); }
+  // Rest positions, zero velocities, t = 0.
+  State initial_state() const;
+
+  std::uint64_t id = 0;              // unique per built model; lets steppers cache per-model data
+  Positions rest_positions;          // m, 3 x N
+  std::vector<Real> mass;            // kg, > 0 (kept for pinned particles too)
+  std::vector<Real> inv_mass;        // 1/kg; 0 for a pinned particle
+  std::vector<Index> group;          // group of each particle
+  std::vector<std::string> group_names;
+  std::vector<Index> group_offsets;  // particles of group g: group_particles[group_offsets[g] .. [g+1])
+  std::vector<Index> group_particles;
+  std::vector<Triangle> triangles;   // surface triangles, for output and rendering
+  DistanceBatch distance;
+  BendingBatch bending;
+  AttachmentBatch attachments;
+};
+
+// How a mesh's particles get their mass.
+struct MassSpec {
+  enum class Kind { Total, Density, PerParticle };
+  Kind kind = Kind::Total;
+  // Total: kg for the whole mesh, shared in proportion to each vertex's lumped area (or length).
+  // Density: kg/m² for a surface (kg/m for a mesh of lines), times the lumped area (length).
+  // PerParticle: kg for every particle.
+  Real value = 1.0;
+};
+
+struct MeshOptions {
+  Index group = -1;  // existing group, or -1 for a new group named after the mesh
+  MassSpec mass;
+  // Stiffness in [0, 1] of the distance constraint on every unique edge; none: no stretch.
+  std::optional<Real> stretch_stiffness = Real(1);
+  // Stiffness in [0, 1] of the bending constraint on every interior edge; none: no bending.
+  std::optional<Real> bending_stiffness;
+};
+
+struct MeshInstance {
+  Index first_particle = 0;  // vertex i of the mesh is particle first_particle + i
+  Index num_particles = 0;
+  Index group = 0;
+  Index num_distance = 0;
+  Index num_bending = 0;
+  MeshReport report;         // degenerate triangles dropped, non-manifold edges, ...
+};
+
+class ModelBuilder {
+ public:
+  Index add_group(const std::string& name);
+
+  // One particle at x (m) with the given mass (kg) in an existing group; returns its index.
+  Index add_particle(const Vec3& x, Real mass, Index group);
+
+  // All vertices of a mesh become particles (numbering kept), its unique edges distance
+  // constraints and its interior edges bending constraints, as the options ask. Degenerate
+  // triangles are dropped and reported, vertices are not welded (call clean() for that).
+  MeshInstance add_mesh(const Mesh& mesh, const MeshOptions& options);
+
+  // A distance constraint between particles i and j. rest_length < 0 takes the current distance.
+  Index add_distance(Index i, Index j, Real stiffness = 1, Real rest_length = -1, int sense = 0);
+  // A bending constraint across edge (a, b) with wings c, d. No rest angle: the current one.
+  Index add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle = {});
+  // Fixes particle i where it is: inverse mass 0 (its mass is kept for reporting).
+  void pin(Index i);
+  // Holds particle i at a world point (m) with stiffness in [0, 1].
+  Index attach(Index i, const Vec3& target, Real stiffness = 1);
+
+  Index num_particles() const { return static_cast<Index>(mass_.size()); }
+  const Vec3& position(Index i) const { return points_.at(i); }
+
+  // Checks what was added once more and returns the immutable model.
+  std::shared_ptr<const Model> build() const;
+
+ private:
+  void require_particle(Index i, const std::string& what) const;
+  void require_stiffness(Real k, const std::string& what) const;
+
+  std::vector<Vec3> points_;
+  std::vector<Real> mass_;
+  std::vector<char> pinned_;
+  std::vector<Index> group_;
+  std::vector<std::string> group_names_;
+  std::vector<Triangle> triangles_;
+  DistanceBatch distance_;
+  BendingBatch bending_;
+  std::vector<Index> attached_;
+  std::vector<Vec3> attachment_targets_;
+  std::vector<Real> attachment_stiffness_;
+};
+
+}  // namespace csb

@@ -1,0 +1,532 @@
+// csb._core — the pybind11 module. Arrays of the State are zero-copy, writable numpy views;
+// arrays of the (immutable) Model are zero-copy, read-only views. Parameters are keyword
+// arguments in SI units.
+#include "csb/csb.hpp"
+#include "csb/constraints/attachment.hpp"
+#include "csb/constraints/bending.hpp"
+#include "csb/constraints/distance.hpp"
+
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <cstring>
+#include <sstream>
+
+namespace py = pybind11;
+using namespace csb;
+
+namespace {
+
+// A numpy array over memory owned by `base` (kept alive by the array).
+template <class T>
+py::array view(const T* data, std::vector<py::ssize_t> shape, py::handle base, bool writeable) {
+  std::vector<py::ssize_t> strides(shape.size());
+  py::ssize_t stride = sizeof(T);
+  for (std::size_t k = shape.size(); k-- > 0;) {
+    strides[k] = stride;
+    stride *= shape[k];
+  }
+  py::array a(py::dtype::of<T>(), shape, strides, data, base);
+  if (!writeable) a.attr("setflags")(py::arg("write") = false);
+  return a;
+}
+
+std::string shape_str(const py::array& a) {
+  std::ostringstream s;
+  s << "(";
+  for (py::ssize_t k = 0; k < a.ndim(); ++k) s << (k ? ", " : "") << a.shape(k);
+  s << (a.ndim() == 1 ? ",)" : ")");
+  return s.str();
+}
+
+Positions to_positions(const py::handle& obj, const std::string& what) {
+  py::array arr = py::array::ensure(obj);
+  if (!arr) throw InvalidArgument(what + " must be an array of shape (N, 3)");
+  if (arr.dtype().kind() != 'f' && arr.dtype().kind() != 'i' && arr.dtype().kind() != 'u')
+    throw InvalidArgument(what + " must be numeric, got dtype " + std::string(py::str(arr.dtype())));
+  if (arr.ndim() != 2 || arr.shape(1) != 3)
+    throw InvalidArgument(what + " must have shape (N, 3), got " + shape_str(arr));
+  auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(arr);
+  Positions x(3, a.shape(0));
+  if (a.shape(0) > 0) std::memcpy(x.data(), a.data(), sizeof(double) * 3 * a.shape(0));
+  return x;
+}
+
+template <std::size_t K>
+std::vector<std::array<Index, K>> to_index_rows(const py::handle& obj, const std::string& what) {
+  std::vector<std::array<Index, K>> out;
+  if (obj.is_none()) return out;
+  py::array arr = py::array::ensure(obj);
+  if (!arr) throw InvalidArgument(what + " must be an integer array of shape (M, " + std::to_string(K) + ")");
+  if (arr.size() == 0) return out;
+  if (arr.dtype().kind() != 'i' && arr.dtype().kind() != 'u')
+    throw InvalidArgument(what + " must hold integer indices, got dtype " + std::string(py::str(arr.dtype())));
+  if (arr.ndim() != 2 || arr.shape(1) != static_cast<py::ssize_t>(K))
+    throw InvalidArgument(what + " must have shape (M, " + std::to_string(K) + "), got " + shape_str(arr));
+  auto a = py::array_t<long long, py::array::c_style | py::array::forcecast>::ensure(arr);
+  const long long* d = a.data();
+  out.resize(a.shape(0));
+  for (py::ssize_t r = 0; r < a.shape(0); ++r)
+    for (std::size_t k = 0; k < K; ++k) {
+      const long long v = d[r * K + k];
+      if (v < -1 || v > std::numeric_limits<Index>::max())
+        throw MeshError(what + " row " + std::to_string(r) + " has index " + std::to_string(v) + ", which is out of range");
+      out[r][k] = static_cast<Index>(v);
+    }
+  return out;
+}
+
+int parse_sense(const std::string& s) {
+  if (s == "==") return 0;
+  if (s == ">=") return 1;
+  if (s == "<=") return -1;
+  throw InvalidArgument("sense must be '==' (distance equals rest length), '>=' or '<=', got '" + s + "'");
+}
+
+Plane parse_plane(const std::string& s) {
+  if (s == "xy") return Plane::XY;
+  if (s == "xz") return Plane::XZ;
+  if (s == "yz") return Plane::YZ;
+  throw InvalidArgument("plane must be 'xy', 'xz' or 'yz', got '" + s + "'");
+}
+
+Vec3 to_vec3(const py::handle& obj, const std::string& what) {
+  py::array_t<double, py::array::forcecast> a;
+  try {
+    a = py::array_t<double, py::array::forcecast>::ensure(obj);
+  } catch (const py::error_already_set&) {
+  }
+  if (!a || a.ndim() != 1 || a.shape(0) != 3) throw InvalidArgument(what + " must be a sequence of 3 numbers");
+  return Vec3(a.at(0), a.at(1), a.at(2));
+}
+
+py::dict report_dict(const MeshReport& r) {
+  py::dict d;
+  d["input_vertices"] = r.input_vertices;
+  d["input_triangles"] = r.input_triangles;
+  d["input_lines"] = r.input_lines;
+  d["welded_vertices"] = r.welded_vertices;
+  d["unreferenced_vertices"] = r.unreferenced_vertices;
+  d["degenerate_triangles"] = r.degenerate_triangles;
+  d["degenerate_lines"] = r.degenerate_lines;
+  d["boundary_edges"] = r.boundary_edges;
+  d["non_manifold_edges"] = r.non_manifold_edges;
+  d["vertex_map"] = py::array_t<Index>(static_cast<py::ssize_t>(r.vertex_map.size()), r.vertex_map.data());
+  d["warnings"] = r.warnings;
+  return d;
+}
+
+py::dict violation_dict(const Violation& v) {
+  py::dict d;
+  d["count"] = v.count;
+  d["max"] = v.max;
+  d["rms"] = v.rms;
+  return d;
+}
+
+py::array vec3_array(const Vec3& v) {
+  py::array_t<double> a(3);
+  for (int k = 0; k < 3; ++k) a.mutable_at(k) = v[k];
+  return a;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "csb compiled core: meshes, models, states and the PBD stepper";
+
+  // Exceptions: csb.Error is the base of all; each also derives from the built-in exception a
+  // Python user would catch (ValueError for bad input, RuntimeError for a failed simulation).
+  const auto new_exception = [&m](const char* name, py::handle bases) {
+    PyObject* type = PyErr_NewException((std::string("csb.") + name).c_str(), bases.ptr(), nullptr);
+    if (!type) throw py::error_already_set();
+    m.add_object(name, py::handle(type));
+    return type;
+  };
+  static PyObject* error_base = new_exception("Error", PyExc_Exception);
+  static PyObject* param_error = new_exception("ParameterError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
+  static PyObject* mesh_error = new_exception("MeshError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
+  static PyObject* sim_error = new_exception("SimulationError", py::make_tuple(py::handle(error_base), py::handle(PyExc_RuntimeError)));
+  py::register_exception_translator([](std::exception_ptr p) {
+    // Messages may quote bytes of a corrupt file: decode them leniently.
+    const auto raise = [](PyObject* type, const char* what) {
+      PyObject* msg = PyUnicode_DecodeUTF8(what, static_cast<Py_ssize_t>(std::strlen(what)), "replace");
+      PyErr_SetObject(type, msg);
+      Py_XDECREF(msg);
+    };
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const FileNotFound& e) {
+      raise(PyExc_FileNotFoundError, e.what());
+    } catch (const SimulationError& e) {
+      raise(sim_error, e.what());
+    } catch (const MeshError& e) {
+      raise(mesh_error, e.what());
+    } catch (const InvalidArgument& e) {
+      raise(param_error, e.what());
+    } catch (const Error& e) {
+      raise(error_base, e.what());
+    }
+  });
+
+  m.def("build_info", [] {
+    const BuildInfo b = build_info();
+    py::dict d;
+    d["csb"] = b.csb_version;
+    d["eigen"] = b.eigen_version;
+    d["assimp"] = b.assimp_version;
+    d["sundials"] = b.sundials_version;
+    d["sundials_klu"] = b.sundials_klu;
+    d["compiler"] = b.compiler;
+    return d;
+  }, "Versions of csb and of the libraries it was built against.");
+
+  // ---------------------------------------------------------------- meshes
+  py::class_<Mesh>(m, "Mesh", "A triangle (and/or line) mesh before it enters the particle pool; metres.", py::dynamic_attr())
+      .def(py::init([](py::handle vertices, py::handle triangles, py::handle lines, const std::string& name) {
+             Mesh mesh;
+             mesh.name = name;
+             mesh.vertices = to_positions(vertices, name + ": vertices");
+             mesh.triangles = to_index_rows<3>(triangles, name + ": triangles");
+             mesh.lines = to_index_rows<2>(lines, name + ": lines");
+             validate(mesh);
+             return mesh;
+           }),
+           py::arg("vertices"), py::arg("triangles") = py::none(), py::arg("lines") = py::none(),
+           py::arg("name") = "mesh",
+           "vertices: (N, 3) float, m. triangles: (T, 3) int. lines: (L, 2) int (ropes, chains).")
+      .def_readonly("name", &Mesh::name)
+      .def_property_readonly("num_vertices", &Mesh::num_vertices)
+      .def_property_readonly("vertices", [](const Mesh& s) {
+        py::array_t<double> a({static_cast<py::ssize_t>(s.num_vertices()), py::ssize_t(3)});
+        if (s.num_vertices()) std::memcpy(a.mutable_data(), s.vertices.data(), sizeof(double) * 3 * s.num_vertices());
+        return a;
+      }, "(N, 3) vertex positions, m (a copy)")
+      .def_property_readonly("triangles", [](const Mesh& s) {
+        py::array_t<Index> a({static_cast<py::ssize_t>(s.triangles.size()), py::ssize_t(3)});
+        if (!s.triangles.empty()) std::memcpy(a.mutable_data(), s.triangles.data(), sizeof(Index) * 3 * s.triangles.size());
+        return a;
+      }, "(T, 3) vertex indices (a copy)")
+      .def_property_readonly("lines", [](const Mesh& s) {
+        py::array_t<Index> a({static_cast<py::ssize_t>(s.lines.size()), py::ssize_t(2)});
+        if (!s.lines.empty()) std::memcpy(a.mutable_data(), s.lines.data(), sizeof(Index) * 2 * s.lines.size());
+        return a;
+      }, "(L, 2) vertex indices of explicit segments (a copy)")
+      .def("__repr__", [](const Mesh& s) {
+        return "<csb.Mesh '" + s.name + "': " + std::to_string(s.num_vertices()) + " vertices, " +
+               std::to_string(s.triangles.size()) + " triangles, " + std::to_string(s.lines.size()) + " lines>";
+      });
+
+  m.def("_clean", [](const Mesh& mesh, bool weld, double weld_tolerance, bool drop_unreferenced) {
+    CleanOptions o;
+    o.weld = weld;
+    o.weld_tolerance = weld_tolerance;
+    o.drop_unreferenced = drop_unreferenced;
+    MeshReport r;
+    Mesh out = clean(mesh, o, &r);
+    return py::make_tuple(out, report_dict(r));
+  }, py::arg("mesh"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("drop_unreferenced") = true);
+
+  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance) {
+    CleanOptions o;
+    o.weld = weld;
+    o.weld_tolerance = weld_tolerance;
+    MeshReport r;
+    Mesh out;
+    {
+      py::gil_scoped_release release;
+      out = load_mesh(path, o, &r);
+    }
+    return py::make_tuple(out, report_dict(r));
+  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6);
+
+  m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
+        "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
+  m.def("readable_extensions", &readable_extensions, "Extensions (with the dot) that load_mesh reads.");
+  m.def("check_obj", &check_obj, py::arg("path"), "Strict OBJ syntax check naming the line of the first problem.");
+
+  m.def("topology", [](const Mesh& mesh) {
+    const Topology t = topology(mesh);
+    py::dict d;
+    py::array_t<Index> edges({static_cast<py::ssize_t>(t.edges.size()), py::ssize_t(2)});
+    if (!t.edges.empty()) std::memcpy(edges.mutable_data(), t.edges.data(), sizeof(Index) * 2 * t.edges.size());
+    py::array_t<Index> bending({static_cast<py::ssize_t>(t.bending.size()), py::ssize_t(4)});
+    if (!t.bending.empty()) std::memcpy(bending.mutable_data(), t.bending.data(), sizeof(Index) * 4 * t.bending.size());
+    d["edges"] = edges;
+    d["bending"] = bending;
+    d["boundary_edges"] = t.boundary_edges;
+    d["non_manifold_edges"] = t.non_manifold_edges;
+    return d;
+  }, py::arg("mesh"), "Unique edges, bending quads (a, b, c, d), boundary and non-manifold edge counts.");
+
+  m.def("lumped_measure", [](const Mesh& mesh) {
+    std::vector<Real> w = lumped_measure(mesh);
+    return py::array_t<Real>(static_cast<py::ssize_t>(w.size()), w.data());
+  }, py::arg("mesh"), "Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).");
+
+  m.def("cloth_grid", [](double width, double height, Index nx, Index ny, const std::string& plane, py::handle center) {
+    return cloth_grid(width, height, nx, ny, parse_plane(plane), to_vec3(center, "center"));
+  }, py::arg("width"), py::arg("height"), py::arg("nx"), py::arg("ny"), py::arg("plane") = "xz",
+        py::arg("center") = std::vector<double>{0, 0, 0},
+        "Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).");
+  m.def("chain", [](Index links, double link_length, py::handle start, py::handle direction) {
+    return chain(links, link_length, to_vec3(start, "start"), to_vec3(direction, "direction"));
+  }, py::arg("links"), py::arg("link_length"), py::arg("start") = std::vector<double>{0, 0, 0},
+        py::arg("direction") = std::vector<double>{1, 0, 0},
+        "A chain of `links` segments of link_length m from start (m) along direction.");
+  m.def("pendulum", [](double length, double angle, py::handle anchor) {
+    return pendulum(length, angle, to_vec3(anchor, "anchor"));
+  }, py::arg("length"), py::arg("angle"), py::arg("anchor") = std::vector<double>{0, 0, 0},
+        "Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.");
+
+  // ---------------------------------------------------------------- model
+  py::class_<State, std::shared_ptr<State>>(m, "State", "Positions (m), velocities (m/s) and time (s) of every particle.")
+      .def_property("x", [](py::object self) {
+        State& s = self.cast<State&>();
+        return view(s.x.data(), {s.x.cols(), 3}, self, true);
+      }, [](State& s, py::handle value) {
+        Positions x = to_positions(value, "State.x");
+        if (x.cols() != s.x.cols()) throw InvalidArgument("State.x must have shape (" + std::to_string(s.x.cols()) + ", 3)");
+        s.x = x;
+      }, "(N, 3) positions, m: a writable view, no copy")
+      .def_property("v", [](py::object self) {
+        State& s = self.cast<State&>();
+        return view(s.v.data(), {s.v.cols(), 3}, self, true);
+      }, [](State& s, py::handle value) {
+        Positions v = to_positions(value, "State.v");
+        if (v.cols() != s.v.cols()) throw InvalidArgument("State.v must have shape (" + std::to_string(s.v.cols()) + ", 3)");
+        s.v = v;
+      }, "(N, 3) velocities, m/s: a writable view, no copy")
+      .def_readwrite("t", &State::t, "time, s")
+      .def_readwrite("step", &State::step, "number of completed steps")
+      .def_property_readonly("num_particles", [](const State& s) { return s.x.cols(); })
+      .def("copy", [](const State& s) { return std::make_shared<State>(s); }, "A deep copy (a checkpoint).")
+      .def("__repr__", [](const State& s) {
+        std::ostringstream o;
+        o << "<csb.State " << s.x.cols() << " particles, t = " << s.t << " s, step " << s.step << ">";
+        return o.str();
+      });
+
+  py::class_<Model, std::shared_ptr<Model>>(m, "Model",
+      "Immutable: rest positions, masses, and one batch per constraint type. Arrays are read-only views.")
+      .def_property_readonly("num_particles", &Model::num_particles)
+      .def_property_readonly("num_constraints", &Model::num_constraints)
+      .def_readonly("group_names", &Model::group_names)
+      .def_property_readonly("rest_positions", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.rest_positions.data(), {s.num_particles(), 3}, self, false);
+      }, "(N, 3) rest positions, m")
+      .def_property_readonly("mass", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.mass.data(), {s.num_particles()}, self, false);
+      }, "(N,) masses, kg (kept for pinned particles)")
+      .def_property_readonly("inv_mass", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.inv_mass.data(), {s.num_particles()}, self, false);
+      }, "(N,) inverse masses, 1/kg; 0 for pinned particles")
+      .def_property_readonly("group", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.group.data(), {s.num_particles()}, self, false);
+      }, "(N,) group index of each particle")
+      .def_property_readonly("triangles", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(reinterpret_cast<const Index*>(s.triangles.data()), {static_cast<py::ssize_t>(s.triangles.size()), 3}, self, false);
+      }, "(T, 3) surface triangles (particle indices)")
+      .def_property_readonly("distance", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        const auto& b = s.distance;
+        const py::ssize_t c = b.size();
+        py::dict d;
+        d["particles"] = view(reinterpret_cast<const Index*>(b.particles.data()), {c, 2}, self, false);
+        d["rest_length"] = view(b.rest_length.data(), {c}, self, false);
+        d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["sense"] = view(b.sense.data(), {c}, self, false);
+        return d;
+      }, "distance batch: particles (M, 2), rest_length (m), stiffness, sense (0: ==, +1: >=, -1: <=)")
+      .def_property_readonly("bending", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        const auto& b = s.bending;
+        const py::ssize_t c = b.size();
+        py::dict d;
+        d["particles"] = view(reinterpret_cast<const Index*>(b.particles.data()), {c, 4}, self, false);
+        d["rest_angle"] = view(b.rest_angle.data(), {c}, self, false);
+        d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        return d;
+      }, "bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness")
+      .def_property_readonly("attachments", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        const auto& b = s.attachments;
+        const py::ssize_t c = b.size();
+        py::dict d;
+        d["particle"] = view(b.particle.data(), {c}, self, false);
+        d["target"] = view(b.target.data(), {c, 3}, self, false);
+        d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        return d;
+      }, "attachment batch: particle (M,), target (M, 3) m, stiffness")
+      .def("initial_state", [](const Model& s) { return std::make_shared<State>(s.initial_state()); },
+           "A new State at the rest positions with zero velocities and t = 0.")
+      .def("__repr__", [](const Model& s) {
+        return "<csb.Model " + std::to_string(s.num_particles()) + " particles, " + std::to_string(s.distance.size()) +
+               " distance, " + std::to_string(s.bending.size()) + " bending, " + std::to_string(s.attachments.size()) +
+               " attachment constraints>";
+      });
+
+  py::class_<ModelBuilder>(m, "ModelBuilder", "Collects particles and constraints; build() returns the immutable Model.")
+      .def(py::init<>())
+      .def("add_group", &ModelBuilder::add_group, py::arg("name"), "Adds a particle group; returns its index.")
+      .def("add_particle", [](ModelBuilder& b, py::handle x, double mass, Index group) {
+        return b.add_particle(to_vec3(x, "x"), mass, group);
+      }, py::arg("x"), py::arg("mass"), py::arg("group"), "One particle at x (m) of mass (kg) in a group; returns its index.")
+      .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, Index group, py::object mass, py::object density,
+                           py::object particle_mass, std::optional<double> stretch_stiffness,
+                           std::optional<double> bending_stiffness) {
+        MeshOptions o;
+        o.group = group;
+        const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
+        if (given != 1)
+          throw InvalidArgument(mesh.name + ": give exactly one of mass (kg), density (kg/m^2) or particle_mass (kg)");
+        if (!mass.is_none()) o.mass = {MassSpec::Kind::Total, mass.cast<double>()};
+        if (!density.is_none()) o.mass = {MassSpec::Kind::Density, density.cast<double>()};
+        if (!particle_mass.is_none()) o.mass = {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
+        o.stretch_stiffness = stretch_stiffness;
+        o.bending_stiffness = bending_stiffness;
+        const MeshInstance inst = b.add_mesh(mesh, o);
+        py::dict d;
+        d["first_particle"] = inst.first_particle;
+        d["num_particles"] = inst.num_particles;
+        d["group"] = inst.group;
+        d["num_distance"] = inst.num_distance;
+        d["num_bending"] = inst.num_bending;
+        d["report"] = report_dict(inst.report);
+        return d;
+      }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
+         py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0,
+         py::arg("bending_stiffness") = py::none())
+      .def("add_distance", [](ModelBuilder& b, Index i, Index j, double stiffness, std::optional<double> rest_length,
+                              const std::string& sense) {
+        return b.add_distance(i, j, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense));
+      }, py::arg("i"), py::arg("j"), py::arg("stiffness") = 1.0, py::arg("rest_length") = py::none(),
+         py::arg("sense") = "==",
+         "Distance constraint (a spring of stiffness in [0, 1]); rest_length in m, default the current distance; "
+         "sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.")
+      .def("add_bending", &ModelBuilder::add_bending, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
+           py::arg("stiffness"), py::arg("rest_angle") = py::none(),
+           "Dihedral bending across edge (a, b) with wings c, d; rest_angle in rad, default the current angle.")
+      .def("pin", &ModelBuilder::pin, py::arg("i"), "Fixes particle i (inverse mass 0).")
+      .def("attach", [](ModelBuilder& b, Index i, py::handle target, double stiffness) {
+        return b.attach(i, to_vec3(target, "target"), stiffness);
+      }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, "Holds particle i at a world point (m).")
+      .def("position", [](const ModelBuilder& b, Index i) {
+        if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");
+        return vec3_array(b.position(i));
+      }, py::arg("i"))
+      .def_property_readonly("num_particles", &ModelBuilder::num_particles)
+      .def("build", [](const ModelBuilder& b) { return std::const_pointer_cast<Model>(b.build()); });
+
+  // ---------------------------------------------------------------- PBD
+  py::class_<PbdSettings>(m, "PbdSettings", "Settings of the PBD stepper (SI units).")
+      .def_readonly("dt", &PbdSettings::dt, "s, time advanced by one step")
+      .def_readonly("substeps", &PbdSettings::substeps)
+      .def_readonly("iterations", &PbdSettings::iterations)
+      .def_property_readonly("gravity", [](const PbdSettings& s) { return vec3_array(s.gravity); }, "m/s²")
+      .def_readonly("damping", &PbdSettings::damping, "Müller 2007 §3.5 k_damping per substep, [0, 1]")
+      .def_readonly("stiffness_correction", &PbdSettings::stiffness_correction)
+      .def("__repr__", [](const PbdSettings& s) {
+        std::ostringstream o;
+        o << "PbdSettings(dt=" << s.dt << ", substeps=" << s.substeps << ", iterations=" << s.iterations
+          << ", gravity=(" << s.gravity.x() << ", " << s.gravity.y() << ", " << s.gravity.z() << "), damping="
+          << s.damping << ", stiffness_correction=" << (s.stiffness_correction ? "True" : "False") << ")";
+        return o.str();
+      });
+
+  py::class_<PbdStepper>(m, "PbdStepper", "Position Based Dynamics, Müller et al. 2007, Algorithm 1.")
+      .def(py::init([](double dt, int substeps, int iterations, py::handle gravity, double damping,
+                       bool stiffness_correction) {
+             PbdSettings s;
+             s.dt = dt;
+             s.substeps = substeps;
+             s.iterations = iterations;
+             s.gravity = to_vec3(gravity, "gravity");
+             s.damping = damping;
+             s.stiffness_correction = stiffness_correction;
+             return PbdStepper(s);
+           }),
+           py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("iterations") = 10,
+           py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("damping") = 0.0,
+           py::arg("stiffness_correction") = true,
+           "dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: Gauss-Seidel sweeps per "
+           "sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step. "
+           "stiffness_correction: use k' = 1 - (1 - k)^(1/iterations).")
+      .def_property_readonly("settings", &PbdStepper::settings)
+      .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
+        py::gil_scoped_release release;
+        s.step(model, state, steps);
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile).")
+      .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"));
+
+  m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
+        "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");
+
+  // ---------------------------------------------------------------- metrics
+  m.def("measure", [](const Model& model, const State& state, py::handle gravity) {
+    const Metrics r = measure(model, state, to_vec3(gravity, "gravity"));
+    py::dict d;
+    d["t"] = r.t;
+    d["kinetic_energy"] = r.kinetic_energy;
+    d["gravitational_energy"] = r.gravitational_energy;
+    d["linear_momentum"] = vec3_array(r.linear_momentum);
+    d["angular_momentum"] = vec3_array(r.angular_momentum);
+    d["distance"] = violation_dict(r.distance);
+    d["bending"] = violation_dict(r.bending);
+    d["attachment"] = violation_dict(r.attachment);
+    d["max_strain"] = r.max_strain;
+    d["rms_strain"] = r.rms_strain;
+    return d;
+  }, py::arg("model"), py::arg("state"), py::arg("gravity"));
+  m.def("distance_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = distance_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation |xi - xj| - rest of every distance constraint, m.");
+  m.def("bending_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = bending_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation θ - θ0 of every bending constraint, rad.");
+
+  // ---------------------------------------------------------------- kernels, one constraint at a time
+  py::module_ k = m.def_submodule("kernels", "The constraint kernels on single constraints (for tests and teaching).");
+  k.def("project_distance", [](py::handle p1, py::handle p2, double w1, double w2, double rest_length,
+                               double stiffness, const std::string& sense) {
+    Vec3 a = to_vec3(p1, "p1"), b = to_vec3(p2, "p2");
+    const Real c = project_distance(a.data(), b.data(), w1, w2, rest_length, stiffness, parse_sense(sense));
+    return py::make_tuple(vec3_array(a), vec3_array(b), c);
+  }, py::arg("p1"), py::arg("p2"), py::arg("w1"), py::arg("w2"), py::arg("rest_length"), py::arg("stiffness") = 1.0,
+     py::arg("sense") = "==", "Returns (p1', p2', violation before projection).");
+  k.def("project_bending", [](py::handle a, py::handle b, py::handle c, py::handle d, std::array<double, 4> w,
+                              double rest_angle, double stiffness) {
+    Vec3 p[4] = {to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d")};
+    const Real v = project_bending(p[0].data(), p[1].data(), p[2].data(), p[3].data(), w[0], w[1], w[2], w[3],
+                                   rest_angle, stiffness);
+    return py::make_tuple(vec3_array(p[0]), vec3_array(p[1]), vec3_array(p[2]), vec3_array(p[3]), v);
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), py::arg("inv_mass"), py::arg("rest_angle"),
+     py::arg("stiffness") = 1.0, "Returns (a', b', c', d', violation before projection).");
+  k.def("project_attachment", [](py::handle p, double w, py::handle target, double stiffness) {
+    Vec3 x = to_vec3(p, "p");
+    const Vec3 t = to_vec3(target, "target");
+    const Real v = project_attachment(x.data(), w, t.data(), stiffness);
+    return py::make_tuple(vec3_array(x), v);
+  }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("stiffness") = 1.0);
+  k.def("dihedral_angle", [](py::handle a, py::handle b, py::handle c, py::handle d) {
+    return dihedral_angle(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"));
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed dihedral angle across edge (a, b), rad.");
+  k.def("dihedral_angle_gradient", [](py::handle a, py::handle b, py::handle c, py::handle d) -> py::object {
+    Vec3 g[4];
+    if (!dihedral_angle_gradient(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"), g)) return py::none();
+    py::array_t<double> out({4, 3});
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 3; ++j) out.mutable_at(i, j) = g[i][j];
+    return std::move(out);
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "(4, 3) gradient, rad/m; None if degenerate.");
+}
