@@ -47,6 +47,21 @@ def _particle_strain(model: _core.Model, state: _core.State) -> np.ndarray:
     return out
 
 
+def _xdmf_writer(path: Path):
+    """meshio's XDMF time-series writer, with its HDF5 file beside the .xdmf: meshio 5.3 creates
+    it in the working directory, while the .xdmf refers to it by a path relative to itself."""
+    import h5py
+    import meshio
+
+    class Writer(meshio.xdmf.TimeSeriesWriter):
+        def __enter__(self):
+            self.h5_filename = str(self.filename.with_suffix(".h5"))
+            self.h5_file = h5py.File(self.h5_filename, "w")
+            return self
+
+    return Writer(path)
+
+
 class FrameWriter:
     """Writes one frame per call to ``write`` into an XDMF (+HDF5) series and/or a VTU series with
     a ParaView .pvd collection."""
@@ -67,7 +82,7 @@ class FrameWriter:
             (directory / "frames").mkdir(exist_ok=True)
         if xdmf:
             path = directory / f"{name}.xdmf"
-            self._xdmf = meshio.xdmf.TimeSeriesWriter(str(path))
+            self._xdmf = _xdmf_writer(path)
             self._xdmf.__enter__()
             self._xdmf.write_points_cells(np.asarray(model.rest_positions), self.cells)
             self.files += [path, path.with_suffix(".h5")]

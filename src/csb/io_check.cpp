@@ -41,6 +41,7 @@ struct Counts {
 void check_reference(const std::string& path, long long line, const std::string& token, const Counts& c) {
   const long long count[3] = {c.v, c.vt, c.vn};
   const char* kind[3] = {"vertex", "texture coordinate", "normal"};
+  const char* kinds[3] = {"vertices", "texture coordinates", "normals"};
   std::size_t start = 0;
   for (int slot = 0; slot < 3 && start <= token.size(); ++slot) {
     const std::size_t slash = token.find('/', start);
@@ -56,8 +57,8 @@ void check_reference(const std::string& path, long long line, const std::string&
       if (resolved < 1 || resolved > count[slot])
         fail(path, line,
              "face refers to " + std::string(kind[slot]) + " " + std::to_string(idx) + ", but only " +
-                 std::to_string(count[slot]) + " " + kind[slot] + (count[slot] == 1 ? "" : "s") +
-                 " are defined before this line");
+                 std::to_string(count[slot]) + " " + (count[slot] == 1 ? kind[slot] : kinds[slot]) +
+                 (count[slot] == 1 ? " is" : " are") + " defined before this line");
     } else if (slot == 0) {
       fail(path, line, "face reference '" + printable(token) + "' has no vertex index");
     }
@@ -170,6 +171,14 @@ void check_ply(const std::string& path) {
     }
   }
   if (!ended) throw MeshError(path + ": PLY header is truncated or too long (no 'end_header' line)");
+  long long faces = 0, vertices = 0;
+  for (const auto& e : elements) {
+    if (e.name == "face") faces += e.count;
+    if (e.name == "vertex") vertices += e.count;
+  }
+  if (faces == 0)
+    throw MeshError(path + ": the file has no triangles (" + std::to_string(vertices) +
+                    " vertices and no faces); csb needs a surface mesh");
   if (format.empty()) throw MeshError(path + ": PLY header has no 'format' line");
   const std::uintmax_t header_bytes = static_cast<std::uintmax_t>(in.tellg());
   const std::uintmax_t body = file_size > header_bytes ? file_size - header_bytes : 0;
@@ -201,13 +210,19 @@ void check_stl(const std::string& path) {
   const std::uintmax_t file_size = size_of(path);
   char head[84] = {};
   in.read(head, sizeof head);
-  const bool ascii = std::string(head, head + std::min<std::size_t>(5, static_cast<std::size_t>(in.gcount()))) == "solid";
+  const std::size_t got = static_cast<std::size_t>(in.gcount());
   std::uint32_t count = 0;
-  if (in.gcount() == 84) std::memcpy(&count, head + 80, 4);
-  const bool binary_consistent = in.gcount() == 84 && file_size == 84 + 50ull * count;
-  // Binary files may also start with "solid"; a size that matches the triangle count decides.
-  if (ascii && !binary_consistent) return;
-  if (in.gcount() < 84)
+  if (got == 84) std::memcpy(&count, head + 80, 4);
+  const bool binary_consistent = got == 84 && file_size == 84 + 50ull * count;
+  // An ASCII file starts with "solid" and holds only text; binary writers sometimes put "solid"
+  // in their 80-byte header too, so look at the first bytes as well.
+  bool text = got >= 5 && std::string(head, head + 5) == "solid";
+  for (std::size_t k = 0; text && k < got; ++k) {
+    const unsigned char ch = static_cast<unsigned char>(head[k]);
+    text = std::isprint(ch) || std::isspace(ch);
+  }
+  if (text && !binary_consistent) return;
+  if (got < 84)
     throw MeshError(path + ": a binary STL file needs an 84-byte header, the file has " + std::to_string(file_size) + " bytes");
   if (!binary_consistent)
     throw MeshError(path + ": the binary STL header declares " + std::to_string(count) + " triangles (" +

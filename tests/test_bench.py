@@ -1,0 +1,29 @@
+"""The benchmark command works and counts its work correctly (its timings are printed, never
+asserted: see `csb bench`)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import csb
+from csb.bench import bench_cloth, cloth_model, format_table
+
+
+def test_bench_counts_the_projections_it_times():
+    row = bench_cloth(8, iterations=3, substeps=2, steps=2, rounds=2, warmup=1)
+    model = cloth_model(8)
+    assert row.particles == 64 and row.distance == 2 * 8 * 7 + 49 and row.bending == row.distance - 28
+    assert row.projections_per_step == 2 * 3 * (row.distance + row.bending) == 2 * 3 * model.num_constraints
+    assert row.ms_spread[0] <= row.ms_per_step <= row.ms_spread[1]
+    table = format_table([row])
+    assert "8x8" in table and "Mproj/s" in table
+
+
+def test_bench_command_prints_a_table():
+    r = subprocess.run([sys.executable, "-m", "csb.cli", "bench", "--sizes", "8", "16", "--rounds", "2", "--steps", "2"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0].startswith(f"csb {csb.__version__} PBD step benchmark")
+    assert any(line.lstrip().startswith("8x8") for line in lines) and any(line.lstrip().startswith("16x16") for line in lines)

@@ -1,0 +1,176 @@
+"""Scenes (TOML), the run loop, its outputs (XDMF, VTU/PVD, CSV, PNG) and the csb command."""
+
+from __future__ import annotations
+
+import csv
+import subprocess
+import sys
+import textwrap
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import meshio
+import numpy as np
+import pytest
+
+import csb
+
+GOOD = """\
+[scene]
+name = "tiny"
+duration = 0.5
+
+[solver]
+dt = 0.01
+substeps = 2
+iterations = 5
+
+[[mesh]]
+name = "cloth"
+shape = "cloth"
+size = [1.0, 1.0]
+resolution = [6, 6]
+density = 0.2
+stretch = { stiffness = 1.0 }
+bending = { stiffness = 0.2 }
+pin = { near = [[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5]] }
+
+[output]
+fps = 20
+"""
+
+
+def scene_file(tmp_path: Path, text: str, name: str = "scene.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(textwrap.dedent(text))
+    return path
+
+
+def test_bundled_scenes_load_and_declare_only_what_they_use():
+    names = csb.bundled_scenes()
+    assert {"cloth_drop", "pendulum", "chain", "cloth_grid"} <= set(names)
+    for name in names:
+        assert csb.load_scene(name).name == name
+    sim = csb.load_scene("pendulum").build()
+    assert sim.model.num_particles == 2 and sim.model.num_constraints == 1  # one rod, nothing else
+    sim = csb.load_scene("cloth_drop").build()
+    assert sim.model.num_particles == 33 * 33
+    assert np.count_nonzero(sim.model.inv_mass == 0) == 2
+    pinned = sim.model.rest_positions[sim.model.inv_mass == 0]
+    np.testing.assert_allclose(sorted(pinned[:, 0]), [-0.5, 0.5], atol=1e-6)
+    np.testing.assert_allclose(pinned[:, 1:], [[1.0, -0.5], [1.0, -0.5]], atol=1e-6)
+
+
+def test_run_writes_readable_outputs(tmp_path):
+    scene = csb.load_scene(scene_file(tmp_path, GOOD))
+    result = scene.run(tmp_path / "out")
+    out = tmp_path / "out"
+    frames = 11  # t = 0, 0.05, ..., 0.5 s
+    assert result.steps == 50 and len(result.rows) == frames
+    assert "tiny: 50 steps of 10 ms (2 substeps x 5 iterations), 36 particles" in result.summary()
+
+    # XDMF + HDF5 through meshio's reader: one topology, a time series of point data.
+    with meshio.xdmf.TimeSeriesReader(str(out / "tiny.xdmf")) as reader:
+        points, cells = reader.read_points_cells()
+        assert points.shape == (36, 3) and cells[0].type == "triangle" and len(cells[0].data) == 50
+        assert reader.num_steps == frames
+        t, point_data, _ = reader.read_data(frames - 1)
+        assert t == pytest.approx(0.5)
+        final = points + point_data["displacement"]
+        np.testing.assert_allclose(final, result.simulation.state.x, atol=1e-12)
+
+    # The ParaView collection lists one VTU per frame, and each VTU holds the moved points.
+    pvd = ET.parse(out / "tiny.pvd").getroot()
+    sets = pvd.findall("./Collection/DataSet")
+    assert len(sets) == frames
+    last = meshio.read(out / sets[-1].get("file"))
+    np.testing.assert_allclose(last.points, result.simulation.state.x, atol=1e-12)
+    assert set(last.point_data) == {"velocity", "strain", "group", "pinned"}
+    assert last.point_data["pinned"].sum() == 2
+
+    with open(out / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == frames and float(rows[-1]["t"]) == pytest.approx(0.5)
+    energy = [float(r["mechanical_energy"]) for r in rows]
+    assert energy[-1] < energy[0]  # PBD dissipates; the pinned cloth has fallen and swung
+    png = (out / "summary.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
+
+
+def test_two_runs_of_a_scene_give_identical_bits(tmp_path):
+    path = scene_file(tmp_path, GOOD)
+    a = csb.load_scene(path).run(None)
+    b = csb.load_scene(path).run(None)
+    assert np.array_equal(a.simulation.state.x, b.simulation.state.x)
+    assert [r["mechanical_energy"] for r in a.rows] == [r["mechanical_energy"] for r in b.rows]
+
+
+def bad(tmp_path, text):
+    return scene_file(tmp_path, text, "bad.toml")
+
+
+@pytest.mark.parametrize(
+    "edit, message",
+    [
+        (("duration = 0.5", "duration = -1"), r"bad\.toml:3: scene\.duration: must be a duration > 0 s, got -1"),
+        (("iterations = 5", "iteration = 5"), r"bad\.toml:8: solver\.iteration: unknown key; expected one of: .*iterations"),
+        (("substeps = 2", "substeps = 0"), r"bad\.toml:7: solver\.substeps: must be an integer >= 1, got 0"),
+        (("dt = 0.01", "dt = \"fast\""), r"bad\.toml:6: solver\.dt: must be a time step > 0 s, got 'fast'"),
+        (("dt = 0.01", "dt = 1.0"), r"solver\.dt: the time step 1\.0 s is longer than the scene's duration 0\.5 s"),
+        (("stretch = { stiffness = 1.0 }", "stretch = { stiffness = 1.5 }"),
+         r"bad\.toml:16: mesh\[0\] \(cloth\)\.stretch\.stiffness: must be a stiffness in \[0, 1\], got 1\.5"),
+        (("bending = { stiffness = 0.2 }", "bending = { stifness = 0.2 }"),
+         r"bad\.toml:17: mesh\[0\] \(cloth\)\.bending: missing key 'stiffness'"),
+        (("density = 0.2", "density = 0.0"), r"bad\.toml:15: mesh\[0\] \(cloth\)\.density: must be > 0 \(kg/m²\)"),
+        (("density = 0.2", "# no mass"), r"mesh\[0\] \(cloth\): give exactly one of 'mass' \(kg\), 'density'"),
+        (("resolution = [6, 6]", "resolution = [6, 1]"), r"bad\.toml:14: .*resolution: must be \[nx, ny\] with at least 2"),
+        (("shape = \"cloth\"", "shape = \"cube\""), r"bad\.toml:12: .*shape: must be one of 'cloth', 'chain', 'pendulum'"),
+        (("[solver]", "[solver]\nmethod = \"xpbd\""), r"solver\.method: must be one of 'pbd', got 'xpbd'"),
+        (("fps = 20", "fps = 20\nmovie = true"), r"bad\.toml:22: output\.movie: unknown key"),
+        (("size = [1.0, 1.0]", "size = [1.0, 1.0\n"), r"bad\.toml: not valid TOML: Unclosed array \(at line 15"),
+        (("pin = { near = [[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5]] }", "pin = { near = [[-0.5, 0.3, -0.5]] }"),
+         r"mesh 'cloth' pin\.near: the vertex nearest to \[-0\.5, 0\.3, -0\.5\] is 0\.3 m away"),
+        (("pin = { near = [[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5]] }", "pin = { indices = [36] }"),
+         r"mesh 'cloth' pin\.indices: vertex 36 is out of range \(the mesh has 36 vertices"),
+        (("pin = { near = [[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5]] }", "pin = { }"),
+         r"bad\.toml:18: mesh\[0\] \(cloth\)\.pin: give 'indices'"),
+    ],
+)
+def test_scene_errors_name_file_key_and_line(tmp_path, edit, message):
+    old, new = edit
+    assert old in GOOD
+    path = bad(tmp_path, GOOD.replace(old, new))
+    with pytest.raises(csb.SceneError, match=message):
+        csb.load_scene(path).build()
+
+
+def test_scene_mesh_files_are_relative_to_the_scene(tmp_path):
+    (tmp_path / "meshes").mkdir()
+    meshio.write(tmp_path / "meshes" / "sheet.ply", meshio.Mesh(
+        csb.cloth_grid(1, 1, 4, 4).vertices, [("triangle", csb.cloth_grid(1, 1, 4, 4).triangles)]))
+    text = GOOD.replace('shape = "cloth"\nsize = [1.0, 1.0]\nresolution = [6, 6]\n', 'file = "meshes/sheet.ply"\n')
+    sim = csb.load_scene(scene_file(tmp_path, text)).build()
+    assert sim.model.num_particles == 16
+    missing = text.replace("sheet.ply", "nothere.ply")
+    with pytest.raises(FileNotFoundError, match=r"meshes/nothere\.ply: no such file"):
+        csb.load_scene(scene_file(tmp_path, missing)).build()
+    with pytest.raises(FileNotFoundError, match=r"no such scene file, and no bundled scene of that name"):
+        csb.load_scene(tmp_path / "nothere.toml")
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "csb.cli", *args], capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def test_cli_run_and_errors(tmp_path):
+    path = scene_file(tmp_path, GOOD)
+    r = run_cli("run", str(path), "--quiet", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "tiny: 50 steps of 10 ms" in r.stdout and "max strain" in r.stdout
+    assert (tmp_path / "out" / "tiny" / "summary.png").exists()
+    r = run_cli("run", str(bad(tmp_path, GOOD.replace("duration = 0.5", "duration = 0"))), cwd=tmp_path)
+    assert r.returncode == 2 and "csb: error:" in r.stderr and "scene.duration" in r.stderr
+    r = run_cli("scenes", cwd=tmp_path)
+    assert r.returncode == 0 and "cloth_drop" in r.stdout
+    r = run_cli("info", cwd=tmp_path)
+    assert r.returncode == 0 and "sundials" in r.stdout and ".fbx" in r.stdout
