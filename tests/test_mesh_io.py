@@ -282,6 +282,20 @@ def test_corrupted_files_never_crash_or_hang(tmp_path):
         assert r.returncode == 0, f"{os.path.basename(path)}: exit {r.returncode}\n{r.stderr.decode()[-500:]}"
 
 
+def test_a_file_assimp_loops_on_gives_an_error_not_a_hang(tmp_path):
+    """Assimp 5.2 loops forever on a Collada index list with a stray byte in it; csb runs Assimp
+    in a child process and stops it at the deadline."""
+    path = csb.save_mesh(reference_mesh(), str(tmp_path / "good.dae")) or tmp_path / "good.dae"
+    data = path.read_bytes()
+    start = data.index(b"<p>") + 3
+    space = data.index(b" ", start + 4)
+    (tmp_path / "stray.dae").write_bytes(data[:space] + b"\xbf" + data[space + 1:])
+    with pytest.raises(csb.MeshError, match=r"stray\.dae: reading the file took longer than 1 s and was stopped"):
+        csb.load_mesh(tmp_path / "stray.dae", timeout=1.0)
+    with pytest.raises(csb.ParameterError, match=r"timeout must be >= 0 s"):
+        csb.load_mesh(path, timeout=-1.0)
+
+
 def test_save_mesh_refuses_what_it_cannot_write(tmp_path):
     with pytest.raises(csb.MeshError, match=r"cannot write '\.off' files"):
         csb.save_mesh(reference_mesh(), str(tmp_path / "x.off"))

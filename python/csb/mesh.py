@@ -47,7 +47,9 @@ class MeshReport:
             warnings.warn(message, MeshWarning, stacklevel=stacklevel)
 
 
-def load_mesh(path: str | os.PathLike[str], *, weld: bool = True, weld_tolerance: float = 1e-6) -> Mesh:
+def load_mesh(
+    path: str | os.PathLike[str], *, weld: bool = True, weld_tolerance: float = 1e-6, timeout: float = 0.0
+) -> Mesh:
     """Read every mesh in a file (any format Assimp reads: OBJ, glTF/GLB, FBX, DAE, PLY, STL, 3DS, OFF, ...).
 
     Node transforms are applied and polygons triangulated; coordinates are taken as metres.
@@ -57,8 +59,10 @@ def load_mesh(path: str | os.PathLike[str], *, weld: bool = True, weld_tolerance
 
     Raises FileNotFoundError for a missing file and :class:`csb.MeshError`, naming the file (and
     the line, for OBJ), for an empty, corrupt or unsupported file or one without triangles.
+    Assimp runs in a child process (on POSIX systems): a file on which it would crash or loop
+    gives a MeshError after at most ``timeout`` seconds (0: 10 s + 2 s per MB of file).
     """
-    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance)
+    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance, timeout=timeout)
     mesh.report = MeshReport._from_core(report)
     mesh.report._emit()
     return mesh

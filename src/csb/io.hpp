@@ -11,9 +11,14 @@ namespace csb {
 
 // Reads every mesh of the file into one Mesh (node transforms applied, polygons triangulated),
 // then clean()s it: seams are welded and degenerate triangles dropped, each reported.
+// Coordinates arrive as Assimp stores them, in 32-bit floats, and are taken as metres.
 // Throws FileNotFound for a missing path and MeshError (naming the file, and the line for OBJ)
 // for an empty, corrupt or unsupported file, or one without triangles.
-Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr);
+//
+// On POSIX systems Assimp runs in a child process: a file on which it crashes or loops gives a
+// MeshError, after at most `timeout` seconds (0: 10 s + 2 s per MB of file).
+Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr,
+               double timeout = 0);
 
 // Writes the triangles of a mesh; the format follows the extension (.obj .stl .ply .gltf .glb
 // .dae .3ds .fbx .x .3mf ...). Throws MeshError if Assimp cannot write it.

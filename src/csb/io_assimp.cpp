@@ -7,9 +7,23 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
+#include <chrono>
+#include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <sstream>
+
+#if defined(__unix__) || defined(__APPLE__)
+#define CSB_ISOLATED_IMPORT 1
+#include <csignal>
+#include <poll.h>
+#include <sys/wait.h>
+#include <unistd.h>
+#else
+#define CSB_ISOLATED_IMPORT 0
+#endif
 
 namespace csb {
 namespace fs = std::filesystem;
@@ -46,67 +60,218 @@ std::vector<std::string> readable_extensions() {
   return out;
 }
 
-Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report) {
-  std::error_code ec;
-  if (!fs::exists(path, ec)) throw FileNotFound(path + ": no such file");
-  if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
-  if (fs::file_size(path, ec) == 0) throw MeshError(path + ": the file is empty");
-  const std::string ext = lower_extension(path);
+namespace {
 
+// What load_mesh needs from Assimp's scene: float32 coordinates (Assimp's ai_real) and
+// triangles, plus counts of what is not a triangle, or Assimp's error message.
+struct RawScene {
+  bool ok = false;
+  std::string error;
+  std::vector<float> vertices;        // x, y, z per vertex, all meshes concatenated
+  std::vector<std::uint32_t> triangles;
+  std::uint64_t points = 0, lines = 0, polygons = 0;
+};
+
+RawScene read_in_process(const std::string& path) {
+  RawScene raw;
   Assimp::Importer importer;
-  if (ext.empty() || !importer.IsExtensionSupported(ext))
-    throw MeshError(path + ": unsupported format '" + ext + "'; csb reads " + joined(readable_extensions()));
-  if (ext == ".obj") check_obj(path);
-  if (ext == ".ply") check_ply(path);
-  if (ext == ".stl") check_stl(path);
-  if (ext == ".off") check_off(path);
-
   // Triangulate polygons, bake node transforms so that all meshes share world space, split
   // primitive types so that points and lines can be told apart, and let Assimp check its output.
   const unsigned flags = aiProcess_Triangulate | aiProcess_PreTransformVertices | aiProcess_SortByPType |
                          aiProcess_ValidateDataStructure;
   const aiScene* scene = importer.ReadFile(path, flags);
-  if (!scene) throw MeshError(path + ": cannot read the file: " + importer.GetErrorString());
-  if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE)
-    throw MeshError(path + ": the file holds no complete mesh (Assimp marked the scene incomplete)");
-
-  Mesh mesh;
-  mesh.name = path;
-  std::size_t num_vertices = 0;
-  for (unsigned m = 0; m < scene->mNumMeshes; ++m) num_vertices += scene->mMeshes[m]->mNumVertices;
-  mesh.vertices.resize(3, static_cast<Eigen::Index>(num_vertices));
-  std::size_t points = 0, lines = 0, polygons = 0, offset = 0;
+  if (!scene) {
+    raw.error = std::string("cannot read the file: ") + importer.GetErrorString();
+    return raw;
+  }
+  if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) {
+    raw.error = "the file holds no complete mesh (Assimp marked the scene incomplete)";
+    return raw;
+  }
+  std::uint32_t offset = 0;
   for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
     const aiMesh* am = scene->mMeshes[m];
     for (unsigned i = 0; i < am->mNumVertices; ++i)
-      mesh.vertices.col(static_cast<Eigen::Index>(offset + i)) =
-          Vec3(am->mVertices[i].x, am->mVertices[i].y, am->mVertices[i].z);
+      raw.vertices.insert(raw.vertices.end(), {static_cast<float>(am->mVertices[i].x),
+                                               static_cast<float>(am->mVertices[i].y),
+                                               static_cast<float>(am->mVertices[i].z)});
     for (unsigned f = 0; f < am->mNumFaces; ++f) {
       const aiFace& face = am->mFaces[f];
       if (face.mNumIndices == 3) {
-        mesh.triangles.push_back({static_cast<Index>(offset + face.mIndices[0]),
-                                  static_cast<Index>(offset + face.mIndices[1]),
-                                  static_cast<Index>(offset + face.mIndices[2])});
+        for (int k = 0; k < 3; ++k) raw.triangles.push_back(offset + face.mIndices[k]);
       } else if (face.mNumIndices == 2) {
-        ++lines;
+        ++raw.lines;
       } else if (face.mNumIndices == 1) {
-        ++points;
+        ++raw.points;
       } else {
-        ++polygons;  // cannot happen after aiProcess_Triangulate; counted to be safe
+        ++raw.polygons;  // cannot happen after aiProcess_Triangulate; counted to be safe
       }
     }
     offset += am->mNumVertices;
   }
+  raw.ok = true;
+  return raw;
+}
+
+#if CSB_ISOLATED_IMPORT
+// Assimp's parsers can loop forever or crash on corrupt input (Assimp 5.2 hangs on some damaged
+// Collada index lists and PLY headers). The import therefore runs in a forked child that sends
+// the scene back through a pipe; the parent gives up at a deadline and reports a crash as an
+// error instead of dying with it. glibc's fork() keeps malloc usable in the child, which only
+// runs Assimp and then _exit()s.
+
+bool write_all(int fd, const void* data, std::size_t n) {
+  const char* p = static_cast<const char*>(data);
+  while (n > 0) {
+    const ssize_t w = ::write(fd, p, n);
+    if (w < 0 && errno == EINTR) continue;
+    if (w <= 0) return false;
+    p += w;
+    n -= static_cast<std::size_t>(w);
+  }
+  return true;
+}
+
+void child_import(const std::string& path, int fd) {
+  RawScene raw;
+  try {
+    raw = read_in_process(path);
+  } catch (const std::exception& e) {
+    raw.error = std::string("cannot read the file: ") + e.what();
+  } catch (...) {
+    raw.error = "cannot read the file: Assimp failed with an unknown exception";
+  }
+  const std::uint64_t header[7] = {raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
+                                   raw.points, raw.lines, raw.polygons};
+  const bool sent = write_all(fd, header, sizeof header) && write_all(fd, raw.error.data(), raw.error.size()) &&
+                    write_all(fd, raw.vertices.data(), raw.vertices.size() * sizeof(float)) &&
+                    write_all(fd, raw.triangles.data(), raw.triangles.size() * sizeof(std::uint32_t));
+  ::close(fd);
+  ::_exit(sent ? 0 : 3);
+}
+
+RawScene read_isolated(const std::string& path, double timeout) {
+  int fds[2];
+  if (::pipe(fds) != 0) return read_in_process(path);
+  const pid_t pid = ::fork();
+  if (pid < 0) {
+    ::close(fds[0]);
+    ::close(fds[1]);
+    return read_in_process(path);
+  }
+  if (pid == 0) {
+    ::close(fds[0]);
+    child_import(path, fds[1]);
+  }
+  ::close(fds[1]);
+  std::string bytes;
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout);
+  bool timed_out = false;
+  char buffer[1 << 16];
+  for (;;) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - std::chrono::steady_clock::now());
+    if (left.count() <= 0) {
+      timed_out = true;
+      break;
+    }
+    pollfd pfd{fds[0], POLLIN, 0};
+    const int r = ::poll(&pfd, 1, static_cast<int>(std::min<long long>(left.count(), 1000)));
+    if (r < 0 && errno == EINTR) continue;
+    if (r <= 0) continue;
+    const ssize_t n = ::read(fds[0], buffer, sizeof buffer);
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0) break;  // EOF: the child is done (or died)
+    bytes.append(buffer, static_cast<std::size_t>(n));
+  }
+  ::close(fds[0]);
+  if (timed_out) ::kill(pid, SIGKILL);
+  int status = 0;
+  while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
+  }
+  RawScene raw;
+  std::ostringstream why;
+  if (timed_out) {
+    why << "reading the file took longer than " << timeout
+        << " s and was stopped; the file is probably corrupt (Assimp can loop forever on damaged input)";
+    raw.error = why.str();
+    return raw;
+  }
+  if (WIFSIGNALED(status)) {
+    why << "Assimp crashed (signal " << WTERMSIG(status) << ") while reading the file; it is probably corrupt";
+    raw.error = why.str();
+    return raw;
+  }
+  std::uint64_t header[7];
+  if (bytes.size() < sizeof header) {
+    raw.error = "the import process ended without a result";
+    return raw;
+  }
+  std::memcpy(header, bytes.data(), sizeof header);
+  const std::size_t need = sizeof header + header[1] + header[2] * sizeof(float) + header[3] * sizeof(std::uint32_t);
+  if (bytes.size() != need) {
+    raw.error = "the import process sent an incomplete result";
+    return raw;
+  }
+  const char* p = bytes.data() + sizeof header;
+  raw.ok = header[0] == 1;
+  raw.error.assign(p, header[1]);
+  p += header[1];
+  raw.vertices.resize(header[2]);
+  std::memcpy(raw.vertices.data(), p, header[2] * sizeof(float));
+  p += header[2] * sizeof(float);
+  raw.triangles.resize(header[3]);
+  std::memcpy(raw.triangles.data(), p, header[3] * sizeof(std::uint32_t));
+  raw.points = header[4];
+  raw.lines = header[5];
+  raw.polygons = header[6];
+  return raw;
+}
+#endif
+
+}  // namespace
+
+Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout) {
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw FileNotFound(path + ": no such file");
+  if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
+  const std::uintmax_t bytes = fs::file_size(path, ec);
+  if (bytes == 0) throw MeshError(path + ": the file is empty");
+  const std::string ext = lower_extension(path);
+  if (ext.empty() || !Assimp::Importer().IsExtensionSupported(ext))
+    throw MeshError(path + ": unsupported format '" + ext + "'; csb reads " + joined(readable_extensions()));
+  if (!(timeout >= 0)) throw InvalidArgument(path + ": timeout must be >= 0 s (0: automatic)");
+  if (ext == ".obj") check_obj(path);
+  if (ext == ".ply") check_ply(path);
+  if (ext == ".stl") check_stl(path);
+  if (ext == ".off") check_off(path);
+
+#if CSB_ISOLATED_IMPORT
+  // Automatic deadline: generous for real files (Assimp reads tens of MB/s).
+  if (timeout == 0) timeout = 10.0 + 2.0 * static_cast<double>(bytes) / 1e6;
+  const RawScene raw = read_isolated(path, timeout);
+#else
+  const RawScene raw = read_in_process(path);
+#endif
+  if (!raw.ok) throw MeshError(path + ": " + raw.error);
+
+  Mesh mesh;
+  mesh.name = path;
+  const std::size_t num_vertices = raw.vertices.size() / 3;
+  mesh.vertices.resize(3, static_cast<Eigen::Index>(num_vertices));
+  for (std::size_t i = 0; i < raw.vertices.size(); ++i) mesh.vertices.data()[i] = raw.vertices[i];
+  mesh.triangles.resize(raw.triangles.size() / 3);
+  for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
+    for (int k = 0; k < 3; ++k) mesh.triangles[t][k] = static_cast<Index>(raw.triangles[3 * t + k]);
   if (mesh.triangles.empty())
     throw MeshError(path + ": the file has no triangles (" + std::to_string(num_vertices) + " vertices, " +
-                    std::to_string(points) + " points, " + std::to_string(lines) +
+                    std::to_string(raw.points) + " points, " + std::to_string(raw.lines) +
                     " line segments); csb needs a surface mesh");
   MeshReport local;
   Mesh out = clean(mesh, options, &local);
-  if (points + lines + polygons > 0)
-    local.warnings.insert(local.warnings.begin(),
-                          path + ": ignored " + std::to_string(points) + " point(s) and " + std::to_string(lines) +
-                              " line segment(s) beside the triangles");
+  if (raw.points + raw.lines + raw.polygons > 0)
+    local.warnings.insert(local.warnings.begin(), path + ": ignored " + std::to_string(raw.points) +
+                                                      " point(s) and " + std::to_string(raw.lines) +
+                                                      " line segment(s) beside the triangles");
   if (report) *report = std::move(local);
   return out;
 }

@@ -229,7 +229,7 @@ PYBIND11_MODULE(_core, m) {
     return py::make_tuple(out, report_dict(r));
   }, py::arg("mesh"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("drop_unreferenced") = true);
 
-  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance) {
+  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance, double timeout) {
     CleanOptions o;
     o.weld = weld;
     o.weld_tolerance = weld_tolerance;
@@ -237,10 +237,10 @@ PYBIND11_MODULE(_core, m) {
     Mesh out;
     {
       py::gil_scoped_release release;
-      out = load_mesh(path, o, &r);
+      out = load_mesh(path, o, &r, timeout);
     }
     return py::make_tuple(out, report_dict(r));
-  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6);
+  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0);
 
   m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
         "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
