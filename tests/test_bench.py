@@ -7,12 +7,13 @@ import subprocess
 import sys
 
 import csb
-from csb.bench import bench_cloth, cloth_model, format_table
+from csb.bench import bench_cloth, cloth_simulation, format_table
 
 
 def test_bench_counts_the_projections_it_times():
     row = bench_cloth(8, iterations=3, substeps=2, steps=2, rounds=2, warmup=1)
-    model = cloth_model(8)
+    model = cloth_simulation(8).model
+    assert model.num_constraints == row.distance + row.bending and (model.inv_mass == 0).sum() == 2
     assert row.particles == 64 and row.distance == 2 * 8 * 7 + 49 and row.bending == row.distance - 28
     assert row.projections_per_step == 2 * 3 * (row.distance + row.bending) == 2 * 3 * model.num_constraints
     assert row.ms_spread[0] <= row.ms_per_step <= row.ms_spread[1]

@@ -41,7 +41,7 @@ def random_quad(rng: np.random.Generator) -> np.ndarray:
 # ------------------------------------------------------------------------------ distance
 
 
-def test_distance_projection_is_eq_9_and_10(rng):
+def test_distance_projection_is_the_papers_distance_example(rng):
     for _ in range(200):
         p1, p2 = rng.normal(size=(2, 3))
         w1, w2 = rng.uniform(0.1, 3.0, 2)

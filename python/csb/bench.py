@@ -1,18 +1,21 @@
 """Benchmark of the PBD step on square cloths: ms per step and constraint projections per second.
 
-A benchmark prints figures; it asserts nothing about speed (the machines it runs on are shared
-and noisy). Each figure is the median over several timed rounds, after a warm-up.
+The cloth is the bundled scene ``cloth_grid`` (stretch and bending, two pinned corners) at the
+requested resolution. A benchmark prints figures; it asserts nothing about speed (the machines
+it runs on are shared and noisy). Each figure is the median over several timed rounds, after a
+warm-up.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import statistics
 import time
 from dataclasses import dataclass
 from typing import Sequence
 
 from . import _core
-from .model import ModelBuilder
+from .scene import Simulation, load_scene
 
 
 @dataclass(frozen=True)
@@ -36,21 +39,19 @@ class BenchRow:
         return 1e6 * self.ms_per_step / self.projections_per_step
 
 
-def cloth_model(n: int, *, bending: bool = True) -> _core.Model:
-    """The benchmark cloth: n x n particles over 1 m x 1 m, stretch (+ bending), two corners pinned."""
-    b = ModelBuilder()
-    inst = b.add_mesh(_core.cloth_grid(1.0, 1.0, n, n), density=0.2, stretch_stiffness=1.0,
-                      bending_stiffness=0.1 if bending else None)
-    b.pin(inst.first_particle)
-    b.pin(inst.first_particle + n - 1)
-    return b.build()
+def cloth_simulation(n: int, *, iterations: int = 10, substeps: int = 1) -> Simulation:
+    """The bundled ``cloth_grid`` scene with n x n particles, at dt = 1/60 s."""
+    scene = load_scene("cloth_grid")
+    mesh = scene.meshes[0]
+    mesh = dataclasses.replace(mesh, shape_args={**mesh.shape_args, "resolution": (n, n)})
+    solver = dataclasses.replace(scene.solver, dt=1 / 60, iterations=iterations, substeps=substeps)
+    return dataclasses.replace(scene, meshes=(mesh,), solver=solver).build()
 
 
 def bench_cloth(n: int, *, iterations: int = 10, substeps: int = 1, steps: int = 10, rounds: int = 7,
                 warmup: int = 5) -> BenchRow:
-    model = cloth_model(n)
-    state = model.initial_state()
-    stepper = _core.PbdStepper(dt=1 / 60, substeps=substeps, iterations=iterations)
+    sim = cloth_simulation(n, iterations=iterations, substeps=substeps)
+    model, state, stepper = sim.model, sim.state, sim.stepper
     stepper.step(model, state, warmup)
     times = []
     for _ in range(rounds):
@@ -81,8 +82,9 @@ def format_table(rows: Sequence[BenchRow]) -> str:
 def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int = 1, steps: int = 10,
          rounds: int = 7) -> list[BenchRow]:
     info = _core.build_info()
-    print(f"csb {info['csb']} PBD step benchmark ({info['compiler']}, one thread); "
-          f"median of {rounds} rounds of {steps} steps after 5 warm-up steps, dt = 1/60 s")
+    print(f"csb {info['csb']} PBD step benchmark ({info['compiler']}, one thread): bundled scene cloth_grid "
+          f"(stretch + bending, 2 pinned corners) at n x n particles, dt = 1/60 s; median of {rounds} rounds "
+          f"of {steps} steps after 5 warm-up steps")
     rows = [bench_cloth(n, iterations=iterations, substeps=substeps, steps=steps, rounds=rounds) for n in sizes]
     print(format_table(rows))
     return rows

@@ -397,7 +397,7 @@ def _select(scene: Scene, spec: MeshSpec, sel: Selection, inst: MeshInstance, wh
 # Reading the TOML
 
 
-def _read_selection(t: _Table, with_targets: bool = False) -> tuple[Selection, _Table]:
+def _read_selection(t: _Table) -> Selection:
     sel = Selection(
         indices=t.integers("indices", ()),
         near=t.vectors("near", ()),
@@ -405,7 +405,7 @@ def _read_selection(t: _Table, with_targets: bool = False) -> tuple[Selection, _
     )
     if not sel.indices and not sel.near:
         raise t.error(None, "give 'indices' (vertex numbers) or 'near' (points in m)")
-    return sel, t
+    return sel
 
 
 def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
@@ -464,12 +464,12 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
     pin = None
     pin_t = t.table("pin")
     if pin_t is not None:
-        pin, _ = _read_selection(pin_t)
+        pin = _read_selection(pin_t)
         pin_t.finish()
     attach = None
     att_t = t.table("attach")
     if att_t is not None:
-        sel, _ = _read_selection(att_t)
+        sel = _read_selection(att_t)
         targets = att_t.vectors("targets", None)
         stiffness = att_t.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
         att_t.finish()

@@ -1,4 +1,5 @@
 #include "csb/mesh.hpp"
+#include "csb/format.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -7,13 +8,11 @@
 #include <unordered_map>
 
 namespace csb {
+
+using detail::str;
+
 namespace {
 
-std::string fmt_vec(const Vec3& v) {
-  std::ostringstream s;
-  s << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
-  return s.str();
-}
 
 struct CellKey {
   std::int64_t x, y, z;
@@ -103,7 +102,7 @@ void validate(const Mesh& mesh) {
   for (Index i = 0; i < n; ++i)
     if (!mesh.vertices.col(i).allFinite())
       throw MeshError(mesh.name + ": vertex " + std::to_string(i) + " has a non-finite coordinate " +
-                      fmt_vec(mesh.vertices.col(i)));
+                      str(mesh.vertices.col(i)));
   if (mesh.triangles.empty() && mesh.lines.empty())
     throw MeshError(mesh.name + ": the mesh has no triangles (and no line segments)");
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t)

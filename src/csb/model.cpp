@@ -1,4 +1,5 @@
 #include "csb/model.hpp"
+#include "csb/format.hpp"
 
 #include "csb/constraints/bending.hpp"
 
@@ -7,13 +8,11 @@
 #include <sstream>
 
 namespace csb {
+
+using detail::str;
+
 namespace {
 
-std::string str(Real v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
 std::uint64_t next_model_id() {
   static std::atomic<std::uint64_t> counter{0};
@@ -140,9 +139,9 @@ Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffne
     throw InvalidArgument(what + ": needs four different particles");
   require_stiffness(stiffness, what);
   Vec3 grad[4];
-  if (!dihedral_angle_gradient(position(a), position(b), position(c), position(d), grad))
+  Real angle = 0;
+  if (!dihedral_angle_and_gradient(position(a), position(b), position(c), position(d), angle, grad))
     throw InvalidArgument(what + ": degenerate at rest (zero-length edge or zero-area triangle)");
-  Real angle = dihedral_angle(position(a), position(b), position(c), position(d));
   if (rest_angle) {
     if (!std::isfinite(*rest_angle)) throw InvalidArgument(what + ": rest angle must be finite");
     angle = wrap_angle(*rest_angle);

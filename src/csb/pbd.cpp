@@ -1,4 +1,5 @@
 #include "csb/pbd.hpp"
+#include "csb/format.hpp"
 
 #include "csb/constraints/attachment.hpp"
 #include "csb/constraints/bending.hpp"
@@ -10,19 +11,12 @@
 #include <sstream>
 
 namespace csb {
+
+using detail::str;
+
 namespace {
 
-std::string str(Real v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
-std::string fmt_vec(const Vec3& v) {
-  std::ostringstream s;
-  s << "(" << v.x() << ", " << v.y() << ", " << v.z() << ")";
-  return s.str();
-}
 
 // Index of the first particle whose column is not finite, or -1.
 Index first_non_finite(const Positions& x) {
@@ -37,7 +31,7 @@ void validate(const PbdSettings& s) {
   if (!(s.dt > 0) || !std::isfinite(s.dt)) throw InvalidArgument("dt must be a finite time step > 0 s, got " + str(s.dt));
   if (s.substeps < 1) throw InvalidArgument("substeps must be >= 1, got " + std::to_string(s.substeps));
   if (s.iterations < 1) throw InvalidArgument("iterations must be >= 1, got " + std::to_string(s.iterations));
-  if (!s.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + fmt_vec(s.gravity));
+  if (!s.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + str(s.gravity));
   if (!(s.damping >= 0 && s.damping <= 1)) throw InvalidArgument("damping must be in [0, 1], got " + str(s.damping));
 }
 
@@ -77,7 +71,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     if (const Index i = first_non_finite(*q); i >= 0)
       throw SimulationError("before step " + std::to_string(state.step) + ": particle " + std::to_string(i) +
                             " has a non-finite " + (q == &state.x ? "position " : "velocity ") +
-                            fmt_vec(q->col(i)));
+                            str(q->col(i)));
   prepare(model);
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t s = 0; s < steps; ++s) {
@@ -86,7 +80,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
       if (const Index i = first_non_finite(p_); i >= 0) {
         std::ostringstream msg;
         msg << "step " << state.step << " (substep " << k << ", t = " << state.t << " s): particle " << i
-            << " got a non-finite position " << fmt_vec(p_.col(i))
+            << " got a non-finite position " << str(p_.col(i))
             << "; the state is left at the end of the last finite substep";
         throw SimulationError(msg.str());
       }

@@ -1,20 +1,19 @@
 #include "csb/shapes.hpp"
+#include "csb/format.hpp"
 
 #include <cmath>
 #include <sstream>
 
 namespace csb {
+
+using detail::str;
+
 namespace {
 
 void require(bool ok, const std::string& message) {
   if (!ok) throw InvalidArgument(message);
 }
 
-std::string str(Real v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
 
 }  // namespace
 

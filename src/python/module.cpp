@@ -523,7 +523,9 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed dihedral angle across edge (a, b), rad.");
   k.def("dihedral_angle_gradient", [](py::handle a, py::handle b, py::handle c, py::handle d) -> py::object {
     Vec3 g[4];
-    if (!dihedral_angle_gradient(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"), g)) return py::none();
+    Real theta = 0;
+    if (!dihedral_angle_and_gradient(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"), theta, g))
+      return py::none();
     py::array_t<double> out({4, 3});
     for (int i = 0; i < 4; ++i)
       for (int j = 0; j < 3; ++j) out.mutable_at(i, j) = g[i][j];

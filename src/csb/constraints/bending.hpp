@@ -24,7 +24,7 @@
 // the projection below equals the appendix's Δp_i = -w_i sqrt(1 - d²)(acos d - φ0) q_i /
 // Σ_j w_j |q_j|² with φ0 = π - |θ0| (tests/test_kernels.py checks this to 1e-13, and the
 // gradient by finite differences). The projection is the general one of
-// §3.3, Eq. (8): s = k C / Σ_j w_j |grad_j C|², Δp_i = -s w_i grad_i C. θ is invariant under
+// §3.3: s = k C / Σ_j w_j |grad_j C|², Δp_i = -s w_i grad_i C. θ is invariant under
 // translation and rotation, so the gradients sum to zero and have no moment: momentum is kept.
 #pragma once
 
@@ -36,12 +36,14 @@ namespace csb {
 
 constexpr Real kPi = 3.14159265358979323846;
 
-// Signed dihedral angle across the edge (a, b) in (-π, π]; 0 for a flat pair (rad).
+// Signed dihedral angle across the edge (a, b) in (-π, π]; 0 for a flat pair (rad). atan2 does
+// not care for a common positive factor, so the normals need no normalising:
+// θ = atan2((N1 x N2) · e, (N1 · N2) |e|).
 inline Real dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d) {
-  const Vec3 n1 = (c - a).cross(c - b).normalized();
-  const Vec3 n2 = (d - b).cross(d - a).normalized();
-  const Vec3 e = (b - a).normalized();
-  return std::atan2(n1.cross(n2).dot(e), n1.dot(n2));
+  const Vec3 e = b - a;
+  const Vec3 N1 = (c - a).cross(c - b);
+  const Vec3 N2 = (d - b).cross(d - a);
+  return std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * e.norm());
 }
 
 // Wraps an angle difference into (-π, π].
@@ -51,15 +53,18 @@ inline Real wrap_angle(Real x) {
   return x;
 }
 
-// Gradient of the signed dihedral angle with respect to a, b, c, d (rad/m). Returns false for a
-// degenerate configuration (zero-length edge or zero-area triangle), where θ is undefined.
-inline bool dihedral_angle_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Vec3 grad[4]) {
+// The signed dihedral angle (rad) and its gradient with respect to a, b, c, d (rad/m). Returns
+// false for a degenerate configuration (zero-length edge or zero-area triangle), where θ is
+// undefined.
+inline bool dihedral_angle_and_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Real& theta,
+                                        Vec3 grad[4]) {
   const Vec3 e = b - a;
   const Vec3 N1 = (c - a).cross(c - b);
   const Vec3 N2 = (d - b).cross(d - a);
   const Real e2 = e.squaredNorm(), n1 = N1.squaredNorm(), n2 = N2.squaredNorm();
   if (!(e2 > 0 && n1 > 0 && n2 > 0)) return false;
   const Real elen = std::sqrt(e2);
+  theta = std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * elen);
   const Vec3 g1 = N1 / n1, g2 = N2 / n2;
   grad[0] = -((c - b).dot(e) / elen * g1 + (d - b).dot(e) / elen * g2);
   grad[1] = (c - a).dot(e) / elen * g1 + (d - a).dot(e) / elen * g2;
@@ -73,9 +78,10 @@ inline bool dihedral_angle_gradient(const Vec3& a, const Vec3& b, const Vec3& c,
 inline Real project_bending(Real* pa, Real* pb, Real* pc, Real* pd, Real wa, Real wb, Real wc, Real wd,
                             Real rest_angle, Real stiffness) {
   Eigen::Map<Vec3> a(pa), b(pb), c(pc), d(pd);
+  Real theta = 0;
   Vec3 grad[4];
-  if (!dihedral_angle_gradient(a, b, c, d, grad)) return 0;
-  const Real violation = wrap_angle(dihedral_angle(a, b, c, d) - rest_angle);
+  if (!dihedral_angle_and_gradient(a, b, c, d, theta, grad)) return 0;
+  const Real violation = wrap_angle(theta - rest_angle);
   const Real denom = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
                      wd * grad[3].squaredNorm();
   if (!(denom > 0)) return violation;

@@ -1,6 +1,7 @@
 // csb — distance constraint kernel (stretch, springs, links of a chain).
 //
-// Müller, Heidelberger, Hennix, Ratcliff 2007, "Position Based Dynamics", §3.3, Eq. (9)-(10):
+// Müller, Heidelberger, Hennix, Ratcliff 2007, "Position Based Dynamics", §3.3, the worked
+// example of a distance constraint:
 //
 //   C(p1, p2)  = |p1 - p2| - d
 //   grad_p1 C  =  n,   grad_p2 C = -n,   n = (p1 - p2) / |p1 - p2|
@@ -8,7 +9,7 @@
 //   Δp2 = +k  w2 / (w1 + w2) C n
 //
 // with w = 1/m the inverse masses and k in [0, 1] the (possibly iteration-corrected) stiffness.
-// Since w1 Δp1 / w1 + w2 Δp2 / w2 = 0 and Δp is parallel to p1 - p2, the correction conserves
+// Since m1 Δp1 + m2 Δp2 = 0 and both are parallel to p1 - p2, the correction conserves
 // linear and angular momentum (§3.3).
 //
 // `sense` makes the same kernel an equality or an inequality constraint, the proposal's

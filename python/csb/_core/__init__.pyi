@@ -1,0 +1,288 @@
+"""
+csb compiled core: meshes, models, states and the PBD stepper
+"""
+from __future__ import annotations
+from csb import Error
+from csb import MeshError
+from csb import ParameterError
+from csb import SimulationError
+import numpy
+import numpy.typing
+import typing
+from . import kernels
+__all__: list[str] = ['Error', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'State', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
+class Mesh:
+    """
+    A triangle (and/or line) mesh before it enters the particle pool; metres.
+    """
+    def __init__(self, vertices: typing.Any, triangles: typing.Any = None, lines: typing.Any = None, name: str = 'mesh') -> None:
+        """
+        vertices: (N, 3) float, m. triangles: (T, 3) int. lines: (L, 2) int (ropes, chains).
+        """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def lines(self) -> numpy.typing.NDArray[numpy.int32]:
+        """
+        (L, 2) vertex indices of explicit segments (a copy)
+        """
+    @property
+    def name(self) -> str:
+        ...
+    @property
+    def num_vertices(self) -> int:
+        ...
+    @property
+    def triangles(self) -> numpy.typing.NDArray[numpy.int32]:
+        """
+        (T, 3) vertex indices (a copy)
+        """
+    @property
+    def vertices(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        (N, 3) vertex positions, m (a copy)
+        """
+class State:
+    """
+    Positions (m), velocities (m/s) and time (s) of every particle.
+    """
+    def __repr__(self) -> str:
+        ...
+    def copy(self) -> State:
+        """
+        A deep copy (a checkpoint).
+        """
+    @property
+    def num_particles(self) -> int:
+        ...
+    @property
+    def step(self) -> int:
+        """
+        number of completed steps
+        """
+    @step.setter
+    def step(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def t(self) -> float:
+        """
+        time, s
+        """
+    @t.setter
+    def t(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def v(self) -> numpy.ndarray:
+        """
+        (N, 3) velocities, m/s: a writable view, no copy
+        """
+    @v.setter
+    def v(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def x(self) -> numpy.ndarray:
+        """
+        (N, 3) positions, m: a writable view, no copy
+        """
+    @x.setter
+    def x(self, arg1: typing.Any) -> None:
+        ...
+class Model:
+    """
+    Immutable: rest positions, masses, and one batch per constraint type. Arrays are read-only views.
+    """
+    def __repr__(self) -> str:
+        ...
+    def initial_state(self) -> State:
+        """
+        A new State at the rest positions with zero velocities and t = 0.
+        """
+    @property
+    def attachments(self) -> dict:
+        """
+        attachment batch: particle (M,), target (M, 3) m, stiffness
+        """
+    @property
+    def bending(self) -> dict:
+        """
+        bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness
+        """
+    @property
+    def distance(self) -> dict:
+        """
+        distance batch: particles (M, 2), rest_length (m), stiffness, sense (0: ==, +1: >=, -1: <=)
+        """
+    @property
+    def group(self) -> numpy.ndarray:
+        """
+        (N,) group index of each particle
+        """
+    @property
+    def group_names(self) -> list[str]:
+        ...
+    @property
+    def inv_mass(self) -> numpy.ndarray:
+        """
+        (N,) inverse masses, 1/kg; 0 for pinned particles
+        """
+    @property
+    def mass(self) -> numpy.ndarray:
+        """
+        (N,) masses, kg (kept for pinned particles)
+        """
+    @property
+    def num_constraints(self) -> int:
+        ...
+    @property
+    def num_particles(self) -> int:
+        ...
+    @property
+    def rest_positions(self) -> numpy.ndarray:
+        """
+        (N, 3) rest positions, m
+        """
+    @property
+    def triangles(self) -> numpy.ndarray:
+        """
+        (T, 3) surface triangles (particle indices)
+        """
+class ModelBuilder:
+    """
+    Collects particles and constraints; build() returns the immutable Model.
+    """
+    def __init__(self) -> None:
+        ...
+    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None) -> dict:
+        ...
+    def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
+        """
+        Dihedral bending across edge (a, b) with wings c, d; rest_angle in rad, default the current angle.
+        """
+    def add_distance(self, i: typing.SupportsInt | typing.SupportsIndex, j: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==') -> int:
+        """
+        Distance constraint (a spring of stiffness in [0, 1]); rest_length in m, default the current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.
+        """
+    def add_group(self, name: str) -> int:
+        """
+        Adds a particle group; returns its index.
+        """
+    def add_particle(self, x: typing.Any, mass: typing.SupportsFloat | typing.SupportsIndex, group: typing.SupportsInt | typing.SupportsIndex) -> int:
+        """
+        One particle at x (m) of mass (kg) in a group; returns its index.
+        """
+    def attach(self, i: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> int:
+        """
+        Holds particle i at a world point (m).
+        """
+    def build(self) -> Model:
+        ...
+    def pin(self, i: typing.SupportsInt | typing.SupportsIndex) -> None:
+        """
+        Fixes particle i (inverse mass 0).
+        """
+    def position(self, i: typing.SupportsInt | typing.SupportsIndex) -> numpy.ndarray:
+        ...
+    @property
+    def num_particles(self) -> int:
+        ...
+class PbdSettings:
+    """
+    Settings of the PBD stepper (SI units).
+    """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def damping(self) -> float:
+        """
+        Müller 2007 §3.5 k_damping per substep, [0, 1]
+        """
+    @property
+    def dt(self) -> float:
+        """
+        s, time advanced by one step
+        """
+    @property
+    def gravity(self) -> numpy.ndarray:
+        """
+        m/s²
+        """
+    @property
+    def iterations(self) -> int:
+        ...
+    @property
+    def stiffness_correction(self) -> bool:
+        ...
+    @property
+    def substeps(self) -> int:
+        ...
+class PbdStepper:
+    """
+    Position Based Dynamics, Müller et al. 2007, Algorithm 1.
+    """
+    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True) -> None:
+        """
+        dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: Gauss-Seidel sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step. stiffness_correction: use k' = 1 - (1 - k)^(1/iterations).
+        """
+    def projections_per_step(self, model: Model) -> int:
+        ...
+    def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
+        """
+        Advances state by `steps` steps of dt (the GIL is released meanwhile).
+        """
+    @property
+    def settings(self) -> PbdSettings:
+        ...
+def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, drop_unreferenced: bool = True) -> tuple[Mesh, dict]:
+    ...
+def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, timeout: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> tuple[Mesh, dict]:
+    ...
+def bending_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Violation θ - θ0 of every bending constraint, rad.
+    """
+def build_info() -> dict:
+    """
+    Versions of csb and of the libraries it was built against.
+    """
+def chain(links: typing.SupportsInt | typing.SupportsIndex, link_length: typing.SupportsFloat | typing.SupportsIndex, start: typing.Any = [0.0, 0.0, 0.0], direction: typing.Any = [1.0, 0.0, 0.0]) -> Mesh:
+    """
+    A chain of `links` segments of link_length m from start (m) along direction.
+    """
+def check_obj(path: str) -> None:
+    """
+    Strict OBJ syntax check naming the line of the first problem.
+    """
+def cloth_grid(width: typing.SupportsFloat | typing.SupportsIndex, height: typing.SupportsFloat | typing.SupportsIndex, nx: typing.SupportsInt | typing.SupportsIndex, ny: typing.SupportsInt | typing.SupportsIndex, plane: str = 'xz', center: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
+    """
+    Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).
+    """
+def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, iterations: typing.SupportsInt | typing.SupportsIndex) -> float:
+    """
+    1 - (1 - k)^(1/iterations), Müller 2007 §3.3.
+    """
+def distance_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Violation |xi - xj| - rest of every distance constraint, m.
+    """
+def lumped_measure(mesh: Mesh) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).
+    """
+def measure(model: Model, state: State, gravity: typing.Any) -> dict:
+    ...
+def pendulum(length: typing.SupportsFloat | typing.SupportsIndex, angle: typing.SupportsFloat | typing.SupportsIndex, anchor: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
+    """
+    Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.
+    """
+def readable_extensions() -> list[str]:
+    """
+    Extensions (with the dot) that load_mesh reads.
+    """
+def save_mesh(mesh: Mesh, path: str) -> None:
+    """
+    Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).
+    """
+def topology(mesh: Mesh) -> dict:
+    """
+    Unique edges, bending quads (a, b, c, d), boundary and non-manifold edge counts.
+    """
