@@ -13,6 +13,7 @@ from csb.bench import bench_cloth, cloth_simulation, format_table
 def test_bench_counts_the_projections_it_times():
     row = bench_cloth(8, iterations=3, substeps=2, steps=2, rounds=2, warmup=1)
     model = cloth_simulation(8).model
+    assert bench_cloth(8, steps=1, rounds=1, warmup=0, constraints="bending").distance == 0
     assert model.num_constraints == row.distance + row.bending and (model.inv_mass == 0).sum() == 2
     assert row.particles == 64 and row.distance == 2 * 8 * 7 + 49 and row.bending == row.distance - 28
     assert row.projections_per_step == 2 * 3 * (row.distance + row.bending) == 2 * 3 * model.num_constraints
@@ -27,4 +28,6 @@ def test_bench_command_prints_a_table():
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert lines[0].startswith(f"csb {csb.__version__} PBD step benchmark")
-    assert any(line.lstrip().startswith("8x8") for line in lines) and any(line.lstrip().startswith("16x16") for line in lines)
+    rows = [line.split() for line in lines[3:]]
+    assert [(r[0], r[1]) for r in rows] == [(f"{n}x{n}", kind) for n in (8, 16)
+                                             for kind in ("stretch+bending", "stretch", "bending")]

@@ -21,6 +21,7 @@ from .scene import Simulation, load_scene
 @dataclass(frozen=True)
 class BenchRow:
     n: int                    # particles per side
+    constraints: str          # which constraint types the cloth has
     particles: int
     distance: int
     bending: int
@@ -39,18 +40,26 @@ class BenchRow:
         return 1e6 * self.ms_per_step / self.projections_per_step
 
 
-def cloth_simulation(n: int, *, iterations: int = 10, substeps: int = 1) -> Simulation:
-    """The bundled ``cloth_grid`` scene with n x n particles, at dt = 1/60 s."""
+KINDS = ("stretch+bending", "stretch", "bending")
+
+
+def cloth_simulation(n: int, *, iterations: int = 10, substeps: int = 1, constraints: str = KINDS[0]) -> Simulation:
+    """The bundled ``cloth_grid`` scene with n x n particles, at dt = 1/60 s, with all its
+    constraints or only one type of them."""
     scene = load_scene("cloth_grid")
     mesh = scene.meshes[0]
-    mesh = dataclasses.replace(mesh, shape_args={**mesh.shape_args, "resolution": (n, n)})
+    mesh = dataclasses.replace(
+        mesh, shape_args={**mesh.shape_args, "resolution": (n, n)},
+        stretch=mesh.stretch if "stretch" in constraints else None,
+        bending=mesh.bending if "bending" in constraints else None,
+    )
     solver = dataclasses.replace(scene.solver, dt=1 / 60, iterations=iterations, substeps=substeps)
     return dataclasses.replace(scene, meshes=(mesh,), solver=solver).build()
 
 
 def bench_cloth(n: int, *, iterations: int = 10, substeps: int = 1, steps: int = 10, rounds: int = 7,
-                warmup: int = 5) -> BenchRow:
-    sim = cloth_simulation(n, iterations=iterations, substeps=substeps)
+                warmup: int = 5, constraints: str = KINDS[0]) -> BenchRow:
+    sim = cloth_simulation(n, iterations=iterations, substeps=substeps, constraints=constraints)
     model, state, stepper = sim.model, sim.state, sim.stepper
     stepper.step(model, state, warmup)
     times = []
@@ -59,7 +68,7 @@ def bench_cloth(n: int, *, iterations: int = 10, substeps: int = 1, steps: int =
         stepper.step(model, state, steps)
         times.append((time.perf_counter() - t0) / steps * 1e3)
     return BenchRow(
-        n=n, particles=model.num_particles, distance=len(model.distance["rest_length"]),
+        n=n, constraints=constraints, particles=model.num_particles, distance=len(model.distance["rest_length"]),
         bending=len(model.bending["rest_angle"]), substeps=substeps, iterations=iterations,
         ms_per_step=statistics.median(times), ms_spread=(min(times), max(times)),
         projections_per_step=stepper.projections_per_step(model),
@@ -67,12 +76,12 @@ def bench_cloth(n: int, *, iterations: int = 10, substeps: int = 1, steps: int =
 
 
 def format_table(rows: Sequence[BenchRow]) -> str:
-    head = (f"{'cloth':>9} {'particles':>9} {'distance':>8} {'bending':>8} {'sub x it':>8} "
+    head = (f"{'cloth':>9} {'constraints':>15} {'particles':>9} {'distance':>8} {'bending':>8} {'sub x it':>8} "
             f"{'ms/step':>9} {'(min-max)':>15} {'proj/step':>10} {'Mproj/s':>8} {'ns/proj':>8}")
     lines = [head, "-" * len(head)]
     for r in rows:
         lines.append(
-            f"{r.n:>4}x{r.n:<4} {r.particles:>9} {r.distance:>8} {r.bending:>8} "
+            f"{r.n:>4}x{r.n:<4} {r.constraints:>15} {r.particles:>9} {r.distance:>8} {r.bending:>8} "
             f"{r.substeps:>3} x {r.iterations:<3} {r.ms_per_step:>9.3f} "
             f"{f'({r.ms_spread[0]:.3f}-{r.ms_spread[1]:.3f})':>15} {r.projections_per_step:>10} "
             f"{r.projections_per_second / 1e6:>8.1f} {r.ns_per_projection:>8.2f}")
@@ -85,6 +94,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
     print(f"csb {info['csb']} PBD step benchmark ({info['compiler']}, one thread): bundled scene cloth_grid "
           f"(stretch + bending, 2 pinned corners) at n x n particles, dt = 1/60 s; median of {rounds} rounds "
           f"of {steps} steps after 5 warm-up steps")
-    rows = [bench_cloth(n, iterations=iterations, substeps=substeps, steps=steps, rounds=rounds) for n in sizes]
+    rows = [bench_cloth(n, iterations=iterations, substeps=substeps, steps=steps, rounds=rounds, constraints=kind)
+            for n in sizes for kind in KINDS]
     print(format_table(rows))
     return rows
