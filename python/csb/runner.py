@@ -40,7 +40,8 @@ class RunResult:
             f"{sim.scene.name}: {self.steps} steps of {1e3 * s.dt:.3g} ms ({s.substeps} substeps x "
             f"{s.iterations} iterations), {sim.model.num_particles} particles, {sim.model.num_constraints} "
             f"constraints, {self.wall_time:.3f} s wall ({self.steps / max(self.wall_time, 1e-12):.0f} steps/s); "
-            f"t = {f['t']:.3f} s, energy {f['mechanical_energy']:.6g} J, max strain {100 * f['max_strain']:.3g} %"
+            f"t = {f['t']:.3f} s, kinetic + gravitational energy {f['mechanical_energy']:.6g} J, "
+            f"max strain {100 * f['max_strain']:.3g} %"
         )
 
 

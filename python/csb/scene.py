@@ -555,7 +555,7 @@ def bundled_scenes() -> dict[str, Path]:
 def find_scene(name_or_path: str | os.PathLike[str]) -> Path:
     """A path to a scene file as given, or the bundled scene of that name."""
     p = Path(name_or_path)
-    if p.exists():
+    if p.is_file():
         return p
     bundled = bundled_scenes()
     if str(name_or_path) in bundled:
