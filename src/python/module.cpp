@@ -33,6 +33,23 @@ py::array view(const T* data, std::vector<py::ssize_t> shape, py::handle base, b
   return a;
 }
 
+// A copy of rows of indices (triangles, edges, ...) as an (M, K) int32 array.
+template <std::size_t K>
+py::array_t<Index> index_rows(const std::vector<std::array<Index, K>>& rows) {
+  py::array_t<Index> a({static_cast<py::ssize_t>(rows.size()), static_cast<py::ssize_t>(K)});
+  if (!rows.empty()) std::memcpy(a.mutable_data(), rows.data(), sizeof(Index) * K * rows.size());
+  return a;
+}
+
+// Getter of a per-particle array of the Model as a read-only view.
+template <class T>
+auto particle_array(const std::vector<T> Model::*member) {
+  return [member](py::object self) {
+    const Model& s = self.cast<const Model&>();
+    return view((s.*member).data(), {s.num_particles()}, self, false);
+  };
+}
+
 std::string shape_str(const py::array& a) {
   std::ostringstream s;
   s << "(";
@@ -204,16 +221,10 @@ PYBIND11_MODULE(_core, m) {
         if (s.num_vertices()) std::memcpy(a.mutable_data(), s.vertices.data(), sizeof(double) * 3 * s.num_vertices());
         return a;
       }, "(N, 3) vertex positions, m (a copy)")
-      .def_property_readonly("triangles", [](const Mesh& s) {
-        py::array_t<Index> a({static_cast<py::ssize_t>(s.triangles.size()), py::ssize_t(3)});
-        if (!s.triangles.empty()) std::memcpy(a.mutable_data(), s.triangles.data(), sizeof(Index) * 3 * s.triangles.size());
-        return a;
-      }, "(T, 3) vertex indices (a copy)")
-      .def_property_readonly("lines", [](const Mesh& s) {
-        py::array_t<Index> a({static_cast<py::ssize_t>(s.lines.size()), py::ssize_t(2)});
-        if (!s.lines.empty()) std::memcpy(a.mutable_data(), s.lines.data(), sizeof(Index) * 2 * s.lines.size());
-        return a;
-      }, "(L, 2) vertex indices of explicit segments (a copy)")
+      .def_property_readonly("triangles", [](const Mesh& s) { return index_rows(s.triangles); },
+                             "(T, 3) vertex indices (a copy)")
+      .def_property_readonly("lines", [](const Mesh& s) { return index_rows(s.lines); },
+                             "(L, 2) vertex indices of explicit segments (a copy)")
       .def("__repr__", [](const Mesh& s) {
         return "<csb.Mesh '" + s.name + "': " + std::to_string(s.num_vertices()) + " vertices, " +
                std::to_string(s.triangles.size()) + " triangles, " + std::to_string(s.lines.size()) + " lines>";
@@ -250,12 +261,8 @@ PYBIND11_MODULE(_core, m) {
   m.def("topology", [](const Mesh& mesh) {
     const Topology t = topology(mesh);
     py::dict d;
-    py::array_t<Index> edges({static_cast<py::ssize_t>(t.edges.size()), py::ssize_t(2)});
-    if (!t.edges.empty()) std::memcpy(edges.mutable_data(), t.edges.data(), sizeof(Index) * 2 * t.edges.size());
-    py::array_t<Index> bending({static_cast<py::ssize_t>(t.bending.size()), py::ssize_t(4)});
-    if (!t.bending.empty()) std::memcpy(bending.mutable_data(), t.bending.data(), sizeof(Index) * 4 * t.bending.size());
-    d["edges"] = edges;
-    d["bending"] = bending;
+    d["edges"] = index_rows(t.edges);
+    d["bending"] = index_rows(t.bending);
     d["boundary_edges"] = t.boundary_edges;
     d["non_manifold_edges"] = t.non_manifold_edges;
     return d;
@@ -318,18 +325,9 @@ PYBIND11_MODULE(_core, m) {
         const Model& s = self.cast<const Model&>();
         return view(s.rest_positions.data(), {s.num_particles(), 3}, self, false);
       }, "(N, 3) rest positions, m")
-      .def_property_readonly("mass", [](py::object self) {
-        const Model& s = self.cast<const Model&>();
-        return view(s.mass.data(), {s.num_particles()}, self, false);
-      }, "(N,) masses, kg (kept for pinned particles)")
-      .def_property_readonly("inv_mass", [](py::object self) {
-        const Model& s = self.cast<const Model&>();
-        return view(s.inv_mass.data(), {s.num_particles()}, self, false);
-      }, "(N,) inverse masses, 1/kg; 0 for pinned particles")
-      .def_property_readonly("group", [](py::object self) {
-        const Model& s = self.cast<const Model&>();
-        return view(s.group.data(), {s.num_particles()}, self, false);
-      }, "(N,) group index of each particle")
+      .def_property_readonly("mass", particle_array(&Model::mass), "(N,) masses, kg (kept for pinned particles)")
+      .def_property_readonly("inv_mass", particle_array(&Model::inv_mass), "(N,) inverse masses, 1/kg; 0 for pinned particles")
+      .def_property_readonly("group", particle_array(&Model::group), "(N,) group index of each particle")
       .def_property_readonly("triangles", [](py::object self) {
         const Model& s = self.cast<const Model&>();
         return view(reinterpret_cast<const Index*>(s.triangles.data()), {static_cast<py::ssize_t>(s.triangles.size()), 3}, self, false);
