@@ -322,7 +322,7 @@ class Scene:
         groups: dict[str, int] = {}
         instances: dict[str, MeshInstance] = {}
         for spec in self.meshes:
-            mesh = _make_mesh(self, spec)
+            mesh = _make_mesh(spec)
             group_name = spec.group or spec.name
             if group_name not in groups:
                 groups[group_name] = builder.add_group(group_name)
@@ -354,7 +354,7 @@ class Scene:
         return run_scene(self, out_dir, progress=progress)
 
 
-def _make_mesh(scene: Scene, spec: MeshSpec) -> Mesh:
+def _make_mesh(spec: MeshSpec) -> Mesh:
     if spec.file is not None:
         mesh = load_mesh(spec.file, weld=spec.weld, weld_tolerance=spec.weld_tolerance)
     else:
