@@ -71,6 +71,15 @@ def test_only_declared_constraints_are_built():
     assert model.num_constraints == 0 and inst.num_distance == 0 and inst.num_bending == 0
 
 
+def test_compliance_is_stored_per_constraint():
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1, 1, 3, 3), mass=1.0, stretch_compliance=1e-4, bending_stiffness=0.5,
+               bending_compliance=0.2)
+    model = b.build()
+    assert np.all(model.distance["compliance"] == 1e-4) and np.all(model.bending["compliance"] == 0.2)
+    assert np.all(model.distance["stiffness"] == 1.0) and np.all(model.bending["stiffness"] == 0.5)
+
+
 def test_springs_pins_and_attachments():
     b = csb.ModelBuilder()
     g = b.add_group("g")
@@ -107,6 +116,8 @@ def test_springs_pins_and_attachments():
         (lambda b: b.add_distance(0, 1, stiffness=-0.1), r"stiffness must be in \[0, 1\], got -0.1"),
         (lambda b: b.add_distance(0, 1, sense="<"), r"sense must be '=='"),
         (lambda b: b.add_distance(0, 1, rest_length=0.0), r"zero rest length"),
+        (lambda b: b.add_distance(0, 1, compliance=-1e-3), r"compliance must be a finite number >= 0 \(0: hard\), got -0.001"),
+        (lambda b: b.attach(0, [0, 0, 0], compliance=float("nan")), r"compliance must be a finite number >= 0"),
         (lambda b: b.add_bending(0, 1, 2, 2, stiffness=0.5), r"needs four different particles"),
         (lambda b: b.pin(3), r"pin: particle index 3 is out of range \(the model has 3 particles\)"),
         (lambda b: b.pin(-1), r"pin: particle index -1 is out of range"),
@@ -133,6 +144,7 @@ def test_bad_parameters_name_what_is_wrong(call, message):
         (dict(particle_mass=float("inf")), r"particle mass must be > 0 kg, got inf"),
         (dict(mass=1.0, stretch_stiffness=1.2), r"cloth_grid\(3x3\) stretch: stiffness must be in \[0, 1\], got 1.2"),
         (dict(mass=1.0, bending_stiffness=-1.0), r"bending: stiffness must be in \[0, 1\], got -1"),
+        (dict(mass=1.0, stretch_compliance=-1.0), r"stretch: compliance must be a finite number >= 0"),
     ],
 )
 def test_bad_mesh_options(kwargs, message):

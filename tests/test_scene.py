@@ -120,7 +120,9 @@ def bad(tmp_path, text):
         (("stretch = { stiffness = 1.0 }", "stretch = { stiffness = 1.5 }"),
          r"bad\.toml:16: mesh\[0\] \(cloth\)\.stretch\.stiffness: must be a stiffness in \[0, 1\], got 1\.5"),
         (("bending = { stiffness = 0.2 }", "bending = { stifness = 0.2 }"),
-         r"bad\.toml:17: mesh\[0\] \(cloth\)\.bending: missing key 'stiffness'"),
+         r"bad\.toml:17: mesh\[0\] \(cloth\)\.bending\.stifness: unknown key; expected one of: compliance, stiffness"),
+        (("stretch = { stiffness = 1.0 }", "stretch = { stiffness = 1.0, compliance = -1e-4 }"),
+         r"bad\.toml:16: mesh\[0\] \(cloth\)\.stretch\.compliance: must be a compliance >= 0 \(m/N\)"),
         (("density = 0.2", "density = 0.0"), r"bad\.toml:15: mesh\[0\] \(cloth\)\.density: must be > 0 \(kg/m²\)"),
         (("density = 0.2", "# no mass"), r"mesh\[0\] \(cloth\): give exactly one of 'mass' \(kg\), 'density'"),
         (("resolution = [6, 6]", "resolution = [6, 1]"), r"bad\.toml:14: .*resolution: must be \[nx, ny\] with at least 2"),
@@ -142,6 +144,13 @@ def test_scene_errors_name_file_key_and_line(tmp_path, edit, message):
     path = bad(tmp_path, GOOD.replace(old, new))
     with pytest.raises(csb.SceneError, match=message):
         csb.load_scene(path).build()
+
+
+def test_scene_compliance_reaches_the_model(tmp_path):
+    text = GOOD.replace("stretch = { stiffness = 1.0 }", "stretch = { compliance = 1e-5 }")
+    model = csb.load_scene(scene_file(tmp_path, text)).build().model
+    assert np.all(model.distance["compliance"] == 1e-5) and np.all(model.distance["stiffness"] == 1.0)
+    assert np.all(model.bending["compliance"] == 0.0)
 
 
 def test_scene_mesh_files_are_relative_to_the_scene(tmp_path):

@@ -35,6 +35,7 @@ from ._core import (
     cloth_grid,
     corrected_stiffness,
     distance_violations,
+    elastic_energy,
     kernels,
     lumped_measure,
     measure,
@@ -45,6 +46,7 @@ from ._core import (
 )
 from .mesh import Mesh, MeshReport, MeshWarning, clean, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
+from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
 from .runner import RunResult
 from .scene import Scene, SceneError, Simulation, bundled_scenes, find_scene, load_scene
 
@@ -56,7 +58,8 @@ __all__ = [
     "readable_extensions", "cloth_grid", "chain", "pendulum",
     "Model", "ModelBuilder", "MeshInstance", "State",
     "PbdStepper", "PbdSettings", "corrected_stiffness",
-    "measure", "distance_violations", "bending_violations", "kernels",
+    "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
+    "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",
     "Scene", "Simulation", "RunResult", "load_scene", "bundled_scenes", "find_scene",
     "build_info", "__version__",
 ]

@@ -56,6 +56,8 @@ class ModelBuilder(_core.ModelBuilder):
         particle_mass: float | None = None,
         stretch_stiffness: float | None = 1.0,
         bending_stiffness: float | None = None,
+        stretch_compliance: float = 0.0,
+        bending_compliance: float = 0.0,
     ) -> MeshInstance:
         """Add every vertex of ``mesh`` as a particle (numbering kept) with its constraints.
 
@@ -63,7 +65,10 @@ class ModelBuilder(_core.ModelBuilder):
         ``density`` (kg/m² for a surface, kg/m for lines) or ``particle_mass`` (kg each).
         ``stretch_stiffness`` in [0, 1] puts a distance constraint on every unique edge (None: none);
         ``bending_stiffness`` in [0, 1] a dihedral bending constraint on every interior edge
-        (None: none). ``group`` is an existing group or -1 for a new one named after the mesh.
+        (None: none). Stiffness is what PBD projects with; ``stretch_compliance`` (m/N) and
+        ``bending_compliance`` (1/(N m)) are the material's inverse stiffness, which the reference
+        integrator (and XPBD) use; 0 is hard. ``group`` is an existing group or -1 for a new one
+        named after the mesh.
         Degenerate triangles are dropped with a :class:`csb.MeshWarning`.
         """
         d = self._add_mesh(
@@ -74,6 +79,8 @@ class ModelBuilder(_core.ModelBuilder):
             particle_mass=particle_mass,
             stretch_stiffness=stretch_stiffness,
             bending_stiffness=bending_stiffness,
+            stretch_compliance=stretch_compliance,
+            bending_compliance=bending_compliance,
         )
         report = MeshReport._from_core(d.pop("report"))
         report._emit()

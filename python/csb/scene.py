@@ -245,6 +245,7 @@ class AttachSpec:
     selection: Selection
     targets: tuple[Vec3, ...] | None = None   # m; None: where the particles start
     stiffness: float = 1.0
+    compliance: float = 0.0                   # m/N
 
 
 @dataclass(frozen=True)
@@ -261,8 +262,10 @@ class MeshSpec:
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     rotate: Vec3 = (0.0, 0.0, 0.0)   # rad, XYZ Euler
     translate: Vec3 = (0.0, 0.0, 0.0)  # m
-    stretch: float | None = None
-    bending: float | None = None
+    stretch: float | None = None      # PBD stiffness of the edges, None: no stretch constraints
+    stretch_compliance: float = 0.0   # m/N
+    bending: float | None = None      # PBD stiffness of the bending pairs, None: no bending constraints
+    bending_compliance: float = 0.0   # 1/(N m)
     pin: Selection | None = None
     attach: AttachSpec | None = None
 
@@ -328,7 +331,8 @@ class Scene:
                 groups[group_name] = builder.add_group(group_name)
             inst = builder.add_mesh(
                 mesh, group=groups[group_name], stretch_stiffness=spec.stretch,
-                bending_stiffness=spec.bending, **{spec.mass_kind: spec.mass_value},
+                bending_stiffness=spec.bending, stretch_compliance=spec.stretch_compliance,
+                bending_compliance=spec.bending_compliance, **{spec.mass_kind: spec.mass_value},
             )
             instances[spec.name] = inst
             if spec.pin is not None:
@@ -343,7 +347,7 @@ class Scene:
                         f"{len(targets)} targets given")
                 for k, i in enumerate(chosen):
                     target = targets[k] if targets is not None else inst.vertices[i - inst.first_particle]
-                    builder.attach(i, target, stiffness=spec.attach.stiffness)
+                    builder.attach(i, target, stiffness=spec.attach.stiffness, compliance=spec.attach.compliance)
         model = builder.build()
         return Simulation(self, model, model.initial_state(), self.solver.stepper(), instances)
 
@@ -453,13 +457,15 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         s = t.number("scale", 1.0, check=lambda x: x != 0, expect="a non-zero factor")
         scale = (s, s, s)
 
-    def stiffness_of(key: str) -> float | None:
+    def material(key: str, unit: str) -> tuple[float | None, float]:
+        """(PBD stiffness or None if the table is absent, compliance)."""
         sub = t.table(key)
         if sub is None:
-            return None
-        k_ = sub.number("stiffness", check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
+            return None, 0.0
+        k_ = sub.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
+        alpha = sub.number("compliance", 0.0, check=lambda x: x >= 0, expect=f"a compliance >= 0 ({unit})")
         sub.finish()
-        return k_
+        return k_, alpha
 
     pin = None
     pin_t = t.table("pin")
@@ -472,15 +478,19 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         sel = _read_selection(att_t)
         targets = att_t.vectors("targets", None)
         stiffness = att_t.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
+        compliance = att_t.number("compliance", 0.0, check=lambda x: x >= 0, expect="a compliance >= 0 (m/N)")
         att_t.finish()
-        attach = AttachSpec(sel, targets, stiffness)
+        attach = AttachSpec(sel, targets, stiffness, compliance)
 
+    stretch, stretch_compliance = material("stretch", "m/N")
+    bending, bending_compliance = material("bending", "1/(N m)")
     spec = MeshSpec(
         name=name, file=path, shape=shape, shape_args=shape_args, group=t.string("group", None),
         mass_kind=mass_kind, mass_value=mass_value, weld=t.boolean("weld", True),
         weld_tolerance=t.number("weld_tolerance", 1e-6, check=lambda x: x >= 0, expect="a relative tolerance >= 0"),
         scale=scale, rotate=t.vector("rotate", (0.0, 0.0, 0.0)), translate=t.vector("translate", (0.0, 0.0, 0.0)),
-        stretch=stiffness_of("stretch"), bending=stiffness_of("bending"), pin=pin, attach=attach,
+        stretch=stretch, stretch_compliance=stretch_compliance, bending=bending,
+        bending_compliance=bending_compliance, pin=pin, attach=attach,
     )
     t.finish()
     return spec

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -56,3 +57,168 @@ def strain_history(scene: Scene, *, substeps: int, iterations: int, damping: flo
         rms.append(float(np.sqrt(np.mean(strain**2))))
     return dict(substeps=substeps, iterations=iterations, max_strain=max(worst), mean_rms_strain=float(np.mean(rms)),
                 wall_time_s=wall, series=np.array(worst))
+
+
+# --------------------------------------------------------------------------------- analytic scenes
+
+
+def pendulum_model(theta: float, *, compliance: float, length: float = 1.0, mass: float = 1.0,
+                   gravity: float = 9.81) -> _core.Model:
+    """A simple pendulum of ``length`` (m) and bob ``mass`` (kg) released at rest at ``theta`` (rad)
+    from the downward vertical. With a compliant rod (α > 0, m/N) the bob starts at the rod's
+    static stretch m g cos θ α, so that the rod's fast radial mode is not set ringing."""
+    b = ModelBuilder()
+    g = b.add_group("pendulum")
+    r = length + mass * gravity * math.cos(theta) * compliance
+    b.add_particle([0, 0, 0], 1.0, g)
+    b.add_particle([r * math.sin(theta), -r * math.cos(theta), 0], mass, g)
+    b.add_distance(0, 1, rest_length=length, compliance=compliance)
+    b.pin(0)
+    return b.build()
+
+
+def pendulum_period(t: np.ndarray, x: np.ndarray) -> float:
+    """Mean time between successive downward zero crossings of x(t) (s), located by linear
+    interpolation (accurate: the swing's acceleration vanishes at the bottom)."""
+    i = np.where((x[:-1] > 0) & (x[1:] <= 0))[0]
+    if len(i) < 2:
+        raise ValueError("fewer than two downward zero crossings: run longer")
+    crossings = t[i] + x[i] / (x[i] - x[i + 1]) * (t[i + 1] - t[i])
+    return float(np.diff(crossings).mean())
+
+
+def catenary(links: int, link_length: float, span: float, mass: float, *, stiffness: float | None = None,
+             gravity: float = 9.81) -> np.ndarray:
+    """The exact discrete catenary: ``links`` links of ``link_length`` (m) between supports at
+    (0, 0) and (span, 0), a point mass ``mass`` (kg) at every inner node, y up. Link i has slope
+    s_i = (m g / H)(i - (N + 1)/2); the horizontal tension H solves Σ l_i / sqrt(1 + s_i²) = span,
+    with l_i = l0 for inextensible links or l0 + H sqrt(1 + s_i²)/k for links of ``stiffness`` k
+    (N/m). Returns the (N + 1, 2) node positions."""
+    i = np.arange(1, links + 1)
+
+    def shape(H: float) -> tuple[float, np.ndarray, np.ndarray]:
+        s = (mass * gravity / H) * (i - (links + 1) / 2)
+        lengths = link_length + (0.0 if stiffness is None else H * np.sqrt(1 + s * s) / stiffness)
+        return float(np.sum(lengths / np.sqrt(1 + s * s))) - span, s, lengths
+
+    if not links * link_length > span > 0:
+        raise ValueError("the chain must be longer than the span between its supports")
+    lo, hi = 1e-12, 1e12  # the span grows with H: bisect in log space
+    for _ in range(200):
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if shape(mid)[0] > 0 else (mid, hi)
+    _, s, lengths = shape(math.sqrt(lo * hi))
+    dx, dy = lengths / np.sqrt(1 + s * s), lengths * s / np.sqrt(1 + s * s)
+    return np.column_stack([np.concatenate([[0.0], np.cumsum(dx)]), np.concatenate([[0.0], np.cumsum(dy)])])
+
+
+def hanging_chain(links: int, link_length: float, span: float, mass: float, *, compliance: float = 0.0) -> _core.Model:
+    """A chain between two pinned supports ``span`` (m) apart, starting slack on the straight
+    line between them: ``links`` links of rest length ``link_length`` (m), inner nodes of ``mass``
+    (kg), link compliance in m/N (0: hard)."""
+    b = ModelBuilder()
+    g = b.add_group("chain")
+    for k in range(links + 1):
+        b.add_particle([span * k / links, 0, 0], mass, g)
+    for k in range(links):
+        b.add_distance(k, k + 1, rest_length=link_length, compliance=compliance)
+    b.pin(0)
+    b.pin(links)
+    return b.build()
+
+
+def swinging_chain(*, links: int = 10, compliance: float = 1e-7, link_length: float = 0.05, density: float = 0.1,
+                   angle: float = 0.35) -> _core.Model:
+    """A chain pinned at its top, released straight at ``angle`` (rad) from the vertical: a
+    smooth, non-chaotic motion over a few seconds (a chain released horizontally whips and is
+    chaotic, so no trajectory of it is reproducible to a tolerance). Links of compliance in m/N."""
+    b = ModelBuilder()
+    b.add_mesh(_core.chain(links, link_length, direction=(math.sin(angle), -math.cos(angle), 0)), density=density,
+               stretch_compliance=compliance)
+    b.pin(0)
+    return b.build()
+
+
+def relative_energy_drift(model: _core.Model, states: list, gravity) -> float:
+    """|E(end) - E(start)| of the total (kinetic + gravitational + elastic) energy, relative to
+    the larger of |E(start)| and the largest kinetic energy seen, so that the figure does not
+    depend on where the height origin is."""
+    m = [_core.measure(model, s, gravity) for s in states]
+    scale = max(abs(m[0]["total_energy"]), max(x["kinetic_energy"] for x in m))
+    return abs(m[-1]["total_energy"] - m[0]["total_energy"]) / scale
+
+
+def spinning_cloth(*, n: int = 8, size: float = 0.5, omega: float = 2.0, stretch_compliance: float = 1e-4,
+                   bending_compliance: float = 1.0) -> tuple[_core.Model, _core.State]:
+    """A free, flat sheet (no pins, 0.2 kg/m², stretch and bending constraints) spinning in its
+    own plane at ``omega`` (rad/s) about its centre: with gravity off its kinetic energy is all
+    the energy there is, and it stays flat, so the bending constraints store nothing in any
+    method. Compliance for the reference: 1e-4 m/N stretch (woven cloth), 1 1/(N m) bending.
+    Returns the model and the start state."""
+    b = ModelBuilder()
+    b.add_mesh(_core.cloth_grid(size, size, n, n), density=0.2, stretch_compliance=stretch_compliance,
+               bending_stiffness=1.0, bending_compliance=bending_compliance)
+    model = b.build()
+    state = model.initial_state()
+    r = np.asarray(model.rest_positions)
+    state.v = np.cross([0.0, omega, 0.0], r)
+    return model, state
+
+
+def spin_energy_factor(omega_h: float) -> float:
+    """Kinetic energy kept by one PBD step of a rigid body spinning at ω, if the projection
+    shrinks the prediction x + hv (the body rotated by φ = atan(ωh) and scaled by
+    sqrt(1 + (ωh)²)) back uniformly: |v_new|² / |v|² = 2(1 - cos φ)/(ωh)²."""
+    phi = math.atan(omega_h)
+    return 2 * (1 - math.cos(phi)) / omega_h**2
+
+
+def method_energy(model: _core.Model, state: _core.State, gravity, *, reference: bool) -> float:
+    """The energy a method conserves: kinetic + gravitational + elastic (Σ C²/(2α)) for the
+    reference; kinetic + gravitational for PBD, whose hard constraints store no energy (their
+    violation is reported separately)."""
+    m = _core.measure(model, state, gravity)
+    return m["total_energy"] if reference else m["kinetic_energy"] + m["gravitational_energy"]
+
+
+def energy_series(model: _core.Model, start: _core.State, times: np.ndarray, gravity, *,
+                  method: str, dt: float = 1 / 60, substeps: int = 1, iterations: int = 10) -> np.ndarray:
+    """Energy at ``times`` (multiples of dt) for ``method`` "reference" or "pbd" (undamped)."""
+    if method == "reference":
+        from .reference import integrate_reference
+
+        r = integrate_reference(model, start, times, gravity=gravity)
+        return np.array([method_energy(model, s, gravity, reference=True) for s in r.states(model)])
+    state = start.copy()
+    stepper = _core.PbdStepper(dt=dt, substeps=substeps, iterations=iterations, gravity=gravity)
+    out = [method_energy(model, state, gravity, reference=False)]
+    for k in range(1, len(times)):
+        stepper.step(model, state, int(round((times[k] - times[k - 1]) / dt)))
+        out.append(method_energy(model, state, gravity, reference=False))
+    return np.array(out)
+
+
+def drift_per_second(times: np.ndarray, energy: np.ndarray, scale: float) -> float:
+    """Least-squares slope of the energy over time, relative to ``scale`` (1/s)."""
+    return float(np.polyfit(times, energy, 1)[0] / scale)
+
+
+def pbd_errors(model: _core.Model, start: _core.State, times: np.ndarray, reference_x: np.ndarray, gravity, *,
+               dt: float, iterations: int, substeps: int = 1) -> tuple[float, float]:
+    """Max over ``times`` of the max particle distance to the reference (m), and the mean over
+    steps of the largest distance-constraint violation after the step (m)."""
+    state = start.copy()
+    stepper = _core.PbdStepper(dt=dt, substeps=substeps, iterations=iterations, gravity=gravity)
+    error, residual, steps = 0.0, 0.0, 0
+    for k in range(1, len(times)):
+        for _ in range(int(round((times[k] - times[k - 1]) / dt))):
+            stepper.step(model, state)
+            residual += float(np.abs(_core.distance_violations(model, state)).max())
+            steps += 1
+        error = max(error, float(np.linalg.norm(np.asarray(state.x) - reference_x[k], axis=1).max()))
+    return error, residual / steps
+
+
+def observed_order(h: np.ndarray, error: np.ndarray) -> float:
+    """Slope of log(error) against log(h), least squares."""
+    return float(np.polyfit(np.log(h), np.log(error), 1)[0])

@@ -7,5 +7,6 @@
 #include "csb/metrics.hpp"
 #include "csb/model.hpp"
 #include "csb/pbd.hpp"
+#include "csb/reference.hpp"
 #include "csb/shapes.hpp"
 #include "csb/types.hpp"

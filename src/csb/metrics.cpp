@@ -43,6 +43,31 @@ std::vector<Real> bending_violations(const Model& model, const State& state) {
   return out;
 }
 
+namespace {
+
+std::vector<Real> attachment_violations(const Model& model, const State& state) {
+  const auto& a = model.attachments;
+  std::vector<Real> out(a.size());
+  for (Index c = 0; c < a.size(); ++c) out[c] = (state.x.col(a.particle[c]) - a.target.col(c)).norm();
+  return out;
+}
+
+// Σ C²/(2α) over the entries with α > 0.
+Real potential(const std::vector<Real>& violation, const std::vector<Real>& compliance) {
+  Real e = 0;
+  for (std::size_t c = 0; c < violation.size(); ++c)
+    if (compliance[c] > 0) e += violation[c] * violation[c] / (2 * compliance[c]);
+  return e;
+}
+
+}  // namespace
+
+Real elastic_energy(const Model& model, const State& state) {
+  return potential(distance_violations(model, state), model.distance.compliance) +
+         potential(bending_violations(model, state), model.bending.compliance) +
+         potential(attachment_violations(model, state), model.attachments.compliance);
+}
+
 Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
   if (state.x.cols() != model.num_particles() || state.v.cols() != model.num_particles())
     throw InvalidArgument("the state does not belong to this model (particle counts differ)");
@@ -57,12 +82,13 @@ Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
     m.angular_momentum += mi * x.cross(v);
   }
   const std::vector<Real> dv = distance_violations(model, state);
+  const std::vector<Real> bv = bending_violations(model, state);
   m.distance = summarise(dv);
-  m.bending = summarise(bending_violations(model, state));
-  std::vector<Real> att(model.attachments.size());
-  for (Index c = 0; c < model.attachments.size(); ++c)
-    att[c] = (state.x.col(model.attachments.particle[c]) - model.attachments.target.col(c)).norm();
-  m.attachment = summarise(att);
+  m.bending = summarise(bv);
+  const std::vector<Real> av = attachment_violations(model, state);
+  m.attachment = summarise(av);
+  m.elastic_energy = potential(dv, model.distance.compliance) + potential(bv, model.bending.compliance) +
+                     potential(av, model.attachments.compliance);
   std::vector<Real> strain(dv.size());
   for (std::size_t c = 0; c < dv.size(); ++c) strain[c] = dv[c] / model.distance.rest_length[c];
   const Violation s = summarise(strain);

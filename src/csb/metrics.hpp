@@ -15,6 +15,10 @@ struct Metrics {
   Real t = 0;                      // s
   Real kinetic_energy = 0;         // J, ½ Σ m |v|²
   Real gravitational_energy = 0;   // J, -Σ m g·x (zero at the origin)
+  // J, Σ C²/(2α) over the constraints with compliance α > 0; hard constraints (α = 0) store
+  // no energy and show up in their violation instead.
+  Real elastic_energy = 0;
+  Real total_energy() const { return kinetic_energy + gravitational_energy + elastic_energy; }
   Vec3 linear_momentum = Vec3::Zero();   // kg m/s, Σ m v
   Vec3 angular_momentum = Vec3::Zero();  // kg m²/s, Σ m x × v about the origin
   Violation distance;              // m
@@ -26,6 +30,9 @@ struct Metrics {
 
 // Particles with inverse mass 0 are included: they are at rest unless moved by the user.
 Metrics measure(const Model& model, const State& state, const Vec3& gravity);
+
+// Σ C²/(2α) over the compliant constraints (J).
+Real elastic_energy(const Model& model, const State& state);
 
 // Violation of every distance constraint (m) and of every bending constraint (rad).
 std::vector<Real> distance_violations(const Model& model, const State& state);

@@ -39,6 +39,11 @@ void ModelBuilder::require_stiffness(Real k, const std::string& what) const {
     throw InvalidArgument(what + ": stiffness must be in [0, 1], got " + str(k));
 }
 
+void ModelBuilder::require_compliance(Real alpha, const std::string& what) const {
+  if (!(alpha >= 0) || !std::isfinite(alpha))
+    throw InvalidArgument(what + ": compliance must be a finite number >= 0 (0: hard), got " + str(alpha));
+}
+
 Index ModelBuilder::add_group(const std::string& name) {
   group_names_.push_back(name);
   return static_cast<Index>(group_names_.size() - 1);
@@ -61,6 +66,8 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   const std::string& name = input.name;
   if (options.stretch_stiffness) require_stiffness(*options.stretch_stiffness, name + " stretch");
   if (options.bending_stiffness) require_stiffness(*options.bending_stiffness, name + " bending");
+  require_compliance(options.stretch_compliance, name + " stretch");
+  require_compliance(options.bending_compliance, name + " bending");
   if (!(options.mass.value > 0) || !std::isfinite(options.mass.value))
     throw InvalidArgument(name + ": " +
                           (options.mass.kind == MassSpec::Kind::Total     ? "mass must be > 0 kg"
@@ -101,23 +108,26 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   for (const auto& t : mesh.triangles) triangles_.push_back({f + t[0], f + t[1], f + t[2]});
   const Topology topo = topology(mesh);
   if (options.stretch_stiffness) {
-    for (const auto& e : topo.edges) add_distance(f + e[0], f + e[1], *options.stretch_stiffness);
+    for (const auto& e : topo.edges)
+      add_distance(f + e[0], f + e[1], *options.stretch_stiffness, -1, 0, options.stretch_compliance);
     inst.num_distance = static_cast<Index>(topo.edges.size());
   }
   if (options.bending_stiffness) {
-    for (const auto& q : topo.bending) add_bending(f + q[0], f + q[1], f + q[2], f + q[3], *options.bending_stiffness);
+    for (const auto& q : topo.bending)
+      add_bending(f + q[0], f + q[1], f + q[2], f + q[3], *options.bending_stiffness, {}, options.bending_compliance);
     inst.num_bending = static_cast<Index>(topo.bending.size());
   }
   return inst;
 }
 
-Index ModelBuilder::add_distance(Index i, Index j, Real stiffness, Real rest_length, int sense) {
+Index ModelBuilder::add_distance(Index i, Index j, Real stiffness, Real rest_length, int sense, Real compliance) {
   const std::string what = "distance constraint " + std::to_string(distance_.size()) + " (particles " +
                            std::to_string(i) + ", " + std::to_string(j) + ")";
   require_particle(i, what);
   require_particle(j, what);
   if (i == j) throw InvalidArgument(what + ": a distance constraint needs two different particles");
   require_stiffness(stiffness, what);
+  require_compliance(compliance, what);
   if (sense < -1 || sense > 1) throw InvalidArgument(what + ": sense must be -1, 0 or +1, got " + std::to_string(sense));
   if (!std::isfinite(rest_length)) throw InvalidArgument(what + ": rest length must be finite");
   if (rest_length < 0) rest_length = (position(i) - position(j)).norm();
@@ -126,11 +136,13 @@ Index ModelBuilder::add_distance(Index i, Index j, Real stiffness, Real rest_len
   distance_.particles.push_back({i, j});
   distance_.rest_length.push_back(rest_length);
   distance_.stiffness.push_back(stiffness);
+  distance_.compliance.push_back(compliance);
   distance_.sense.push_back(static_cast<std::int8_t>(sense));
   return distance_.size() - 1;
 }
 
-Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle) {
+Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle,
+                                Real compliance) {
   const std::string what = "bending constraint " + std::to_string(bending_.size()) + " (particles " +
                            std::to_string(a) + ", " + std::to_string(b) + ", " + std::to_string(c) + ", " +
                            std::to_string(d) + ")";
@@ -138,6 +150,7 @@ Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffne
   if (a == b || a == c || a == d || b == c || b == d || c == d)
     throw InvalidArgument(what + ": needs four different particles");
   require_stiffness(stiffness, what);
+  require_compliance(compliance, what);
   Vec3 grad[4];
   Real angle = 0;
   if (!dihedral_angle_and_gradient(position(a), position(b), position(c), position(d), angle, grad))
@@ -149,6 +162,7 @@ Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffne
   bending_.particles.push_back({a, b, c, d});
   bending_.rest_angle.push_back(angle);
   bending_.stiffness.push_back(stiffness);
+  bending_.compliance.push_back(compliance);
   return bending_.size() - 1;
 }
 
@@ -157,14 +171,16 @@ void ModelBuilder::pin(Index i) {
   pinned_[i] = 1;
 }
 
-Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness) {
+Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness, Real compliance) {
   const std::string what = "attachment " + std::to_string(attached_.size()) + " (particle " + std::to_string(i) + ")";
   require_particle(i, what);
   if (!target.allFinite()) throw InvalidArgument(what + ": target must be finite");
   require_stiffness(stiffness, what);
+  require_compliance(compliance, what);
   attached_.push_back(i);
   attachment_targets_.push_back(target);
   attachment_stiffness_.push_back(stiffness);
+  attachment_compliance_.push_back(compliance);
   return static_cast<Index>(attached_.size() - 1);
 }
 
@@ -193,6 +209,7 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
   model->bending = bending_;
   model->attachments.particle = attached_;
   model->attachments.stiffness = attachment_stiffness_;
+  model->attachments.compliance = attachment_compliance_;
   model->attachments.target.resize(3, static_cast<Eigen::Index>(attached_.size()));
   for (std::size_t k = 0; k < attached_.size(); ++k)
     model->attachments.target.col(static_cast<Eigen::Index>(k)) = attachment_targets_[k];

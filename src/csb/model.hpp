@@ -15,12 +15,20 @@
 
 namespace csb {
 
+// Every constraint carries two material parameters:
+//  - stiffness k in [0, 1], dimensionless: the fraction of the violation one PBD projection
+//    removes (Müller 2007 §3.3); it is what the PBD stepper uses;
+//  - compliance α >= 0 in SI units (m/N for lengths, 1/(N m) = rad²/J for angles): the inverse
+//    of a physical stiffness, with potential energy C²/(2α); 0 is a hard constraint. It is what
+//    the reference integrator (and XPBD) use, so that they model the same material.
+
 // Distance constraints: mesh edges (stretch), springs, chain links. Plain arrays, one entry per
 // constraint, in projection order.
 struct DistanceBatch {
   std::vector<Edge> particles;      // (i, j)
   std::vector<Real> rest_length;    // m
   std::vector<Real> stiffness;      // dimensionless, in [0, 1] (Müller 2007 §3.3)
+  std::vector<Real> compliance;     // m/N, >= 0
   std::vector<std::int8_t> sense;   // 0: C = 0, +1: C >= 0, -1: C <= 0 (see constraints/distance.hpp)
   Index size() const { return static_cast<Index>(particles.size()); }
 };
@@ -30,6 +38,7 @@ struct BendingBatch {
   std::vector<std::array<Index, 4>> particles;  // (a, b, c, d)
   std::vector<Real> rest_angle;                 // rad, signed (see constraints/bending.hpp)
   std::vector<Real> stiffness;                  // dimensionless, in [0, 1]
+  std::vector<Real> compliance;                 // rad²/J = 1/(N m), >= 0
   Index size() const { return static_cast<Index>(particles.size()); }
 };
 
@@ -38,6 +47,7 @@ struct AttachmentBatch {
   std::vector<Index> particle;
   Positions target;                 // m, 3 x count
   std::vector<Real> stiffness;      // dimensionless, in [0, 1]
+  std::vector<Real> compliance;     // m/N, >= 0
   Index size() const { return static_cast<Index>(particle.size()); }
 };
 
@@ -86,8 +96,10 @@ struct MeshOptions {
   MassSpec mass;
   // Stiffness in [0, 1] of the distance constraint on every unique edge; none: no stretch.
   std::optional<Real> stretch_stiffness = Real(1);
+  Real stretch_compliance = 0;   // m/N
   // Stiffness in [0, 1] of the bending constraint on every interior edge; none: no bending.
   std::optional<Real> bending_stiffness;
+  Real bending_compliance = 0;   // 1/(N m)
 };
 
 struct MeshInstance {
@@ -112,13 +124,16 @@ class ModelBuilder {
   MeshInstance add_mesh(const Mesh& mesh, const MeshOptions& options);
 
   // A distance constraint between particles i and j. rest_length < 0 takes the current distance.
-  Index add_distance(Index i, Index j, Real stiffness = 1, Real rest_length = -1, int sense = 0);
+  // compliance in m/N (0: hard).
+  Index add_distance(Index i, Index j, Real stiffness = 1, Real rest_length = -1, int sense = 0, Real compliance = 0);
   // A bending constraint across edge (a, b) with wings c, d. No rest angle: the current one.
-  Index add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle = {});
+  // compliance in 1/(N m) (0: hard).
+  Index add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle = {},
+                    Real compliance = 0);
   // Fixes particle i where it is: inverse mass 0 (its mass is kept for reporting).
   void pin(Index i);
-  // Holds particle i at a world point (m) with stiffness in [0, 1].
-  Index attach(Index i, const Vec3& target, Real stiffness = 1);
+  // Holds particle i at a world point (m) with stiffness in [0, 1] and compliance in m/N.
+  Index attach(Index i, const Vec3& target, Real stiffness = 1, Real compliance = 0);
 
   Index num_particles() const { return static_cast<Index>(mass_.size()); }
   const Vec3& position(Index i) const { return points_.at(i); }
@@ -129,6 +144,7 @@ class ModelBuilder {
  private:
   void require_particle(Index i, const std::string& what) const;
   void require_stiffness(Real k, const std::string& what) const;
+  void require_compliance(Real alpha, const std::string& what) const;
 
   std::vector<Vec3> points_;
   std::vector<Real> mass_;
@@ -141,6 +157,7 @@ class ModelBuilder {
   std::vector<Index> attached_;
   std::vector<Vec3> attachment_targets_;
   std::vector<Real> attachment_stiffness_;
+  std::vector<Real> attachment_compliance_;
 };
 
 }  // namespace csb

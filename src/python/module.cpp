@@ -340,9 +340,10 @@ PYBIND11_MODULE(_core, m) {
         d["particles"] = view(reinterpret_cast<const Index*>(b.particles.data()), {c, 2}, self, false);
         d["rest_length"] = view(b.rest_length.data(), {c}, self, false);
         d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["compliance"] = view(b.compliance.data(), {c}, self, false);
         d["sense"] = view(b.sense.data(), {c}, self, false);
         return d;
-      }, "distance batch: particles (M, 2), rest_length (m), stiffness, sense (0: ==, +1: >=, -1: <=)")
+      }, "distance batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N), sense (0: ==, +1: >=, -1: <=)")
       .def_property_readonly("bending", [](py::object self) {
         const Model& s = self.cast<const Model&>();
         const auto& b = s.bending;
@@ -351,8 +352,9 @@ PYBIND11_MODULE(_core, m) {
         d["particles"] = view(reinterpret_cast<const Index*>(b.particles.data()), {c, 4}, self, false);
         d["rest_angle"] = view(b.rest_angle.data(), {c}, self, false);
         d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["compliance"] = view(b.compliance.data(), {c}, self, false);
         return d;
-      }, "bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness")
+      }, "bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness, compliance (1/(N m))")
       .def_property_readonly("attachments", [](py::object self) {
         const Model& s = self.cast<const Model&>();
         const auto& b = s.attachments;
@@ -361,8 +363,9 @@ PYBIND11_MODULE(_core, m) {
         d["particle"] = view(b.particle.data(), {c}, self, false);
         d["target"] = view(b.target.data(), {c, 3}, self, false);
         d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["compliance"] = view(b.compliance.data(), {c}, self, false);
         return d;
-      }, "attachment batch: particle (M,), target (M, 3) m, stiffness")
+      }, "attachment batch: particle (M,), target (M, 3) m, stiffness, compliance (m/N)")
       .def("initial_state", [](const Model& s) { return std::make_shared<State>(s.initial_state()); },
            "A new State at the rest positions with zero velocities and t = 0.")
       .def("__repr__", [](const Model& s) {
@@ -379,7 +382,8 @@ PYBIND11_MODULE(_core, m) {
       }, py::arg("x"), py::arg("mass"), py::arg("group"), "One particle at x (m) of mass (kg) in a group; returns its index.")
       .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, Index group, py::object mass, py::object density,
                            py::object particle_mass, std::optional<double> stretch_stiffness,
-                           std::optional<double> bending_stiffness) {
+                           std::optional<double> bending_stiffness, double stretch_compliance,
+                           double bending_compliance) {
         MeshOptions o;
         o.group = group;
         const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
@@ -390,6 +394,8 @@ PYBIND11_MODULE(_core, m) {
         if (!particle_mass.is_none()) o.mass = {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
         o.stretch_stiffness = stretch_stiffness;
         o.bending_stiffness = bending_stiffness;
+        o.stretch_compliance = stretch_compliance;
+        o.bending_compliance = bending_compliance;
         const MeshInstance inst = b.add_mesh(mesh, o);
         py::dict d;
         d["first_particle"] = inst.first_particle;
@@ -401,21 +407,24 @@ PYBIND11_MODULE(_core, m) {
         return d;
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0,
-         py::arg("bending_stiffness") = py::none())
+         py::arg("bending_stiffness") = py::none(), py::arg("stretch_compliance") = 0.0,
+         py::arg("bending_compliance") = 0.0)
       .def("add_distance", [](ModelBuilder& b, Index i, Index j, double stiffness, std::optional<double> rest_length,
-                              const std::string& sense) {
-        return b.add_distance(i, j, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense));
+                              const std::string& sense, double compliance) {
+        return b.add_distance(i, j, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense), compliance);
       }, py::arg("i"), py::arg("j"), py::arg("stiffness") = 1.0, py::arg("rest_length") = py::none(),
-         py::arg("sense") = "==",
-         "Distance constraint (a spring of stiffness in [0, 1]); rest_length in m, default the current distance; "
-         "sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.")
+         py::arg("sense") = "==", py::arg("compliance") = 0.0,
+         "Distance constraint: PBD stiffness in [0, 1], compliance in m/N (0: hard); rest_length in m, default the "
+         "current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.")
       .def("add_bending", &ModelBuilder::add_bending, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
-           py::arg("stiffness"), py::arg("rest_angle") = py::none(),
-           "Dihedral bending across edge (a, b) with wings c, d; rest_angle in rad, default the current angle.")
+           py::arg("stiffness"), py::arg("rest_angle") = py::none(), py::arg("compliance") = 0.0,
+           "Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad "
+           "(default the current angle), compliance in 1/(N m) (0: hard).")
       .def("pin", &ModelBuilder::pin, py::arg("i"), "Fixes particle i (inverse mass 0).")
-      .def("attach", [](ModelBuilder& b, Index i, py::handle target, double stiffness) {
-        return b.attach(i, to_vec3(target, "target"), stiffness);
-      }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, "Holds particle i at a world point (m).")
+      .def("attach", [](ModelBuilder& b, Index i, py::handle target, double stiffness, double compliance) {
+        return b.attach(i, to_vec3(target, "target"), stiffness, compliance);
+      }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0,
+         "Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).")
       .def("position", [](const ModelBuilder& b, Index i) {
         if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");
         return vec3_array(b.position(i));
@@ -468,6 +477,102 @@ PYBIND11_MODULE(_core, m) {
   m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
         "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");
 
+  // ---------------------------------------------------------------- reference
+  const auto reference_settings = [](py::handle gravity, double rtol, double atol, double damping, double drag,
+                                     int max_order, bool stald, const std::string& linear, long long max_steps,
+                                     double max_wall_time) {
+    ReferenceSettings s;
+    s.gravity = to_vec3(gravity, "gravity");
+    s.rtol = rtol;
+    s.atol = atol;
+    s.damping = damping;
+    s.drag = drag;
+    s.max_order = max_order;
+    s.stability_limit_detection = stald;
+    if (linear == "auto")
+      s.linear_solver = ReferenceSettings::Linear::Automatic;
+    else if (linear == "klu")
+      s.linear_solver = ReferenceSettings::Linear::Klu;
+    else if (linear == "gmres")
+      s.linear_solver = ReferenceSettings::Linear::Gmres;
+    else
+      throw InvalidArgument("linear_solver must be 'auto', 'klu' or 'gmres', got '" + linear + "'");
+    s.max_steps = max_steps;
+    s.max_wall_time = max_wall_time;
+    return s;
+  };
+
+  m.def("_integrate_reference", [reference_settings](const Model& model, const State& start, std::vector<double> times,
+                                                     py::handle gravity, double rtol, double atol, double damping,
+                                                     double drag, int max_order, bool stald, const std::string& linear,
+                                                     long long max_steps, double max_wall_time) {
+    const ReferenceSettings s =
+        reference_settings(gravity, rtol, atol, damping, drag, max_order, stald, linear, max_steps, max_wall_time);
+    ReferenceResult r;
+    {
+      py::gil_scoped_release release;
+      r = integrate_reference(model, start, times, s);
+    }
+    const py::ssize_t T = static_cast<py::ssize_t>(r.times.size()), N = model.num_particles();
+    py::array_t<double> x({T, N, py::ssize_t(3)}), v({T, N, py::ssize_t(3)});
+    for (py::ssize_t k = 0; k < T; ++k) {
+      std::memcpy(x.mutable_data(k), r.x[k].data(), sizeof(double) * 3 * N);
+      std::memcpy(v.mutable_data(k), r.v[k].data(), sizeof(double) * 3 * N);
+    }
+    py::dict stats;
+    stats["steps"] = r.stats.steps;
+    stats["rhs_evals"] = r.stats.rhs_evals;
+    stats["newton_iters"] = r.stats.newton_iters;
+    stats["newton_failures"] = r.stats.newton_failures;
+    stats["error_test_failures"] = r.stats.error_test_failures;
+    stats["jacobian_evals"] = r.stats.jacobian_evals;
+    stats["linear_iters"] = r.stats.linear_iters;
+    stats["last_order"] = r.stats.last_order;
+    stats["last_step"] = r.stats.last_step;
+    stats["wall_time"] = r.stats.wall_time;
+    stats["linear_solver"] = r.stats.linear_solver;
+    return py::make_tuple(py::array_t<double>(T, r.times.data()), x, v, stats);
+  }, py::arg("model"), py::arg("start"), py::arg("times"), py::arg("gravity"), py::arg("rtol"), py::arg("atol"),
+     py::arg("damping"), py::arg("drag"), py::arg("max_order"), py::arg("stability_limit_detection"), py::arg("linear_solver"),
+     py::arg("max_steps"), py::arg("max_wall_time"));
+
+  py::class_<SpringNetwork>(m, "SpringNetwork",
+      "The reference's first-order system y' = f(y), y = [x; v] of the dynamic particles: for tests and studies.")
+      .def(py::init([reference_settings](const Model& model, const State& start, py::handle gravity, double damping,
+                                         double drag) {
+             return SpringNetwork(model, start,
+                                  reference_settings(gravity, 1e-8, 1e-10, damping, drag, 5, false, "auto", 1, 0.0));
+           }),
+           py::arg("model"), py::arg("start"), py::kw_only(), py::arg("gravity") = std::vector<double>{0, -9.81, 0},
+           py::arg("damping") = 0.0, py::arg("drag") = 0.0)
+      .def_property_readonly("size", &SpringNetwork::size)
+      .def_property_readonly("num_dynamic", &SpringNetwork::num_dynamic)
+      .def_property_readonly("has_analytic_jacobian", &SpringNetwork::has_analytic_jacobian)
+      .def("pack", [](const SpringNetwork& net, const State& state) {
+        py::array_t<double> y(static_cast<py::ssize_t>(net.size()));
+        net.pack(state, y.mutable_data());
+        return y;
+      }, py::arg("state"), "y = [x; v] of the dynamic particles")
+      .def("rhs", [](const SpringNetwork& net, py::array_t<double, py::array::c_style | py::array::forcecast> y) {
+        if (y.ndim() != 1 || static_cast<std::size_t>(y.shape(0)) != net.size())
+          throw InvalidArgument("y must have shape (" + std::to_string(net.size()) + ",)");
+        py::array_t<double> out(static_cast<py::ssize_t>(net.size()));
+        net.rhs(y.data(), out.mutable_data());
+        return out;
+      }, py::arg("y"))
+      .def("jacobian", [](const SpringNetwork& net, py::array_t<double, py::array::c_style | py::array::forcecast> y) {
+        if (y.ndim() != 1 || static_cast<std::size_t>(y.shape(0)) != net.size())
+          throw InvalidArgument("y must have shape (" + std::to_string(net.size()) + ",)");
+        const auto& cs = net.jacobian_column_starts();
+        const auto& ri = net.jacobian_row_indices();
+        py::array_t<double> values(static_cast<py::ssize_t>(ri.size()));
+        net.jacobian(y.data(), values.mutable_data());
+        return py::make_tuple(py::array_t<std::int64_t>(static_cast<py::ssize_t>(cs.size()), cs.data()),
+                              py::array_t<std::int64_t>(static_cast<py::ssize_t>(ri.size()), ri.data()), values);
+      }, py::arg("y"),
+         "(indptr, indices, data) of ∂f/∂y in compressed sparse columns (scipy.sparse.csc_matrix order); "
+         "with bending, only the spring and attachment part");
+
   // ---------------------------------------------------------------- metrics
   m.def("measure", [](const Model& model, const State& state, py::handle gravity) {
     const Metrics r = measure(model, state, to_vec3(gravity, "gravity"));
@@ -475,6 +580,8 @@ PYBIND11_MODULE(_core, m) {
     d["t"] = r.t;
     d["kinetic_energy"] = r.kinetic_energy;
     d["gravitational_energy"] = r.gravitational_energy;
+    d["elastic_energy"] = r.elastic_energy;
+    d["total_energy"] = r.total_energy();
     d["linear_momentum"] = vec3_array(r.linear_momentum);
     d["angular_momentum"] = vec3_array(r.angular_momentum);
     d["distance"] = violation_dict(r.distance);
@@ -484,6 +591,8 @@ PYBIND11_MODULE(_core, m) {
     d["rms_strain"] = r.rms_strain;
     return d;
   }, py::arg("model"), py::arg("state"), py::arg("gravity"));
+  m.def("elastic_energy", &elastic_energy, py::arg("model"), py::arg("state"),
+        "Σ C²/(2α) over the constraints with compliance α > 0, J.");
   m.def("distance_violations", [](const Model& model, const State& state) {
     std::vector<Real> v = distance_violations(model, state);
     return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());

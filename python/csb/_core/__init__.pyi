@@ -2,6 +2,7 @@
 csb compiled core: meshes, models, states and the PBD stepper
 """
 from __future__ import annotations
+import collections.abc
 from csb import Error
 from csb import MeshError
 from csb import ParameterError
@@ -10,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'State', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
+__all__: list[str] = ['Error', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'SpringNetwork', 'State', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -100,17 +101,17 @@ class Model:
     @property
     def attachments(self) -> dict:
         """
-        attachment batch: particle (M,), target (M, 3) m, stiffness
+        attachment batch: particle (M,), target (M, 3) m, stiffness, compliance (m/N)
         """
     @property
     def bending(self) -> dict:
         """
-        bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness
+        bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness, compliance (1/(N m))
         """
     @property
     def distance(self) -> dict:
         """
-        distance batch: particles (M, 2), rest_length (m), stiffness, sense (0: ==, +1: >=, -1: <=)
+        distance batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N), sense (0: ==, +1: >=, -1: <=)
         """
     @property
     def group(self) -> numpy.ndarray:
@@ -152,15 +153,15 @@ class ModelBuilder:
     """
     def __init__(self) -> None:
         ...
-    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None) -> dict:
+    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
-    def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
+    def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
-        Dihedral bending across edge (a, b) with wings c, d; rest_angle in rad, default the current angle.
+        Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad (default the current angle), compliance in 1/(N m) (0: hard).
         """
-    def add_distance(self, i: typing.SupportsInt | typing.SupportsIndex, j: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==') -> int:
+    def add_distance(self, i: typing.SupportsInt | typing.SupportsIndex, j: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==', compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
-        Distance constraint (a spring of stiffness in [0, 1]); rest_length in m, default the current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.
+        Distance constraint: PBD stiffness in [0, 1], compliance in m/N (0: hard); rest_length in m, default the current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.
         """
     def add_group(self, name: str) -> int:
         """
@@ -170,9 +171,9 @@ class ModelBuilder:
         """
         One particle at x (m) of mass (kg) in a group; returns its index.
         """
-    def attach(self, i: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> int:
+    def attach(self, i: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
-        Holds particle i at a world point (m).
+        Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).
         """
     def build(self) -> Model:
         ...
@@ -232,7 +233,34 @@ class PbdStepper:
     @property
     def settings(self) -> PbdSettings:
         ...
+class SpringNetwork:
+    """
+    The reference's first-order system y' = f(y), y = [x; v] of the dynamic particles: for tests and studies.
+    """
+    def __init__(self, model: Model, start: State, *, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, drag: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
+        ...
+    def jacobian(self, y: typing.Annotated[numpy.typing.ArrayLike, numpy.float64]) -> tuple[numpy.typing.NDArray[numpy.int64], numpy.typing.NDArray[numpy.int64], numpy.typing.NDArray[numpy.float64]]:
+        """
+        (indptr, indices, data) of ∂f/∂y in compressed sparse columns (scipy.sparse.csc_matrix order); with bending, only the spring and attachment part
+        """
+    def pack(self, state: State) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        y = [x; v] of the dynamic particles
+        """
+    def rhs(self, y: typing.Annotated[numpy.typing.ArrayLike, numpy.float64]) -> numpy.typing.NDArray[numpy.float64]:
+        ...
+    @property
+    def has_analytic_jacobian(self) -> bool:
+        ...
+    @property
+    def num_dynamic(self) -> int:
+        ...
+    @property
+    def size(self) -> int:
+        ...
 def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, drop_unreferenced: bool = True) -> tuple[Mesh, dict]:
+    ...
+def _integrate_reference(model: Model, start: State, times: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], gravity: typing.Any, rtol: typing.SupportsFloat | typing.SupportsIndex, atol: typing.SupportsFloat | typing.SupportsIndex, damping: typing.SupportsFloat | typing.SupportsIndex, drag: typing.SupportsFloat | typing.SupportsIndex, max_order: typing.SupportsInt | typing.SupportsIndex, stability_limit_detection: bool, linear_solver: str, max_steps: typing.SupportsInt | typing.SupportsIndex, max_wall_time: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], dict]:
     ...
 def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, timeout: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> tuple[Mesh, dict]:
     ...
@@ -263,6 +291,10 @@ def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, 
 def distance_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
     Violation |xi - xj| - rest of every distance constraint, m.
+    """
+def elastic_energy(model: Model, state: State) -> float:
+    """
+    Σ C²/(2α) over the constraints with compliance α > 0, J.
     """
 def lumped_measure(mesh: Mesh) -> numpy.typing.NDArray[numpy.float64]:
     """

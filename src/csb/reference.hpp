@@ -1,0 +1,145 @@
+// csb — the reference every method is measured against: the continuous system the PBD
+// solvers approximate, integrated with SUNDIALS CVODE.
+//
+// From a Model, every constraint with compliance α > 0 becomes the potential E = C(x)²/(2α)
+// (a Hooke spring of stiffness k = 1/α for a distance constraint), pinned particles stay where
+// the start state has them, and gravity acts on the others:
+//
+//   M ẍ = -∇E(x) + M g - D(x) ẋ - β M ẋ,      y = [x; v],   ẏ = [v; M⁻¹(-∇E + M g - D v) - β v]
+//
+// with D an optional dashpot along every distance constraint (and an isotropic one on every
+// attachment) and β an optional drag rate on every particle, both off by default. (A dashpot
+// along a spring does not damp a pendulum's swing; the drag does, and brings a hanging chain to
+// rest.) Only the constraint types present in the model are evaluated.
+//
+// CVODE integrates it with BDF and Newton iterations. For springs and attachments the Jacobian
+// is analytic and sparse and the Newton systems are solved by KLU; a model with compliant
+// bending constraints (whose Hessian csb does not write out) uses GMRES with CVODE's
+// difference-quotient Jacobian-vector products, preconditioned by KLU on the spring part.
+#pragma once
+
+#include "csb/model.hpp"
+
+#include <string>
+#include <vector>
+
+namespace csb {
+
+struct ReferenceSettings {
+  Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
+  // Tolerances of CVODE's local error test. At the defaults a chain's and a cloth's trajectories
+  // are within 1e-8 m of those at rtol 1e-12 (papers/reference.md), far below any error a study
+  // measures; analytic tests ask for tighter ones.
+  Real rtol = 1e-8;                  // relative tolerance, > 0
+  Real atol = 1e-10;                 // absolute tolerance on positions (m) and velocities (m/s), > 0
+  Real damping = 0;                  // N s/m: dashpot along each distance constraint and on attachments
+  Real drag = 0;                     // 1/s: force -drag m v on every particle
+  int max_order = 5;                 // BDF order cap, 1..5
+  // CVODE's BDF stability limit detection (STALD): lowers the order when a mode near the
+  // imaginary axis (an undamped spring) would make orders 3-5 unstable. Off by default: at the
+  // default tolerances CVODE resolves the spring modes, so |hλ| stays where BDF5 is stable, and
+  // the self-convergence check passes without it; with it a falling chain took 3x the steps and
+  // a cloth at rtol 1e-12 stalled at order 3 (papers/reference.md).
+  bool stability_limit_detection = false;
+  enum class Linear { Automatic, Klu, Gmres };
+  Linear linear_solver = Linear::Automatic;  // Automatic: KLU unless compliant bending is present
+  std::int64_t max_steps = 10'000'000;       // internal steps in all before giving up
+  Real max_wall_time = 0;                    // s; 0: no limit
+};
+
+struct ReferenceStats {
+  long steps = 0;
+  long rhs_evals = 0;
+  long newton_iters = 0;
+  long newton_failures = 0;
+  long error_test_failures = 0;
+  long jacobian_evals = 0;   // KLU: Jacobian evaluations; GMRES: preconditioner set-ups
+  long linear_iters = 0;     // GMRES iterations (0 with KLU)
+  int last_order = 0;
+  double last_step = 0;      // s
+  double wall_time = 0;      // s
+  std::string linear_solver; // "klu" or "gmres"
+};
+
+struct ReferenceResult {
+  std::vector<Real> times;     // s, as requested
+  std::vector<Positions> x;    // m, one 3 x N block per time (pinned particles included)
+  std::vector<Positions> v;    // m/s
+  ReferenceStats stats;
+};
+
+// The first-order system ẏ = f(y) of a model: state layout, right-hand side and Jacobian.
+class SpringNetwork {
+ public:
+  // Pinned particles are fixed at their positions in `start`. Throws InvalidArgument if a
+  // constraint is hard (compliance 0: the reference needs a spring), if no particle can move,
+  // or for impossible settings.
+  SpringNetwork(const Model& model, const State& start, const ReferenceSettings& settings);
+
+  Index num_dynamic() const { return static_cast<Index>(dynamic_.size()); }
+  std::size_t size() const { return 6 * dynamic_.size(); }  // length of y
+  // True when every force has an analytic Jacobian (no compliant bending constraints).
+  bool has_analytic_jacobian() const { return bending_.empty(); }
+
+  void pack(const State& state, Real* y) const;             // y = [x_dyn; v_dyn]
+  void unpack(const Real* y, Positions& x, Positions& v) const;  // all particles
+  void rhs(const Real* y, Real* ydot) const;
+
+  // Compressed sparse column structure of ∂f/∂y (size() x size()), every diagonal entry
+  // present; values filled by jacobian(). Without bending: the whole Jacobian; with bending:
+  // the part of the springs and attachments only (the preconditioner's).
+  const std::vector<std::int64_t>& jacobian_column_starts() const { return col_start_; }
+  const std::vector<std::int64_t>& jacobian_row_indices() const { return row_index_; }
+  void jacobian(const Real* y, Real* values) const;
+
+ private:
+  struct Spring {
+    Index a, b;        // slots, or -1 for a fixed end
+    Vec3 fixed_a, fixed_b;
+    Real k, rest;
+    int sense;
+  };
+  struct Bend {
+    Index slot[4];
+    Vec3 fixed[4];
+    Real k, rest;
+  };
+  struct Anchor {
+    Index slot;
+    Vec3 target;
+    Real k;
+  };
+  void build_structure();
+  Vec3 position(const Real* y, Index slot, const Vec3& fixed) const {
+    return slot >= 0 ? Vec3(y[3 * slot], y[3 * slot + 1], y[3 * slot + 2]) : fixed;
+  }
+
+  ReferenceSettings settings_;
+  std::vector<Index> dynamic_;   // particle of each slot
+  std::vector<Index> slot_of_;   // slot of each particle, -1 if pinned
+  std::vector<Real> mass_;       // per slot, kg
+  Positions pinned_x_;           // all particles' start positions (used for the pinned ones)
+  std::vector<Spring> springs_;
+  std::vector<Bend> bending_;
+  std::vector<Anchor> anchors_;
+  std::vector<std::int64_t> col_start_, row_index_;
+  // For each spring: value positions of the 3x3 blocks (aa, ab, ba, bb) in the x- and the
+  // v-columns; -1 where an end is fixed. For each anchor: its aa blocks.
+  struct Blocks {
+    std::int64_t x[4][9];
+    std::int64_t v[4][9];
+  };
+  std::vector<Blocks> spring_blocks_;
+  std::vector<Blocks> anchor_blocks_;
+  std::vector<std::int64_t> identity_;       // positions of the ∂ẋ/∂v = I entries
+  std::vector<std::int64_t> drag_diagonal_;  // positions of the ∂v̇/∂v diagonal
+};
+
+// Integrates the model from `start` (time start.t) and returns positions and velocities at the
+// requested times, which must be increasing and not before start.t. Throws InvalidArgument for
+// bad settings or times, SimulationError if CVODE fails (with its message, the time reached and
+// the statistics), if max_steps is exceeded, or if max_wall_time runs out.
+ReferenceResult integrate_reference(const Model& model, const State& start, const std::vector<Real>& times,
+                                    const ReferenceSettings& settings);
+
+}  // namespace csb
