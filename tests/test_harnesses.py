@@ -1,0 +1,115 @@
+"""The validation harnesses: quick versions of their claims, and each study script run with its
+--quick settings, so that `./dev run`'s studies cannot break unnoticed."""
+
+from __future__ import annotations
+
+import csv
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import csb
+from csb.studies import (
+    drift_per_second,
+    energy_series,
+    observed_order,
+    pbd_errors,
+    pendulum_model,
+    spin_energy_factor,
+    spinning_cloth,
+    swinging_chain,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+G = (0.0, -9.81, 0.0)
+
+
+def test_energy_drift_reference_conserves_and_pbd_dissipates_less_with_substeps():
+    model = pendulum_model(math.radians(30), compliance=1e-8)
+    start = model.initial_state()
+    times = np.arange(0, 61) / 60
+    reference = energy_series(model, start, times, G, method="reference")
+    coarse = energy_series(model, start, times, G, method="pbd", dt=1 / 60, substeps=1, iterations=1)
+    fine = energy_series(model, start, times, G, method="pbd", dt=1 / 60, substeps=10, iterations=1)
+    swing = model.mass[1] * 9.81 * (1 - math.cos(math.radians(30)))  # kinetic energy at the bottom, J
+    assert abs(drift_per_second(times, reference, swing)) < 1e-6
+    assert drift_per_second(times, coarse, swing) < drift_per_second(times, fine, swing) < 0
+    assert coarse[-1] < fine[-1] < reference[-1]
+
+
+@pytest.mark.parametrize("dt", [1 / 60, 1 / 600])
+def test_pbd_energy_loss_on_a_spinning_cloth_has_a_closed_form(dt):
+    """One step of a flat cloth spinning at ω: the prediction is the cloth rotated by atan(ωh) and
+    scaled by sqrt(1 + (ωh)²); converged Gauss-Seidel shrinks it back, keeping close to
+    2(1 - cos φ)/(ωh)² of the kinetic energy (exactly so for a uniform shrink)."""
+    model, start = spinning_cloth(n=6, omega=2.0)
+    state = start.copy()
+    e0 = csb.measure(model, state, (0, 0, 0))["kinetic_energy"]
+    csb.PbdStepper(dt=dt, iterations=200, gravity=(0, 0, 0)).step(model, state)
+    e1 = csb.measure(model, state, (0, 0, 0))["kinetic_energy"]
+    predicted_loss = 1 - spin_energy_factor(2.0 * dt)
+    assert 1 - e1 / e0 == pytest.approx(predicted_loss, rel=1e-2)
+
+
+def test_convergence_in_iterations_saturates_and_in_dt_is_first_order():
+    model = swinging_chain(links=5, compliance=1e-5)
+    start = model.initial_state()
+    times = np.arange(0, 31) / 60
+    ref = csb.integrate_reference(model, start, times, gravity=G)
+    by_it = [pbd_errors(model, start, times, ref.x, G, dt=1 / 240, iterations=it) for it in (1, 5, 20, 100)]
+    residuals = [r for _, r in by_it]
+    errors = [e for e, _ in by_it]
+    assert all(a > b for a, b in zip(residuals, residuals[1:]))  # more iterations, smaller violation
+    assert abs(errors[-1] / errors[-2] - 1) < 0.1  # ... but the error is the time step's
+    dts = np.array([1 / 240, 1 / 480, 1 / 960, 1 / 1920])
+    e = np.array([pbd_errors(model, start, times, ref.x, G, dt=dt, iterations=50)[0] for dt in dts])
+    assert 0.8 < observed_order(dts, e) < 1.2
+
+
+def rows(path: Path) -> list[dict]:
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def is_png(path: Path) -> bool:
+    return path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize(
+    "script, args, outputs",
+    [
+        ("stiffness_correction.py", [], ["stiffness_correction.csv", "stiffness_correction.png"]),
+        ("substeps_vs_iterations.py", ["--quick"], ["substeps_vs_iterations.csv", "substeps_vs_iterations.png"]),
+        ("energy_drift.py", ["--quick"], ["energy_drift.csv", "energy_drift_series.csv", "energy_drift.png"]),
+        ("convergence.py", ["--quick"], ["convergence_iterations.csv", "convergence_dt.csv", "convergence.png"]),
+        ("reference_self_convergence.py", ["--quick"], ["reference_self_convergence.csv"]),
+    ],
+)
+def test_study_scripts_write_their_csv_and_charts(tmp_path, script, args, outputs):
+    r = subprocess.run([sys.executable, str(ROOT / "validation" / script), "--out", str(tmp_path), *args],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-3000:]
+    for name in outputs:
+        path = tmp_path / name
+        assert path.exists(), name
+        if name.endswith(".png"):
+            assert is_png(path)
+        else:
+            assert len(rows(path)) > 0
+    if script == "convergence.py":
+        assert "observed order in dt" in r.stdout
+        order = float(r.stdout.split("observed order in dt (four smallest dt):")[1].split()[0])
+        assert 0.7 < order < 1.3
+    if script == "reference_self_convergence.py":
+        for row in rows(tmp_path / "reference_self_convergence.csv"):
+            assert float(row["spread_over_error"]) < 0.01
+            assert float(row["energy_drift"]) < 1e-6
+    if script == "energy_drift.py":
+        by = {(row["scene"], row["method"]): float(row["drift_per_second"]) for row in rows(tmp_path / "energy_drift.csv")}
+        for scene in ("pendulum", "chain", "free cloth"):
+            assert abs(by[(scene, "reference")]) < 1e-6
+            assert by[(scene, "PBD 1x" + ("1" if scene == "pendulum" else "20" if scene == "chain" else "10"))] < 0
