@@ -39,6 +39,31 @@ void check_settings(const ReferenceSettings& s) {
     throw InvalidArgument("max_wall_time must be >= 0 s (0: no limit), got " + str(s.max_wall_time));
 }
 
+// A sparsity pattern in compressed sparse columns, built from (column, row) entries.
+struct Csc {
+  std::vector<std::int64_t> col_start, row_index;
+
+  Csc() = default;
+  Csc(std::vector<std::pair<std::int64_t, std::int64_t>> entries, std::int64_t columns) {
+    std::sort(entries.begin(), entries.end());
+    entries.erase(std::unique(entries.begin(), entries.end()), entries.end());
+    col_start.assign(columns + 1, 0);
+    row_index.resize(entries.size());
+    for (std::size_t e = 0; e < entries.size(); ++e) {
+      ++col_start[entries[e].first + 1];
+      row_index[e] = entries[e].second;
+    }
+    for (std::int64_t c = 0; c < columns; ++c) col_start[c + 1] += col_start[c];
+  }
+
+  // Position of entry (row, col) in the value array, or -1 if it is not in the pattern.
+  std::int64_t find(std::int64_t row, std::int64_t col) const {
+    const auto first = row_index.begin() + col_start[col], last = row_index.begin() + col_start[col + 1];
+    const auto it = std::lower_bound(first, last, row);
+    return (it != last && *it == row) ? static_cast<std::int64_t>(it - row_index.begin()) : -1;
+  }
+};
+
 std::string hard_message(const std::string& what, Index c, const char* unit) {
   return what + " constraint " + std::to_string(c) +
          " is hard (compliance 0); the reference integrator models every constraint as the potential "
@@ -134,21 +159,10 @@ void SpringNetwork::build_structure() {
   for (const auto& q : anchors_)
     for (bool velocity : {false, true})
       if (!velocity || damped) block(q.slot, q.slot, velocity);
-  std::sort(entries.begin(), entries.end());
-  entries.erase(std::unique(entries.begin(), entries.end()), entries.end());
-  col_start_.assign(N + 1, 0);
-  row_index_.resize(entries.size());
-  for (std::size_t e = 0; e < entries.size(); ++e) {
-    ++col_start_[entries[e].first + 1];
-    row_index_[e] = entries[e].second;
-  }
-  for (std::int64_t c = 0; c < N; ++c) col_start_[c + 1] += col_start_[c];
-
-  const auto find = [&](std::int64_t row, std::int64_t col) -> std::int64_t {
-    const auto first = row_index_.begin() + col_start_[col], last = row_index_.begin() + col_start_[col + 1];
-    const auto it = std::lower_bound(first, last, row);
-    return (it != last && *it == row) ? static_cast<std::int64_t>(it - row_index_.begin()) : -1;
-  };
+  Csc pattern(std::move(entries), N);
+  col_start_ = pattern.col_start;
+  row_index_ = pattern.row_index;
+  const auto find = [&pattern](std::int64_t row, std::int64_t col) { return pattern.find(row, col); };
   const auto positions = [&](Index slot_row, Index slot_col, bool velocity, std::int64_t out[9]) {
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 3; ++c)
@@ -316,19 +330,10 @@ struct Schur {
       for (std::int64_t e = cs[c]; e < cs[c + 1]; ++e)
         if (ri[e] >= n3) entries.push_back({c % n3, ri[e] - n3});
     for (std::int64_t r = 0; r < n3; ++r) entries.push_back({r, r});
-    std::sort(entries.begin(), entries.end());
-    entries.erase(std::unique(entries.begin(), entries.end()), entries.end());
-    col_start.assign(n3 + 1, 0);
-    row_index.resize(entries.size());
-    for (std::size_t e = 0; e < entries.size(); ++e) {
-      ++col_start[entries[e].first + 1];
-      row_index[e] = entries[e].second;
-    }
-    for (std::int64_t c = 0; c < n3; ++c) col_start[c + 1] += col_start[c];
-    const auto find = [&](std::int64_t row, std::int64_t col) {
-      const auto first = row_index.begin() + col_start[col], last = row_index.begin() + col_start[col + 1];
-      return static_cast<std::int64_t>(std::lower_bound(first, last, row) - row_index.begin());
-    };
+    const Csc pattern(std::move(entries), n3);
+    col_start = pattern.col_start;
+    row_index = pattern.row_index;
+    const auto find = [&pattern](std::int64_t row, std::int64_t col) { return pattern.find(row, col); };
     for (std::int64_t c = 0; c < 2 * n3; ++c)
       for (std::int64_t e = cs[c]; e < cs[c + 1]; ++e) {
         if (ri[e] < n3) continue;
