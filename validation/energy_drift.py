@@ -85,9 +85,9 @@ def main() -> None:
         ax.set_title(name, fontsize="medium")
         ax.set_xlabel("time (s)")
         ax.grid(alpha=0.3)
+        ax.legend(fontsize="small")
     axes[0].set_ylabel("energy change (% of the largest kinetic energy)")
-    axes[0].legend(fontsize="small")
-    fig.suptitle("Energy drift, undamped: PBD at dt = 1/60 s (sub-steps x iterations) and the CVODE reference",
+    fig.suptitle("Energy drift, undamped: PBD at dt = 1/60 s (sub-steps x iterations per step) and the CVODE reference",
                  fontsize="medium")
     fig.savefig(out / "energy_drift.png", dpi=120)
 
