@@ -22,6 +22,7 @@ from __future__ import annotations
 from . import _core
 from ._core import (
     Error,
+    ForceStepper,
     MeshError,
     Model,
     ParameterError,
@@ -57,7 +58,7 @@ __all__ = [
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum",
     "Model", "ModelBuilder", "MeshInstance", "State",
-    "PbdStepper", "PbdSettings", "corrected_stiffness",
+    "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness",
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
     "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",
     "Scene", "Simulation", "RunResult", "load_scene", "bundled_scenes", "find_scene",

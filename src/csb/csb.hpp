@@ -8,5 +8,6 @@
 #include "csb/model.hpp"
 #include "csb/pbd.hpp"
 #include "csb/reference.hpp"
+#include "csb/force.hpp"
 #include "csb/shapes.hpp"
 #include "csb/types.hpp"

@@ -16,14 +16,24 @@ using detail::str;
 
 namespace {
 
-
-
 // Index of the first particle whose column is not finite, or -1.
 Index first_non_finite(const Positions& x) {
   for (Index i = 0; i < x.cols(); ++i)
     if (!x.col(i).allFinite()) return i;
   return -1;
 }
+
+// Jacobi: the kernels work on copies of their particles' positions at the sweep's start; the
+// difference is added to the particles' correction sums.
+struct Local {
+  Real p[3];
+  void load(const Real* from) { p[0] = from[0], p[1] = from[1], p[2] = from[2]; }
+  void add_to(const Real* from, Real* delta) const {
+    delta[0] += p[0] - from[0];
+    delta[1] += p[1] - from[1];
+    delta[2] += p[2] - from[2];
+  }
+};
 
 }  // namespace
 
@@ -33,6 +43,18 @@ void validate(const PbdSettings& s) {
   if (s.iterations < 1) throw InvalidArgument("iterations must be >= 1, got " + std::to_string(s.iterations));
   if (!s.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + str(s.gravity));
   if (!(s.damping >= 0 && s.damping <= 1)) throw InvalidArgument("damping must be in [0, 1], got " + str(s.damping));
+  if (!(s.xpbd_damping >= 0) || !std::isfinite(s.xpbd_damping))
+    throw InvalidArgument("xpbd_damping must be a finite coefficient >= 0, got " + str(s.xpbd_damping));
+  if (!(s.verlet_drag >= 0 && s.verlet_drag < 1))
+    throw InvalidArgument("verlet_drag must be in [0, 1), got " + str(s.verlet_drag));
+  const bool verlet = s.front_end == FrontEnd::Verlet || s.method == Method::Jakobsen;
+  if (verlet && s.damping > 0)
+    throw InvalidArgument("damping (Müller 2007 §3.5) acts on stored velocities and needs the Euler front end; "
+                          "with Verlet use verlet_drag");
+  if (!verlet && s.verlet_drag > 0) throw InvalidArgument("verlet_drag applies to the Verlet front end only");
+  if (s.method != Method::Xpbd && s.xpbd_damping > 0) throw InvalidArgument("xpbd_damping applies to XPBD only");
+  if (s.method != Method::Jakobsen && s.sqrt_approximation)
+    throw InvalidArgument("sqrt_approximation is part of Jakobsen's method only");
 }
 
 Real corrected_stiffness(Real k, int iterations) {
@@ -40,7 +62,10 @@ Real corrected_stiffness(Real k, int iterations) {
   return 1 - std::pow(1 - k, 1.0 / iterations);
 }
 
-PbdStepper::PbdStepper(const PbdSettings& settings) : settings_(settings) { validate(settings_); }
+PbdStepper::PbdStepper(const PbdSettings& settings) : settings_(settings) {
+  validate(settings_);
+  if (settings_.method == Method::Jakobsen) settings_.front_end = FrontEnd::Verlet;
+}
 
 std::int64_t PbdStepper::projections_per_step(const Model& model) const {
   return static_cast<std::int64_t>(settings_.substeps) * settings_.iterations * model.num_constraints();
@@ -48,15 +73,39 @@ std::int64_t PbdStepper::projections_per_step(const Model& model) const {
 
 void PbdStepper::prepare(const Model& model) {
   if (model_id_ == model.id) return;
-  const auto effective = [this](const std::vector<Real>& k, std::vector<Real>& out) {
+  const Real h = substep_size();
+  const auto stiffness = [this](const std::vector<Real>& k, std::vector<Real>& out) {
     out.resize(k.size());
-    for (std::size_t c = 0; c < k.size(); ++c)
-      out[c] = settings_.stiffness_correction ? corrected_stiffness(k[c], settings_.iterations) : k[c];
+    const bool correct = settings_.method == Method::Pbd && settings_.stiffness_correction;
+    for (std::size_t c = 0; c < k.size(); ++c) out[c] = correct ? corrected_stiffness(k[c], settings_.iterations) : k[c];
   };
-  effective(model.distance.stiffness, k_distance_);
-  effective(model.bending.stiffness, k_bending_);
-  effective(model.attachments.stiffness, k_attachment_);
-  p_.resize(3, model.num_particles());
+  const auto compliance = [this, h](const std::vector<Real>& alpha, std::vector<Real>& a, std::vector<Real>& g) {
+    a.resize(alpha.size());
+    g.resize(alpha.size());
+    for (std::size_t c = 0; c < alpha.size(); ++c) {
+      a[c] = alpha[c] / (h * h);                     // α̃ = α/h²
+      g[c] = alpha[c] * settings_.xpbd_damping / h;  // γ = α̃ β̃ / h = α β / h
+    }
+  };
+  stiffness(model.distance.stiffness, k_distance_);
+  stiffness(model.bending.stiffness, k_bending_);
+  stiffness(model.attachments.stiffness, k_attachment_);
+  if (settings_.method == Method::Xpbd) {
+    compliance(model.distance.compliance, a_distance_, g_distance_);
+    compliance(model.bending.compliance, a_bending_, g_bending_);
+    compliance(model.attachments.compliance, a_attachment_, g_attachment_);
+    lambda_.distance.assign(model.distance.size(), 0);
+    lambda_.bending.assign(model.bending.size(), 0);
+    lambda_.attachment.assign(model.attachments.size(), 0);
+  }
+  const Index n = model.num_particles();
+  p_.resize(3, n);
+  if (settings_.front_end == FrontEnd::Verlet) x_prev_.resize(3, n);
+  if (settings_.solver != Solver::GaussSeidel) {
+    p_start_.resize(3, n);
+    delta_.resize(3, n);
+    count_.resize(n);
+  }
   model_id_ = model.id;
 }
 
@@ -70,58 +119,203 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   for (const Positions* q : {&state.x, &state.v})
     if (const Index i = first_non_finite(*q); i >= 0)
       throw SimulationError("before step " + std::to_string(state.step) + ": particle " + std::to_string(i) +
-                            " has a non-finite " + (q == &state.x ? "position " : "velocity ") +
-                            str(q->col(i)));
+                            " has a non-finite " + (q == &state.x ? "position " : "velocity ") + str(q->col(i)));
   prepare(model);
-  const Real h = settings_.dt / settings_.substeps;
+  const Real h = substep_size();
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  const Index n3 = 3 * n;
+  Real* x = state.x.data();
+  Real* v = state.v.data();
+  if (verlet) {  // the Verlet front end keeps the previous positions instead of the velocity
+    Real* xp = x_prev_.data();
+    for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
+  }
   for (std::int64_t s = 0; s < steps; ++s) {
-    for (int k = 0; k < settings_.substeps; ++k) {
-      substep(model, state, h);
+    for (int sub = 0; sub < settings_.substeps; ++sub) {
+      predict(model, state, h);
+      if (settings_.method == Method::Xpbd) {
+        std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
+        std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
+        std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
+      }
+      project(model, state.x);
       if (const Index i = first_non_finite(p_); i >= 0) {
+        if (verlet) state.v = (state.x - x_prev_) / h;
         std::ostringstream msg;
-        msg << "step " << state.step << " (substep " << k << ", t = " << state.t << " s): particle " << i
+        msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << i
             << " got a non-finite position " << str(p_.col(i))
             << "; the state is left at the end of the last finite substep";
         throw SimulationError(msg.str());
       }
       // (12)-(15) of Algorithm 1.
-      state.v = (p_ - state.x) / h;
-      state.x = p_;
+      const Real* p = p_.data();
+      if (verlet) {
+        Real* xp = x_prev_.data();
+        for (Index k = 0; k < n3; ++k) {
+          xp[k] = x[k];
+          x[k] = p[k];
+        }
+      } else {
+        for (Index k = 0; k < n3; ++k) {
+          v[k] = (p[k] - x[k]) / h;
+          x[k] = p[k];
+        }
+      }
     }
     ++state.step;
     state.t += settings_.dt;
   }
+  if (verlet) state.v = (state.x - x_prev_) / h;
 }
 
-void PbdStepper::substep(const Model& model, State& state, Real h) {
+void PbdStepper::predict(const Model& model, State& state, Real h) {
   const Index n = model.num_particles();
   const Real* w = model.inv_mass.data();
-  // (5) external forces: gravity accelerates every particle that can move.
-  for (Index i = 0; i < n; ++i)
-    if (w[i] > 0) state.v.col(i) += h * settings_.gravity;
-  // (6)
-  if (settings_.damping > 0) damp_velocities(model, state);
-  // (7) predict.
-  p_ = state.x + h * state.v;
-
-  // (9)-(11) Gauss-Seidel: one constraint type at a time, in model order.
+  const Vec3& g = settings_.gravity;
+  Real* x = state.x.data();
+  Real* v = state.v.data();
   Real* p = p_.data();
+  if (settings_.front_end == FrontEnd::Verlet) {
+    // p = x + (1 - d)(x - x*) + h² g: the velocity lives in the previous positions.
+    const Real keep = 1 - settings_.verlet_drag;
+    const Real* xp = x_prev_.data();
+    for (Index i = 0; i < n; ++i) {
+      const Real a = w[i] > 0 ? h * h : 0;
+      for (int k = 0; k < 3; ++k) p[3 * i + k] = x[3 * i + k] + keep * (x[3 * i + k] - xp[3 * i + k]) + a * g[k];
+    }
+    return;
+  }
+  if (settings_.damping > 0) {
+    // (5), then (6), which needs every velocity updated, then (7).
+    for (Index i = 0; i < n; ++i)
+      if (w[i] > 0) state.v.col(i) += h * g;
+    damp_velocities(model, state);
+    for (Index k = 0; k < 3 * n; ++k) p[k] = x[k] + h * v[k];
+    return;
+  }
+  // (5) and (7) in one pass.
+  for (Index i = 0; i < n; ++i) {
+    const Real a = w[i] > 0 ? h : 0;
+    for (int k = 0; k < 3; ++k) {
+      v[3 * i + k] += a * g[k];
+      p[3 * i + k] = x[3 * i + k] + h * v[3 * i + k];
+    }
+  }
+}
+
+// One sweep over all constraints, one batch at a time in model order. M picks the projection,
+// Jacobi whether the kernels see the positions at the sweep's start (corrections collected in
+// delta_ and count_) or each other's corrections as they come (Gauss-Seidel).
+template <Method M, bool Jacobi>
+static void sweep_batches(const Model& model, const PbdSettings& settings, Real* p, const Real* from,
+                          const Real* x_start, Real* delta, Real* count, const std::vector<Real>& k_dist,
+                          const std::vector<Real>& k_bend, const std::vector<Real>& k_att,
+                          const std::vector<Real>& a_dist, const std::vector<Real>& a_bend,
+                          const std::vector<Real>& a_att, const std::vector<Real>& g_dist,
+                          const std::vector<Real>& g_bend, const std::vector<Real>& g_att, Multipliers& lambda) {
+  const Real* w = model.inv_mass.data();
   const auto& dist = model.distance;
   const auto& bend = model.bending;
   const auto& att = model.attachments;
+  Local local[4];
+  // Where the kernel works on particle `slot`'s position: in place, or a local copy.
+  const auto at = [&](int slot, Index i) -> Real* {
+    if constexpr (Jacobi) {
+      local[slot].load(from + 3 * i);
+      return local[slot].p;
+    } else {
+      return p + 3 * i;
+    }
+  };
+  const auto collect = [&](int slot, Index i) {
+    if constexpr (Jacobi) {
+      local[slot].add_to(from + 3 * i, delta + 3 * i);
+      count[i] += 1;
+    }
+  };
+  for (Index c = 0; c < dist.size(); ++c) {
+    const Index i = dist.particles[c][0], j = dist.particles[c][1];
+    Real* a = at(0, i);
+    Real* b = at(1, j);
+    if constexpr (M == Method::Xpbd) {
+      project_distance_xpbd(a, b, x_start + 3 * i, x_start + 3 * j, w[i], w[j], dist.rest_length[c], a_dist[c],
+                            g_dist[c], lambda.distance[c], dist.sense[c]);
+    } else if constexpr (M == Method::Jakobsen) {
+      if (settings.sqrt_approximation)
+        project_distance_jakobsen(a, b, w[i], w[j], dist.rest_length[c], k_dist[c], dist.sense[c]);
+      else
+        project_distance(a, b, w[i], w[j], dist.rest_length[c], k_dist[c], dist.sense[c]);
+    } else {
+      project_distance(a, b, w[i], w[j], dist.rest_length[c], k_dist[c], dist.sense[c]);
+    }
+    collect(0, i);
+    collect(1, j);
+  }
+  for (Index c = 0; c < bend.size(); ++c) {
+    const auto& q = bend.particles[c];
+    Real* r[4] = {at(0, q[0]), at(1, q[1]), at(2, q[2]), at(3, q[3])};
+    if constexpr (M == Method::Xpbd) {
+      project_bending_xpbd(r[0], r[1], r[2], r[3], x_start + 3 * q[0], x_start + 3 * q[1], x_start + 3 * q[2],
+                           x_start + 3 * q[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], bend.rest_angle[c], a_bend[c],
+                           g_bend[c], lambda.bending[c]);
+    } else {
+      project_bending(r[0], r[1], r[2], r[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], bend.rest_angle[c], k_bend[c]);
+    }
+    for (int s = 0; s < 4; ++s) collect(s, q[s]);
+  }
+  for (Index c = 0; c < att.size(); ++c) {
+    const Index i = att.particle[c];
+    Real* a = at(0, i);
+    if constexpr (M == Method::Xpbd)
+      project_attachment_xpbd(a, x_start + 3 * i, w[i], att.target.col(c).data(), a_att[c], g_att[c],
+                              lambda.attachment[c]);
+    else
+      project_attachment(a, w[i], att.target.col(c).data(), k_att[c]);
+    collect(0, i);
+  }
+}
+
+void PbdStepper::project(const Model& model, const Positions& x_start) {
+  const Solver solver = settings_.solver;
+  const bool jacobi = solver != Solver::GaussSeidel;
+  const Index n = model.num_particles();
   for (int it = 0; it < settings_.iterations; ++it) {
-    for (Index c = 0; c < dist.size(); ++c) {
-      const Index i = dist.particles[c][0], j = dist.particles[c][1];
-      project_distance(p + 3 * i, p + 3 * j, w[i], w[j], dist.rest_length[c], k_distance_[c], dist.sense[c]);
+    if (jacobi) {
+      p_start_ = p_;
+      delta_.setZero();
+      std::fill(count_.begin(), count_.end(), 0.0);
     }
-    for (Index c = 0; c < bend.size(); ++c) {
-      const auto& q = bend.particles[c];
-      project_bending(p + 3 * q[0], p + 3 * q[1], p + 3 * q[2], p + 3 * q[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]],
-                      bend.rest_angle[c], k_bending_[c]);
+    Real* p = p_.data();
+    const Real* from = jacobi ? p_start_.data() : p;
+    Real* delta = jacobi ? delta_.data() : nullptr;
+    Real* count = jacobi ? count_.data() : nullptr;
+    const auto run = [&](auto method, auto jacobi_tag) {
+      sweep_batches<decltype(method)::value, decltype(jacobi_tag)::value>(
+          model, settings_, p, from, x_start.data(), delta, count, k_distance_, k_bending_, k_attachment_,
+          a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_);
+    };
+    using Pbd = std::integral_constant<Method, Method::Pbd>;
+    using Xpbd = std::integral_constant<Method, Method::Xpbd>;
+    using Jak = std::integral_constant<Method, Method::Jakobsen>;
+    switch (settings_.method) {
+      case Method::Pbd:
+        jacobi ? run(Pbd{}, std::true_type{}) : run(Pbd{}, std::false_type{});
+        break;
+      case Method::Xpbd:
+        jacobi ? run(Xpbd{}, std::true_type{}) : run(Xpbd{}, std::false_type{});
+        break;
+      case Method::Jakobsen:
+        jacobi ? run(Jak{}, std::true_type{}) : run(Jak{}, std::false_type{});
+        break;
     }
-    for (Index c = 0; c < att.size(); ++c) {
-      const Index i = att.particle[c];
-      project_attachment(p + 3 * i, w[i], att.target.col(c).data(), k_attachment_[c]);
+    if (jacobi) {
+      // Averaged Jacobi moves each particle by the mean of the corrections it received; summed
+      // Jacobi by their sum, which overshoots where constraints pull the same way.
+      const bool average = solver == Solver::Jacobi;
+      for (Index i = 0; i < n; ++i) {
+        const Real scale = average ? (count_[i] > 0 ? 1 / count_[i] : 0) : 1;
+        p_.col(i) = p_start_.col(i) + scale * delta_.col(i);
+      }
     }
   }
 }

@@ -1,16 +1,21 @@
-// csb — Position Based Dynamics, Müller, Heidelberger, Hennix, Ratcliff 2007, Algorithm 1.
+// csb — the position-based steppers: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD (and its
+// small-steps use, Macklin et al. 2019) and Jakobsen 2001's Verlet with relaxation, as variants
+// of one pipeline (Müller 2007, Algorithm 1):
 //
-// One call to step() advances the state by dt; it runs `substeps` sub-steps of h = dt/substeps,
-// each the whole of Algorithm 1:
-//
-//   (5)  v <- v + h w f_ext          gravity, on particles with w > 0
+//   (5)  v <- v + h w f_ext          gravity, on particles with w > 0         [Euler front end]
 //   (6)  dampVelocities(v)           §3.5, per group, leaves rigid motion untouched
 //   (7)  p <- x + h v                explicit Euler prediction
-//   (9-11) `iterations` Gauss-Seidel sweeps of projectConstraints: every distance, bending and
-//          attachment constraint in turn, each seeing the corrections of those before it
-//   (12-15) v <- (p - x)/h,  x <- p
+//        or p <- x + (1 - d)(x - x*) + h² g                                    [Verlet front end]
+//   (9-11) `iterations` sweeps of projectConstraints over every distance, bending and attachment
+//          constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
+//          the positions at the start of the sweep, corrections averaged or summed)
+//   (12-15) v <- (p - x)/h, x <- p      (Verlet: x* <- x, x <- p)
 //
-// Time step, substeps and iterations are three different things and keep three names.
+// The projection is the method's: PBD scales each correction by the stiffness k ∈ [0, 1] (with
+// Müller's iteration correction if asked); XPBD solves for a multiplier per constraint with the
+// compliance α, reset at each (sub)step; Jakobsen relaxes sticks, optionally without square
+// roots. One call to step() advances by dt, as `substeps` sub-steps of h = dt/substeps. Time
+// step, substeps and iterations are three different things and keep three names.
 #pragma once
 
 #include "csb/model.hpp"
@@ -19,26 +24,51 @@
 
 namespace csb {
 
+enum class Method { Pbd, Xpbd, Jakobsen };
+enum class FrontEnd { Euler, Verlet };
+enum class Solver { GaussSeidel, Jacobi, JacobiSummed };
+
 struct PbdSettings {
+  Method method = Method::Pbd;
   Real dt = 1.0 / 60.0;                 // s, the time one step() advances; > 0
   int substeps = 1;                     // sub-steps of dt/substeps per step; >= 1
-  int iterations = 10;                  // Gauss-Seidel sweeps per sub-step; >= 1
+  int iterations = 10;                  // constraint sweeps per sub-step; >= 1
   Vec3 gravity = Vec3(0, -9.81, 0);     // m/s^2
   // Müller 2007 §3.5 k_damping in [0, 1]: the fraction of each particle's velocity deviation
-  // from its group's rigid motion removed per sub-step (0: undamped).
+  // from its group's rigid motion removed per sub-step (0: undamped). Euler front end only.
   Real damping = 0;
-  // Müller 2007 §3.3: project with k' = 1 - (1 - k)^(1/iterations), so that the stiffness
-  // felt after all iterations does not depend on their number.
+  // PBD: project with k' = 1 - (1 - k)^(1/iterations) (Müller 2007 §3.3), so that the
+  // stiffness felt after all iterations does not depend on their number.
   bool stiffness_correction = true;
+  // How positions are predicted: Euler keeps the velocity (Müller), Verlet the previous
+  // position (Jakobsen). Jakobsen's method always uses Verlet.
+  FrontEnd front_end = FrontEnd::Euler;
+  // How each sweep visits the constraints. Jacobi averages the corrections a particle receives
+  // (by their number); JacobiSummed adds them, and diverges on stiff networks (kept to show it).
+  Solver solver = Solver::GaussSeidel;
+  // XPBD constraint damping β (Macklin 2016 Eq. 26), in N s/m for distance constraints and
+  // attachments (J s for bending); 0: none.
+  Real xpbd_damping = 0;
+  // Jakobsen's drag d in [0, 1): p = x + (1 - d)(x - x*) + h² g (his x' = 1.99x - 0.99x* is 0.01).
+  Real verlet_drag = 0;
+  // Jakobsen's stick relaxation without square roots (see constraints/distance.hpp).
+  bool sqrt_approximation = false;
 };
 
 // Throws InvalidArgument naming the first impossible setting.
 void validate(const PbdSettings& settings);
 
+// Lagrange multipliers of the last XPBD (sub)step, one per constraint of each batch; the
+// constraint force is λ/h² along ∇C (N for distance constraints and attachments).
+struct Multipliers {
+  std::vector<Real> distance, bending, attachment;
+};
+
 class PbdStepper {
  public:
   explicit PbdStepper(const PbdSettings& settings);
   const PbdSettings& settings() const { return settings_; }
+  Real substep_size() const { return settings_.dt / settings_.substeps; }
 
   // Advances `state` by `steps` steps of settings().dt. Throws SimulationError naming the step
   // and particle if a position becomes non-finite; the state is then left at the end of the
@@ -48,16 +78,26 @@ class PbdStepper {
   // Constraint projections one step performs on this model.
   std::int64_t projections_per_step(const Model& model) const;
 
+  // XPBD only: the multipliers of the last sub-step (empty for the other methods).
+  const Multipliers& multipliers() const { return lambda_; }
+
  private:
   void prepare(const Model& model);
-  void substep(const Model& model, State& state, Real h);
+  void predict(const Model& model, State& state, Real h);
+  void project(const Model& model, const Positions& x_start);
   void damp_velocities(const Model& model, State& state) const;
 
   PbdSettings settings_;
   // Per-model workspace, rebuilt when the model changes.
   std::uint64_t model_id_ = 0;
   Positions p_;                          // predicted positions
-  std::vector<Real> k_distance_, k_bending_, k_attachment_;  // stiffness used per iteration
+  Positions x_prev_;                     // Verlet: positions one sub-step back
+  Positions p_start_, delta_;            // Jacobi: positions at the sweep's start, summed corrections
+  std::vector<Real> count_;              // Jacobi: corrections each particle received in the sweep
+  std::vector<Real> k_distance_, k_bending_, k_attachment_;  // PBD: stiffness used per iteration
+  std::vector<Real> a_distance_, a_bending_, a_attachment_;  // XPBD: α̃ = α/h²
+  std::vector<Real> g_distance_, g_bending_, g_attachment_;  // XPBD: γ = α β / h
+  Multipliers lambda_;
 };
 
 // The stiffness used in each of n iterations so that n of them act like one of stiffness k:

@@ -74,7 +74,8 @@ std::string hard_message(const std::string& what, Index c, const char* unit) {
 
 // ------------------------------------------------------------------------------------ network
 
-SpringNetwork::SpringNetwork(const Model& model, const State& start, const ReferenceSettings& settings)
+SpringNetwork::SpringNetwork(const Model& model, const State& start, const ReferenceSettings& settings,
+                             bool with_jacobian)
     : settings_(settings) {
   check_settings(settings_);
   const Index n = model.num_particles();
@@ -132,7 +133,7 @@ SpringNetwork::SpringNetwork(const Model& model, const State& start, const Refer
   if (settings_.linear_solver == ReferenceSettings::Linear::Klu && !has_analytic_jacobian())
     throw InvalidArgument("linear_solver 'klu' needs an analytic Jacobian, but the model has compliant bending "
                           "constraints: use 'gmres' or 'auto'");
-  build_structure();
+  if (with_jacobian) build_structure();
 }
 
 void SpringNetwork::build_structure() {

@@ -73,14 +73,16 @@ class SpringNetwork {
  public:
   // Pinned particles are fixed at their positions in `start`. Throws InvalidArgument if a
   // constraint is hard (compliance 0: the reference needs a spring), if no particle can move,
-  // or for impossible settings.
-  SpringNetwork(const Model& model, const State& start, const ReferenceSettings& settings);
+  // or for impossible settings. Without `with_jacobian` the sparse structure is not built
+  // (the force-based steppers need only rhs()).
+  SpringNetwork(const Model& model, const State& start, const ReferenceSettings& settings, bool with_jacobian = true);
 
   Index num_dynamic() const { return static_cast<Index>(dynamic_.size()); }
   std::size_t size() const { return 6 * dynamic_.size(); }  // length of y
   // True when every force has an analytic Jacobian (no compliant bending constraints).
   bool has_analytic_jacobian() const { return bending_.empty(); }
 
+  const std::vector<Index>& dynamic_particles() const { return dynamic_; }
   void pack(const State& state, Real* y) const;             // y = [x_dyn; v_dyn]
   void unpack(const Real* y, Positions& x, Positions& v) const;  // all particles
   void rhs(const Real* y, Real* ydot) const;

@@ -433,46 +433,121 @@ PYBIND11_MODULE(_core, m) {
       .def("build", [](const ModelBuilder& b) { return std::const_pointer_cast<Model>(b.build()); });
 
   // ---------------------------------------------------------------- PBD
-  py::class_<PbdSettings>(m, "PbdSettings", "Settings of the PBD stepper (SI units).")
+  py::class_<PbdSettings>(m, "PbdSettings", "Settings of a position-based stepper (SI units).")
+      .def_property_readonly("method", [](const PbdSettings& s) {
+        return s.method == Method::Pbd ? "pbd" : s.method == Method::Xpbd ? "xpbd" : "jakobsen";
+      })
       .def_readonly("dt", &PbdSettings::dt, "s, time advanced by one step")
       .def_readonly("substeps", &PbdSettings::substeps)
       .def_readonly("iterations", &PbdSettings::iterations)
       .def_property_readonly("gravity", [](const PbdSettings& s) { return vec3_array(s.gravity); }, "m/s²")
       .def_readonly("damping", &PbdSettings::damping, "Müller 2007 §3.5 k_damping per substep, [0, 1]")
       .def_readonly("stiffness_correction", &PbdSettings::stiffness_correction)
+      .def_property_readonly("front_end", [](const PbdSettings& s) { return s.front_end == FrontEnd::Euler ? "euler" : "verlet"; })
+      .def_property_readonly("solver", [](const PbdSettings& s) {
+        return s.solver == Solver::GaussSeidel ? "gauss-seidel" : s.solver == Solver::Jacobi ? "jacobi" : "jacobi-summed";
+      })
+      .def_readonly("xpbd_damping", &PbdSettings::xpbd_damping, "XPBD constraint damping β, N s/m")
+      .def_readonly("verlet_drag", &PbdSettings::verlet_drag, "Jakobsen's drag d in [0, 1)")
+      .def_readonly("sqrt_approximation", &PbdSettings::sqrt_approximation)
       .def("__repr__", [](const PbdSettings& s) {
         std::ostringstream o;
-        o << "PbdSettings(dt=" << s.dt << ", substeps=" << s.substeps << ", iterations=" << s.iterations
-          << ", gravity=(" << s.gravity.x() << ", " << s.gravity.y() << ", " << s.gravity.z() << "), damping="
-          << s.damping << ", stiffness_correction=" << (s.stiffness_correction ? "True" : "False") << ")";
+        o << "PbdSettings(method=" << (s.method == Method::Pbd ? "'pbd'" : s.method == Method::Xpbd ? "'xpbd'" : "'jakobsen'")
+          << ", dt=" << s.dt << ", substeps=" << s.substeps << ", iterations=" << s.iterations << ", gravity=("
+          << s.gravity.x() << ", " << s.gravity.y() << ", " << s.gravity.z() << "), damping=" << s.damping
+          << ", stiffness_correction=" << (s.stiffness_correction ? "True" : "False") << ", front_end='"
+          << (s.front_end == FrontEnd::Euler ? "euler" : "verlet") << "', solver='"
+          << (s.solver == Solver::GaussSeidel ? "gauss-seidel" : s.solver == Solver::Jacobi ? "jacobi" : "jacobi-summed")
+          << "', xpbd_damping=" << s.xpbd_damping << ", verlet_drag=" << s.verlet_drag
+          << ", sqrt_approximation=" << (s.sqrt_approximation ? "True" : "False") << ")";
         return o.str();
       });
 
-  py::class_<PbdStepper>(m, "PbdStepper", "Position Based Dynamics, Müller et al. 2007, Algorithm 1.")
-      .def(py::init([](double dt, int substeps, int iterations, py::handle gravity, double damping,
-                       bool stiffness_correction) {
+  py::class_<PbdStepper>(m, "PbdStepper",
+      "Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.")
+      .def(py::init([](const std::string& method, double dt, int substeps, int iterations, py::handle gravity,
+                       double damping, bool stiffness_correction, const std::string& front_end,
+                       const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation) {
              PbdSettings s;
+             if (method == "pbd") s.method = Method::Pbd;
+             else if (method == "xpbd") s.method = Method::Xpbd;
+             else if (method == "jakobsen") s.method = Method::Jakobsen;
+             else throw InvalidArgument("method must be 'pbd', 'xpbd' or 'jakobsen', got '" + method + "'");
              s.dt = dt;
              s.substeps = substeps;
              s.iterations = iterations;
              s.gravity = to_vec3(gravity, "gravity");
              s.damping = damping;
              s.stiffness_correction = stiffness_correction;
+             if (front_end == "euler") s.front_end = FrontEnd::Euler;
+             else if (front_end == "verlet") s.front_end = FrontEnd::Verlet;
+             else if (front_end == "auto") s.front_end = s.method == Method::Jakobsen ? FrontEnd::Verlet : FrontEnd::Euler;
+             else throw InvalidArgument("front_end must be 'euler', 'verlet' or 'auto', got '" + front_end + "'");
+             if (solver == "gauss-seidel") s.solver = Solver::GaussSeidel;
+             else if (solver == "jacobi") s.solver = Solver::Jacobi;
+             else if (solver == "jacobi-summed") s.solver = Solver::JacobiSummed;
+             else throw InvalidArgument("solver must be 'gauss-seidel', 'jacobi' or 'jacobi-summed', got '" + solver + "'");
+             s.xpbd_damping = xpbd_damping;
+             s.verlet_drag = verlet_drag;
+             s.sqrt_approximation = sqrt_approximation;
              return PbdStepper(s);
            }),
-           py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("iterations") = 10,
-           py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("damping") = 0.0,
-           py::arg("stiffness_correction") = true,
-           "dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: Gauss-Seidel sweeps per "
-           "sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step. "
-           "stiffness_correction: use k' = 1 - (1 - k)^(1/iterations).")
+           py::kw_only(), py::arg("method") = "pbd", py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1,
+           py::arg("iterations") = 10, py::arg("gravity") = std::vector<double>{0, -9.81, 0},
+           py::arg("damping") = 0.0, py::arg("stiffness_correction") = true, py::arg("front_end") = "auto",
+           py::arg("solver") = "gauss-seidel", py::arg("xpbd_damping") = 0.0, py::arg("verlet_drag") = 0.0,
+           py::arg("sqrt_approximation") = false,
+           "method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: "
+           "sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: "
+           "Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's "
+           "k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' "
+           "(Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: "
+           "β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation "
+           "without square roots.")
       .def_property_readonly("settings", &PbdStepper::settings)
+      .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
       .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
         py::gil_scoped_release release;
         s.step(model, state, steps);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
          "Advances state by `steps` steps of dt (the GIL is released meanwhile).")
-      .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"));
+      .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"))
+      .def("multipliers", [](const PbdStepper& s) {
+        const Multipliers& l = s.multipliers();
+        py::dict d;
+        d["distance"] = py::array_t<Real>(static_cast<py::ssize_t>(l.distance.size()), l.distance.data());
+        d["bending"] = py::array_t<Real>(static_cast<py::ssize_t>(l.bending.size()), l.bending.data());
+        d["attachment"] = py::array_t<Real>(static_cast<py::ssize_t>(l.attachment.size()), l.attachment.data());
+        return d;
+      }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); "
+         "the constraint force is λ/h² along ∇C (N for distance constraints).");
+
+  py::class_<ForceStepper>(m, "ForceStepper",
+      "Force-based mass-spring integrators on the reference's spring network (every constraint a spring of "
+      "stiffness 1/α): the methods that fail, for the stability studies.")
+      .def(py::init([](const std::string& method, double dt, int substeps, py::handle gravity, double damping,
+                       double drag) {
+             ForceSettings s;
+             if (method == "explicit-euler") s.method = ForceIntegrator::ExplicitEuler;
+             else if (method == "symplectic-euler") s.method = ForceIntegrator::SymplecticEuler;
+             else if (method == "velocity-verlet") s.method = ForceIntegrator::VelocityVerlet;
+             else throw InvalidArgument("method must be 'explicit-euler', 'symplectic-euler' or 'velocity-verlet', got '" +
+                                        method + "'");
+             s.dt = dt;
+             s.substeps = substeps;
+             s.gravity = to_vec3(gravity, "gravity");
+             s.damping = damping;
+             s.drag = drag;
+             return ForceStepper(s);
+           }),
+           py::kw_only(), py::arg("method") = "symplectic-euler", py::arg("dt") = 1e-4, py::arg("substeps") = 1,
+           py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("damping") = 0.0, py::arg("drag") = 0.0,
+           "method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. "
+           "drag: 1/s.")
+      .def("step", [](ForceStepper& s, const Model& model, State& state, std::int64_t steps) {
+        py::gil_scoped_release release;
+        s.step(model, state, steps);
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1);
 
   m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
         "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");

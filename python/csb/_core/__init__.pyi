@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'SpringNetwork', 'State', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
+__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'SpringNetwork', 'State', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -188,7 +188,7 @@ class ModelBuilder:
         ...
 class PbdSettings:
     """
-    Settings of the PBD stepper (SI units).
+    Settings of a position-based stepper (SI units).
     """
     def __repr__(self) -> str:
         ...
@@ -203,6 +203,9 @@ class PbdSettings:
         s, time advanced by one step
         """
     @property
+    def front_end(self) -> str:
+        ...
+    @property
     def gravity(self) -> numpy.ndarray:
         """
         m/s²
@@ -211,18 +214,41 @@ class PbdSettings:
     def iterations(self) -> int:
         ...
     @property
+    def method(self) -> str:
+        ...
+    @property
+    def solver(self) -> str:
+        ...
+    @property
+    def sqrt_approximation(self) -> bool:
+        ...
+    @property
     def stiffness_correction(self) -> bool:
         ...
     @property
     def substeps(self) -> int:
         ...
+    @property
+    def verlet_drag(self) -> float:
+        """
+        Jakobsen's drag d in [0, 1)
+        """
+    @property
+    def xpbd_damping(self) -> float:
+        """
+        XPBD constraint damping β, N s/m
+        """
 class PbdStepper:
     """
-    Position Based Dynamics, Müller et al. 2007, Algorithm 1.
+    Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False) -> None:
         """
-        dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: Gauss-Seidel sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step. stiffness_correction: use k' = 1 - (1 - k)^(1/iterations).
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots.
+        """
+    def multipliers(self) -> dict:
+        """
+        XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints).
         """
     def projections_per_step(self, model: Model) -> int:
         ...
@@ -232,6 +258,21 @@ class PbdStepper:
         """
     @property
     def settings(self) -> PbdSettings:
+        ...
+    @property
+    def substep_size(self) -> float:
+        """
+        h = dt/substeps, s
+        """
+class ForceStepper:
+    """
+    Force-based mass-spring integrators on the reference's spring network (every constraint a spring of stiffness 1/α): the methods that fail, for the stability studies.
+    """
+    def __init__(self, *, method: str = 'symplectic-euler', dt: typing.SupportsFloat | typing.SupportsIndex = 0.0001, substeps: typing.SupportsInt | typing.SupportsIndex = 1, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, drag: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
+        """
+        method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. drag: 1/s.
+        """
+    def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
         ...
 class SpringNetwork:
     """

@@ -25,4 +25,21 @@ inline Real project_attachment(Real* p, Real w, const Real* target, Real stiffne
   return violation;
 }
 
+// XPBD form (Macklin et al. 2016): C = |p - t|, ∇C = n = (p - t)/|p - t|, compliance α in m/N:
+// Δλ = (-C - α̃ λ - γ n·(p - x_n)) / ((1 + γ) w + α̃), Δp = w n Δλ. Returns the violation.
+inline Real project_attachment_xpbd(Real* p, const Real* x, Real w, const Real* target, Real alpha_tilde, Real gamma,
+                                    Real& lambda) {
+  const Real dx = p[0] - target[0], dy = p[1] - target[1], dz = p[2] - target[2];
+  const Real c = std::sqrt(dx * dx + dy * dy + dz * dz);
+  if (w <= 0 || c <= 0) return c;
+  const Real nx = dx / c, ny = dy / c, nz = dz / c;
+  const Real moved = nx * (p[0] - x[0]) + ny * (p[1] - x[1]) + nz * (p[2] - x[2]);
+  const Real dl = (-c - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * w + alpha_tilde);
+  lambda += dl;
+  p[0] += w * dl * nx;
+  p[1] += w * dl * ny;
+  p[2] += w * dl * nz;
+  return c;
+}
+
 }  // namespace csb

@@ -93,4 +93,29 @@ inline Real project_bending(Real* pa, Real* pb, Real* pc, Real* pd, Real wa, Rea
   return violation;
 }
 
+// XPBD form (Macklin et al. 2016, Eq. (18) and (26)) of the same constraint, compliance α in
+// rad²/J = 1/(N m): Δλ = (-C - α̃ λ - γ Σ_j ∇_j C·(p_j - x_j)) / ((1 + γ) Σ_j w_j |∇_j C|² + α̃),
+// Δp_i = w_i ∇_i C Δλ; x are the positions at the start of the (sub)step. Returns the violation.
+inline Real project_bending_xpbd(Real* pa, Real* pb, Real* pc, Real* pd, const Real* xa, const Real* xb,
+                                 const Real* xc, const Real* xd, Real wa, Real wb, Real wc, Real wd, Real rest_angle,
+                                 Real alpha_tilde, Real gamma, Real& lambda) {
+  Eigen::Map<Vec3> a(pa), b(pb), c(pc), d(pd);
+  Real theta = 0;
+  Vec3 grad[4];
+  if (!dihedral_angle_and_gradient(a, b, c, d, theta, grad)) return 0;
+  const Real violation = wrap_angle(theta - rest_angle);
+  const Real wgrad = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
+                     wd * grad[3].squaredNorm();
+  if (!(wgrad > 0)) return violation;
+  const Real moved = grad[0].dot(a - Eigen::Map<const Vec3>(xa)) + grad[1].dot(b - Eigen::Map<const Vec3>(xb)) +
+                     grad[2].dot(c - Eigen::Map<const Vec3>(xc)) + grad[3].dot(d - Eigen::Map<const Vec3>(xd));
+  const Real dl = (-violation - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wgrad + alpha_tilde);
+  lambda += dl;
+  a += (wa * dl) * grad[0];
+  b += (wb * dl) * grad[1];
+  c += (wc * dl) * grad[2];
+  d += (wd * dl) * grad[3];
+  return violation;
+}
+
 }  // namespace csb

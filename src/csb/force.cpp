@@ -1,0 +1,81 @@
+#include "csb/force.hpp"
+#include "csb/format.hpp"
+
+#include <cmath>
+#include <sstream>
+
+namespace csb {
+
+using detail::str;
+
+ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) {
+  const ForceSettings& s = settings_;
+  if (!(s.dt > 0) || !std::isfinite(s.dt)) throw InvalidArgument("dt must be a finite time step > 0 s, got " + str(s.dt));
+  if (s.substeps < 1) throw InvalidArgument("substeps must be >= 1, got " + std::to_string(s.substeps));
+  if (!s.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + str(s.gravity));
+  if (!(s.damping >= 0) || !std::isfinite(s.damping))
+    throw InvalidArgument("damping must be a finite coefficient >= 0 N s/m, got " + str(s.damping));
+  if (!(s.drag >= 0) || !std::isfinite(s.drag)) throw InvalidArgument("drag must be a finite rate >= 0 1/s, got " + str(s.drag));
+}
+
+void ForceStepper::step(const Model& model, State& state, std::int64_t steps) {
+  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  ReferenceSettings rs;
+  rs.gravity = settings_.gravity;
+  rs.damping = settings_.damping;
+  rs.drag = settings_.drag;
+  const SpringNetwork net(model, state, rs, /*with_jacobian=*/false);
+  const std::size_t N = net.size(), n3 = N / 2;
+  std::vector<Real> y(N), f(N), y2(N), f2(N);
+  net.pack(state, y.data());
+  const Real h = settings_.dt / settings_.substeps;
+  const ForceIntegrator method = settings_.method;
+  Positions x, v;
+  const auto fail = [&](int sub, std::size_t k) {
+    const Index particle = net.dynamic_particles()[k % n3 / 3];
+    std::ostringstream msg;
+    msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << particle
+        << " got a non-finite " << (k < n3 ? "position" : "velocity") << " (the method is unstable at this time step)"
+        << "; the state is left at the end of the last finite substep";
+    throw SimulationError(msg.str());
+  };
+  for (std::int64_t s = 0; s < steps; ++s) {
+    for (int sub = 0; sub < settings_.substeps; ++sub) {
+      net.rhs(y.data(), f.data());  // f = [v; a]
+      switch (method) {
+        case ForceIntegrator::ExplicitEuler:
+          for (std::size_t k = 0; k < N; ++k) y2[k] = y[k] + h * f[k];
+          break;
+        case ForceIntegrator::SymplecticEuler:
+          for (std::size_t k = 0; k < n3; ++k) {
+            y2[n3 + k] = y[n3 + k] + h * f[n3 + k];
+            y2[k] = y[k] + h * y2[n3 + k];
+          }
+          break;
+        case ForceIntegrator::VelocityVerlet:
+          for (std::size_t k = 0; k < n3; ++k) {
+            y2[k] = y[k] + h * y[n3 + k] + 0.5 * h * h * f[n3 + k];
+            y2[n3 + k] = y[n3 + k] + h * f[n3 + k];  // predicted velocity, for velocity-dependent forces
+          }
+          net.rhs(y2.data(), f2.data());
+          for (std::size_t k = 0; k < n3; ++k) y2[n3 + k] = y[n3 + k] + 0.5 * h * (f[n3 + k] + f2[n3 + k]);
+          break;
+      }
+      for (std::size_t k = 0; k < N; ++k)
+        if (!std::isfinite(y2[k])) {
+          net.unpack(y.data(), x, v);
+          state.x = x;
+          state.v = v;
+          fail(sub, k);
+        }
+      y.swap(y2);
+    }
+    ++state.step;
+    state.t += settings_.dt;
+  }
+  net.unpack(y.data(), x, v);
+  state.x = x;
+  state.v = v;
+}
+
+}  // namespace csb
