@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import csb
-from csb.bench import bench_cloth, cloth_simulation, format_table
+from csb.bench import bench_cloth, cloth_simulation, dispatch, format_front_ends, format_table, front_ends
 
 
 def test_bench_counts_the_projections_it_times():
@@ -22,8 +22,24 @@ def test_bench_counts_the_projections_it_times():
     assert "8x8" in table and "Mproj/s" in table
 
 
+def test_dispatch_benchmark_compares_the_same_projections_bit_for_bit():
+    rows = dispatch((8,), sweeps=3, repeats=2)
+    assert [r["kind"] for r in rows] == ["stretch+bending", "stretch", "bending"]
+    for r in rows:
+        assert r["identical"] and r["projections"] == 3 * r["constraints"] and r["batched_ns"] > 0
+
+
+def test_front_end_benchmark_times_both_front_ends():
+    (row,) = front_ends((8,), iterations=2, rounds=2)
+    assert row["particles"] == 64
+    for key in ("alone_euler_ns_per_particle", "alone_verlet_ns_per_particle", "step_euler_ms", "step_verlet_ms"):
+        assert row[key] > 0
+    assert "Euler/Verlet" in format_front_ends([row])
+
+
 def test_bench_command_prints_a_table():
-    r = subprocess.run([sys.executable, "-m", "csb.cli", "bench", "--sizes", "8", "16", "--rounds", "2", "--steps", "2"],
+    r = subprocess.run([sys.executable, "-m", "csb.cli", "bench", "--sizes", "8", "16", "--rounds", "2", "--steps", "2",
+                        "--parts", "step"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()

@@ -25,7 +25,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from .bench import main
 
-    main(sizes=args.sizes, iterations=args.iterations, substeps=args.substeps, steps=args.steps, rounds=args.rounds)
+    main(sizes=args.sizes, iterations=args.iterations, substeps=args.substeps, steps=args.steps, rounds=args.rounds,
+         parts=args.parts, front_end_sizes=args.front_end_sizes)
     return 0
 
 
@@ -55,12 +56,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("bench", help="time the PBD step on square cloths (prints a table)")
+    p = sub.add_parser("bench", help="time the PBD step, its front ends and virtual dispatch (prints tables)")
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="particles per side (default: 64 128)")
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--steps", type=int, default=10, help="steps per timed round")
     p.add_argument("--rounds", type=int, default=7, help="timed rounds; the median is reported")
+    p.add_argument("--parts", nargs="+", default=["step", "front-ends", "dispatch"],
+                   choices=["step", "front-ends", "dispatch"], help="which tables to print (default: all)")
+    p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
+                   help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.set_defaults(func=_cmd_bench)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)

@@ -9,5 +9,6 @@
 #include "csb/pbd.hpp"
 #include "csb/reference.hpp"
 #include "csb/force.hpp"
+#include "csb/dispatch.hpp"
 #include "csb/shapes.hpp"
 #include "csb/types.hpp"

@@ -1,4 +1,5 @@
 #include "csb/pbd.hpp"
+#include "csb/dispatch.hpp"
 #include "csb/format.hpp"
 
 #include "csb/constraints/attachment.hpp"
@@ -7,7 +8,9 @@
 
 #include <Eigen/Eigenvalues>
 
+#include <chrono>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 namespace csb {
@@ -364,6 +367,107 @@ void PbdStepper::damp_velocities(const Model& model, State& state) const {
       state.v.col(i) += k * (v_cm + omega.cross(r) - state.v.col(i));
     }
   }
+}
+
+// ------------------------------------------------------------------------------------ dispatch
+
+namespace {
+
+class DistanceObject final : public Constraint {
+ public:
+  DistanceObject(Index i, Index j, Real rest, int sense) : i_(i), j_(j), rest_(rest), sense_(sense) {}
+  Real project(bool equality, Real stiffness, const Real* w, Real* p) const override {
+    return project_distance(p + 3 * i_, p + 3 * j_, w[i_], w[j_], rest_, stiffness, equality ? 0 : sense_);
+  }
+
+ private:
+  Index i_, j_;
+  Real rest_;
+  int sense_;
+};
+
+class BendingObject final : public Constraint {
+ public:
+  BendingObject(const std::array<Index, 4>& q, Real rest) : q_(q), rest_(rest) {}
+  Real project(bool, Real stiffness, const Real* w, Real* p) const override {
+    return project_bending(p + 3 * q_[0], p + 3 * q_[1], p + 3 * q_[2], p + 3 * q_[3], w[q_[0]], w[q_[1]], w[q_[2]],
+                           w[q_[3]], rest_, stiffness);
+  }
+
+ private:
+  std::array<Index, 4> q_;
+  Real rest_;
+};
+
+class AttachmentObject final : public Constraint {
+ public:
+  AttachmentObject(Index i, const Vec3& target) : i_(i), target_(target) {}
+  Real project(bool, Real stiffness, const Real* w, Real* p) const override {
+    return project_attachment(p + 3 * i_, w[i_], target_.data(), stiffness);
+  }
+
+ private:
+  Index i_;
+  Vec3 target_;
+};
+
+}  // namespace
+
+std::vector<std::unique_ptr<Constraint>> polymorphic_constraints(const Model& model) {
+  std::vector<std::unique_ptr<Constraint>> out;
+  out.reserve(model.num_constraints());
+  const auto& d = model.distance;
+  for (Index c = 0; c < d.size(); ++c)
+    out.push_back(std::make_unique<DistanceObject>(d.particles[c][0], d.particles[c][1], d.rest_length[c], d.sense[c]));
+  for (Index c = 0; c < model.bending.size(); ++c)
+    out.push_back(std::make_unique<BendingObject>(model.bending.particles[c], model.bending.rest_angle[c]));
+  for (Index c = 0; c < model.attachments.size(); ++c)
+    out.push_back(std::make_unique<AttachmentObject>(model.attachments.particle[c], model.attachments.target.col(c)));
+  return out;
+}
+
+DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions, int sweeps, int repeats) {
+  if (positions.cols() != model.num_particles()) throw InvalidArgument("positions do not match the model");
+  if (sweeps < 1 || repeats < 1) throw InvalidArgument("sweeps and repeats must be >= 1");
+  // The stepper's own Gauss-Seidel sweep (PBD, stiffness corrected for `sweeps` iterations).
+  PbdSettings settings;
+  settings.iterations = sweeps;
+  std::vector<Real> kd, kb, ka, none;
+  for (Real k : model.distance.stiffness) kd.push_back(corrected_stiffness(k, sweeps));
+  for (Real k : model.bending.stiffness) kb.push_back(corrected_stiffness(k, sweeps));
+  for (Real k : model.attachments.stiffness) ka.push_back(corrected_stiffness(k, sweeps));
+  Multipliers unused;
+  // The same stiffness, one per object, in the objects' order.
+  std::vector<Real> k_all(kd);
+  k_all.insert(k_all.end(), kb.begin(), kb.end());
+  k_all.insert(k_all.end(), ka.begin(), ka.end());
+  std::vector<char> equality;
+  for (Index c = 0; c < model.distance.size(); ++c) equality.push_back(model.distance.sense[c] == 0);
+  equality.resize(k_all.size(), 1);
+  const auto objects = polymorphic_constraints(model);
+
+  DispatchTiming t;
+  t.projections = static_cast<std::int64_t>(sweeps) * model.num_constraints();
+  Positions a, b;
+  const Real* w = model.inv_mass.data();
+  for (int r = 0; r < repeats; ++r) {
+    a = positions;
+    auto t0 = std::chrono::steady_clock::now();
+    for (int s = 0; s < sweeps; ++s)
+      sweep_batches<Method::Pbd, false>(model, settings, a.data(), a.data(), a.data(), nullptr, nullptr, kd, kb, ka,
+                                        none, none, none, none, none, none, unused);
+    auto t1 = std::chrono::steady_clock::now();
+    t.batched_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / t.projections);
+    b = positions;
+    t0 = std::chrono::steady_clock::now();
+    Real* p = b.data();
+    for (int s = 0; s < sweeps; ++s)
+      for (std::size_t c = 0; c < objects.size(); ++c) objects[c]->project(equality[c], k_all[c], w, p);
+    t1 = std::chrono::steady_clock::now();
+    t.virtual_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / t.projections);
+  }
+  t.identical = a.size() == b.size() && std::memcmp(a.data(), b.data(), sizeof(Real) * a.size()) == 0;
+  return t;
 }
 
 }  // namespace csb
