@@ -87,6 +87,11 @@ def is_png(path: Path) -> bool:
         ("energy_drift.py", ["--quick"], ["energy_drift.csv", "energy_drift_series.csv", "energy_drift.png"]),
         ("convergence.py", ["--quick"], ["convergence_iterations.csv", "convergence_dt.csv", "convergence.png"]),
         ("reference_self_convergence.py", ["--quick"], ["reference_self_convergence.csv"]),
+        ("stability.py", ["--quick"], ["stability_map.csv", "stability_limits.csv", "stability_jacobi.csv",
+                                       "stability_overshoot.csv", "stability.png"]),
+        ("pareto.py", ["--quick"], ["pareto_chain.csv", "pareto_cloth.csv", "pareto.png"]),
+        ("xpbd_claims.py", ["--quick"], ["xpbd_stiffness.csv", "xpbd_forces.csv", "xpbd_cost.csv", "xpbd.png"]),
+        ("small_steps.py", ["--quick"], ["small_steps.csv", "small_steps.png"]),
     ],
 )
 def test_study_scripts_write_their_csv_and_charts(tmp_path, script, args, outputs):
@@ -113,3 +118,44 @@ def test_study_scripts_write_their_csv_and_charts(tmp_path, script, args, output
         for scene in ("pendulum", "chain", "free cloth"):
             assert abs(by[(scene, "reference")]) < 1e-6
             assert by[(scene, "PBD 1x" + ("1" if scene == "pendulum" else "20" if scene == "chain" else "10"))] < 0
+    if script == "stability.py":
+        cells = rows(tmp_path / "stability_map.csv")
+        for method in ("pbd", "xpbd", "jakobsen"):  # position-based methods never blow up on the chain
+            assert all(c["status"] != "unstable" for c in cells if c["method"] == method)
+        for method in ("symplectic-euler", "velocity-verlet", "explicit-euler"):
+            assert any(c["status"] == "unstable" for c in cells if c["method"] == method)
+        for lim in rows(tmp_path / "stability_limits.csv"):  # 2/ω_max predicted within 2 %
+            assert abs(float(lim["found_over_predicted"]) - 1) < 0.02
+        sweeps = rows(tmp_path / "stability_jacobi.csv")
+        last = {s: float([r for r in sweeps if r["solver"] == s][-1]["max_violation_m"]) for s in ("gauss-seidel", "jacobi", "jacobi-summed")}
+        first = {s: float([r for r in sweeps if r["solver"] == s][0]["max_violation_m"]) for s in last}
+        assert last["gauss-seidel"] < 0.1 * first["gauss-seidel"] and last["jacobi"] < first["jacobi"]
+        assert last["jacobi-summed"] > 100 * first["jacobi-summed"]
+        over = rows(tmp_path / "stability_overshoot.csv")
+        signs = [float(r["violation_m"]) > 0 for r in over if float(r["stiffness"]) == 1.5]
+        assert signs[:4] == [False, True, False, True]  # k = 1.5 overshoots: the sign flips every projection
+        grow = [abs(float(r["violation_m"])) for r in over if float(r["stiffness"]) == 2.1]
+        assert grow[-1] > grow[0] > 0.3  # k > 2 diverges
+    if script == "pareto.py":
+        chain = rows(tmp_path / "pareto_chain.csv")
+        ok = [r for r in chain if r["blew_up"] == "False" and float(r["relative_error"]) <= 0.1]
+        fastest = min(ok, key=lambda r: float(r["cpu_per_simulated_s"]))
+        assert fastest["method"] in ("pbd", "xpbd", "jakobsen", "small steps")
+        cvode = [float(r["relative_error"]) for r in chain if r["method"] == "CVODE"]
+        assert cvode[-1] < cvode[0]
+    if script == "xpbd_claims.py":
+        sag = {(r["method"].split()[0], int(r["iterations"]), round(1 / float(r["dt"]))): float(r["sag_m"])
+               for r in rows(tmp_path / "xpbd_stiffness.csv")}
+        assert sag["PBD", 80, 60] < 0.6 * sag["PBD", 20, 60]  # PBD stiffens with iterations
+        xpbd = [v for (m, _, _), v in sag.items() if m == "XPBD"]
+        assert max(xpbd) - min(xpbd) < 0.1 * np.mean(xpbd)  # XPBD hardly moves with iterations or dt
+        errors = [float(r["relative_error"]) for r in rows(tmp_path / "xpbd_forces.csv")]
+        assert all(a > b for a, b in zip(errors, errors[1:])) and errors[-1] < 0.01
+    if script == "small_steps.py":
+        table = rows(tmp_path / "small_steps.csv")
+        for scene in ("chain", "cloth"):
+            for n in ("5", "20"):
+                sub = [r for r in table if r["scene"] == scene and r["n"] == n and r["split"].startswith("n sub")][0]
+                it = [r for r in table if r["scene"] == scene and r["n"] == n and r["split"].startswith("1 x")][0]
+                assert float(sub["max_strain"]) < float(it["max_strain"])
+                assert abs(float(sub["energy_change"])) < abs(float(it["energy_change"]))

@@ -127,7 +127,9 @@ def bad(tmp_path, text):
         (("density = 0.2", "# no mass"), r"mesh\[0\] \(cloth\): give exactly one of 'mass' \(kg\), 'density'"),
         (("resolution = [6, 6]", "resolution = [6, 1]"), r"bad\.toml:14: .*resolution: must be \[nx, ny\] with at least 2"),
         (("shape = \"cloth\"", "shape = \"cube\""), r"bad\.toml:12: .*shape: must be one of 'cloth', 'chain', 'pendulum'"),
-        (("[solver]", "[solver]\nmethod = \"xpbd\""), r"solver\.method: must be one of 'pbd', got 'xpbd'"),
+        (("[solver]", "[solver]\nmethod = \"xpb\""), r"solver\.method: must be one of 'pbd', 'xpbd', 'jakobsen', got 'xpb'"),
+        (("[solver]", "[solver]\nmethod = \"jakobsen\"\ndamping = 0.1"),
+         r"bad\.toml:5: solver: damping \(Müller 2007 §3\.5\) acts on stored velocities"),
         (("fps = 20", "fps = 20\nmovie = true"), r"bad\.toml:22: output\.movie: unknown key"),
         (("size = [1.0, 1.0]", "size = [1.0, 1.0\n"), r"bad\.toml: not valid TOML: Unclosed array \(at line 15"),
         (("pin = { near = [[-0.5, 0.0, -0.5], [0.5, 0.0, -0.5]] }", "pin = { near = [[-0.5, 0.3, -0.5]] }"),
@@ -144,6 +146,15 @@ def test_scene_errors_name_file_key_and_line(tmp_path, edit, message):
     path = bad(tmp_path, GOOD.replace(old, new))
     with pytest.raises(csb.SceneError, match=message):
         csb.load_scene(path).build()
+
+
+@pytest.mark.parametrize("method", ["xpbd", "jakobsen"])
+def test_scene_method_reaches_the_stepper(tmp_path, method):
+    text = GOOD.replace("[solver]", f'[solver]\nmethod = "{method}"\nsolver = "jacobi"')
+    sim = csb.load_scene(scene_file(tmp_path, text)).build()
+    s = sim.stepper.settings
+    assert s.method == method and s.solver == "jacobi"
+    assert s.front_end == ("verlet" if method == "jakobsen" else "euler")
 
 
 def test_scene_compliance_reaches_the_model(tmp_path):

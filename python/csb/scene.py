@@ -216,18 +216,25 @@ class _Table:
 
 @dataclass(frozen=True)
 class SolverSpec:
-    method: str = "pbd"
+    method: str = "pbd"             # "pbd" (Müller 2007), "xpbd" (Macklin 2016), "jakobsen" (2001)
     dt: float = 1.0 / 60.0          # s
     substeps: int = 1
-    iterations: int = 10
+    iterations: int = 10            # small steps (Macklin 2019): "xpbd" with many substeps, iterations = 1
     gravity: Vec3 = (0.0, -9.81, 0.0)  # m/s²
     damping: float = 0.0            # Müller 2007 §3.5 k_damping, per substep
     stiffness_correction: bool = True
+    front_end: str = "auto"         # "euler", "verlet" or "auto" (Verlet for Jakobsen)
+    solver: str = "gauss-seidel"    # or "jacobi" (averaged), "jacobi-summed"
+    xpbd_damping: float = 0.0       # N s/m, XPBD only
+    verlet_drag: float = 0.0        # Jakobsen's drag in [0, 1)
+    sqrt_approximation: bool = False  # Jakobsen's stick relaxation without square roots
 
     def stepper(self) -> _core.PbdStepper:
         return _core.PbdStepper(
-            dt=self.dt, substeps=self.substeps, iterations=self.iterations, gravity=self.gravity,
-            damping=self.damping, stiffness_correction=self.stiffness_correction,
+            method=self.method, dt=self.dt, substeps=self.substeps, iterations=self.iterations,
+            gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
+            front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
+            verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation,
         )
 
 
@@ -522,15 +529,24 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if so is None:
         raise top.error(None, "missing [solver] table (method, dt, substeps, iterations, ...)")
     solver = SolverSpec(
-        method=so.string("method", "pbd", choices=("pbd",)),
+        method=so.string("method", "pbd", choices=("pbd", "xpbd", "jakobsen")),
         dt=so.number("dt", check=lambda x: x > 0, expect="a time step > 0 s"),
         substeps=so.integer("substeps", 1, minimum=1),
         iterations=so.integer("iterations", 10, minimum=1),
         gravity=so.vector("gravity", (0.0, -9.81, 0.0)),
         damping=so.number("damping", 0.0, check=lambda x: 0 <= x <= 1, expect="a damping factor in [0, 1]"),
         stiffness_correction=so.boolean("stiffness_correction", True),
+        front_end=so.string("front_end", "auto", choices=("auto", "euler", "verlet")),
+        solver=so.string("solver", "gauss-seidel", choices=("gauss-seidel", "jacobi", "jacobi-summed")),
+        xpbd_damping=so.number("xpbd_damping", 0.0, check=lambda x: x >= 0, expect="a damping coefficient >= 0 (N s/m)"),
+        verlet_drag=so.number("verlet_drag", 0.0, check=lambda x: 0 <= x < 1, expect="a drag factor in [0, 1)"),
+        sqrt_approximation=so.boolean("sqrt_approximation", False),
     )
     so.finish()
+    try:
+        solver.stepper()  # combinations the stepper refuses (damping with Verlet, ...)
+    except _core.ParameterError as e:
+        raise so.error(None, str(e)) from None
     if solver.dt > duration:
         raise so.error("dt", f"the time step {solver.dt} s is longer than the scene's duration {duration} s")
 

@@ -222,3 +222,60 @@ def pbd_errors(model: _core.Model, start: _core.State, times: np.ndarray, refere
 def observed_order(h: np.ndarray, error: np.ndarray) -> float:
     """Slope of log(error) against log(h), least squares."""
     return float(np.polyfit(np.log(h), np.log(error), 1)[0])
+
+
+# --------------------------------------------------------------------------------- methods
+
+
+def make_stepper(method: str, *, dt: float, iterations: int = 10, substeps: int = 1, gravity=(0.0, -9.81, 0.0)):
+    """A stepper by name: "pbd", "xpbd", "jakobsen" (position-based, `iterations` per sub-step),
+    "small-steps" (XPBD, `substeps` of one iteration), or a force-based integrator
+    ("explicit-euler", "symplectic-euler", "velocity-verlet")."""
+    if method in ("explicit-euler", "symplectic-euler", "velocity-verlet"):
+        return _core.ForceStepper(method=method, dt=dt, substeps=substeps, gravity=gravity)
+    if method == "small-steps":
+        return _core.PbdStepper(method="xpbd", dt=dt, substeps=substeps, iterations=1, gravity=gravity)
+    return _core.PbdStepper(method=method, dt=dt, substeps=substeps, iterations=iterations, gravity=gravity)
+
+
+def omega_max(model: _core.Model, state: _core.State, gravity=(0.0, -9.81, 0.0)) -> float:
+    """The largest angular frequency of the spring network at `state` (rad/s): ω_max² is the
+    largest eigenvalue of M⁻¹K, K the Hessian of the spring energy (read from the analytic
+    Jacobian's ∂v̇/∂x block, which is -M⁻¹K)."""
+    from .reference import SpringNetwork
+
+    net = SpringNetwork(model, state, gravity=gravity)
+    n3 = net.size // 2
+    indptr, indices, data = net.jacobian(net.pack(state))
+    A = np.zeros((n3, n3))
+    for col in range(n3):
+        for e in range(indptr[col], indptr[col + 1]):
+            if indices[e] >= n3:
+                A[indices[e] - n3, col] = data[e]
+    return float(math.sqrt(max(np.linalg.eigvals(-A).real.max(), 0.0)))
+
+
+def run_method(model: _core.Model, start: _core.State, times: np.ndarray, stepper, *, dt: float,
+               reference_x: np.ndarray | None = None, blow_up: float = 100.0) -> dict:
+    """Steps `start` with `stepper` (step dt) through `times` (multiples of dt). Returns the
+    wall time of stepping (s), whether it blew up (non-finite, or a particle farther than
+    `blow_up` times the model's size from where it started) and, with `reference_x` (T, N, 3),
+    the largest distance to it (m)."""
+    state = start.copy()
+    x0 = np.asarray(start.x).copy()
+    size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0)))
+    wall, error, blew = 0.0, 0.0, False
+    for k in range(1, len(times)):
+        n = int(round((times[k] - times[k - 1]) / dt))
+        t0 = time.perf_counter()
+        try:
+            stepper.step(model, state, n)
+        except _core.SimulationError:
+            blew = True
+        wall += time.perf_counter() - t0
+        if blew or np.abs(np.asarray(state.x) - x0).max() > blow_up * size:
+            blew = True
+            break
+        if reference_x is not None:
+            error = max(error, float(np.linalg.norm(np.asarray(state.x) - reference_x[k], axis=1).max()))
+    return dict(wall_time=wall, blew_up=blew, error=error if not blew else float("inf"))

@@ -33,7 +33,7 @@ inline Real project_attachment_xpbd(Real* p, const Real* x, Real w, const Real* 
   const Real c = std::sqrt(dx * dx + dy * dy + dz * dz);
   if (w <= 0 || c <= 0) return c;
   const Real nx = dx / c, ny = dy / c, nz = dz / c;
-  const Real moved = nx * (p[0] - x[0]) + ny * (p[1] - x[1]) + nz * (p[2] - x[2]);
+  const Real moved = gamma == 0 ? Real(0) : nx * (p[0] - x[0]) + ny * (p[1] - x[1]) + nz * (p[2] - x[2]);
   const Real dl = (-c - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * w + alpha_tilde);
   lambda += dl;
   p[0] += w * dl * nx;

@@ -107,8 +107,10 @@ inline Real project_bending_xpbd(Real* pa, Real* pb, Real* pc, Real* pd, const R
   const Real wgrad = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
                      wd * grad[3].squaredNorm();
   if (!(wgrad > 0)) return violation;
-  const Real moved = grad[0].dot(a - Eigen::Map<const Vec3>(xa)) + grad[1].dot(b - Eigen::Map<const Vec3>(xb)) +
-                     grad[2].dot(c - Eigen::Map<const Vec3>(xc)) + grad[3].dot(d - Eigen::Map<const Vec3>(xd));
+  const Real moved = gamma == 0 ? Real(0)
+                                : grad[0].dot(a - Eigen::Map<const Vec3>(xa)) + grad[1].dot(b - Eigen::Map<const Vec3>(xb)) +
+                                      grad[2].dot(c - Eigen::Map<const Vec3>(xc)) +
+                                      grad[3].dot(d - Eigen::Map<const Vec3>(xd));
   const Real dl = (-violation - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wgrad + alpha_tilde);
   lambda += dl;
   a += (wa * dl) * grad[0];

@@ -69,8 +69,10 @@ inline Real project_distance_xpbd(Real* p1, Real* p2, const Real* x1, const Real
   const Real wsum = w1 + w2;
   if (wsum <= 0 || len <= 0) return violation;
   const Real nx = dx / len, ny = dy / len, nz = dz / len;
-  const Real moved = nx * ((p1[0] - x1[0]) - (p2[0] - x2[0])) + ny * ((p1[1] - x1[1]) - (p2[1] - x2[1])) +
-                     nz * ((p1[2] - x1[2]) - (p2[2] - x2[2]));
+  // The damping term reads the start positions; without damping it is skipped.
+  const Real moved = gamma == 0 ? Real(0)
+                                : nx * ((p1[0] - x1[0]) - (p2[0] - x2[0])) + ny * ((p1[1] - x1[1]) - (p2[1] - x2[1])) +
+                                      nz * ((p1[2] - x1[2]) - (p2[2] - x2[2]));
   Real dl = (-c - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wsum + alpha_tilde);
   if (sense != 0) {
     const Real next = sense > 0 ? std::max(lambda + dl, Real(0)) : std::min(lambda + dl, Real(0));

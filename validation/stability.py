@@ -1,0 +1,220 @@
+#!/usr/bin/env python3
+"""Study: where the methods fail.
+
+1. A map over (time step, stiffness) for each method on a 5-link chain (links of 0.1 m, 10 g
+   nodes) pinned at its top and released at 30°, for 1 s: stable, unstable (blew up: a
+   non-finite value, or a particle a hundred chain lengths from its start), or stable but wrong (more
+   than 10 % of the chain's length from the reference with the same stiffness). Stiffness is
+   k = 1/α (N/m) for the reference, XPBD and the force-based integrators; PBD and Jakobsen
+   project hard constraints (their k ∈ [0, 1] has no unit) and so model the stiff limit.
+2. The explicit stability limit h < 2/ω_max, ω_max² the largest eigenvalue of M⁻¹K, predicted
+   and found by bisection for symplectic Euler and velocity Verlet on the chain hanging at rest
+   (the threshold is where 4000 steps from a nudge grow the energy tenfold).
+3. Gauss-Seidel, averaged Jacobi and summed Jacobi on a 10 x 10 cloth whose edges start 20 %
+   too long: the largest violation after each sweep.
+4. PBD's stiffness k above 1: the violation left after n projections of one constraint,
+   |1 - k|^n of the first, overshooting for 1 < k < 2 and diverging beyond.
+
+Writes stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_overshoot.csv
+and stability.png.
+
+    python validation/stability.py [--out out/validation] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+
+import csb
+from csb.studies import make_stepper, omega_max, run_method
+
+G = (0.0, -9.81, 0.0)
+METHODS = ("explicit-euler", "symplectic-euler", "velocity-verlet", "pbd", "xpbd", "jakobsen")
+CLASSES = {"stable": 0, "wrong": 1, "unstable": 2}
+
+
+def chain(k: float, angle: float = math.radians(30)) -> csb.Model:
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.chain(5, 0.1, direction=(math.sin(angle), -math.cos(angle), 0)), particle_mass=0.01,
+               stretch_compliance=1 / k)
+    b.pin(0)
+    return b.build()
+
+
+def stability_map(dts, stiffnesses, duration: float):
+    rows = []
+    for k in stiffnesses:
+        model = chain(k)
+        start = model.initial_state()
+        times = np.linspace(0, duration, 11)
+        ref = csb.integrate_reference(model, start, times, gravity=G)
+        for method in METHODS:
+            for dt in dts:
+                dt_eff = (times[1] - times[0]) / max(1, round((times[1] - times[0]) / dt))
+                steps = duration / dt_eff
+                if steps > 2e6:  # not worth it: far below every limit that matters here
+                    continue
+                r = run_method(model, start, times, make_stepper(method, dt=dt_eff, iterations=10), dt=dt_eff,
+                               reference_x=ref.x)
+                status = "unstable" if r["blew_up"] else ("wrong" if r["error"] > 0.05 else "stable")
+                rows.append(dict(method=method, dt=dt_eff, stiffness=k, status=status, error_m=r["error"]))
+    return rows
+
+
+def found_limit(method: str, k: float) -> tuple[float, float]:
+    """(predicted, found) critical time step for the chain hanging at rest."""
+    model = chain(k, angle=0.0)
+    # Hang it at rest: let XPBD with damping settle it, then nudge the bottom sideways.
+    rest = model.initial_state()
+    csb.PbdStepper(method="xpbd", dt=1 / 600, iterations=50, damping=0.05).step(model, rest, 3000)
+    rest.v = np.zeros_like(rest.v)
+    predicted = 2 / omega_max(model, rest, G)
+    e = lambda s: csb.measure(model, s, G)["total_energy"]  # noqa: E731
+
+    def grows(dt: float) -> bool:
+        s = rest.copy()
+        s.v[-1] = [1e-3, 0, 0]
+        e0 = e(s)
+        try:
+            csb.ForceStepper(method=method, dt=dt, gravity=G).step(model, s, 4000)
+        except csb.SimulationError:
+            return True
+        return abs(e(s) - e0) > 10 * abs(e0 - e(rest)) + 1e-12 or not np.all(np.isfinite(s.x))
+
+    lo, hi = 0.8 * predicted, 1.2 * predicted
+    assert not grows(lo) and grows(hi), (method, k)
+    for _ in range(30):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if grows(mid) else (mid, hi)
+    return predicted, 0.5 * (lo + hi)
+
+
+def jacobi_sweeps(max_iterations: int):
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1, 1, 10, 10), density=0.2)
+    model = b.build()
+    rows = []
+    for solver in ("gauss-seidel", "jacobi", "jacobi-summed"):
+        for it in range(1, max_iterations + 1):
+            s = model.initial_state()
+            s.x = s.x * 1.2
+            try:
+                csb.PbdStepper(dt=1 / 60, iterations=it, gravity=(0, 0, 0), solver=solver).step(model, s)
+                residual = float(np.abs(csb.distance_violations(model, s)).max())
+            except csb.SimulationError:
+                residual = float("inf")
+            rows.append(dict(solver=solver, iterations=it, max_violation_m=residual))
+    return rows
+
+
+def overshoot(max_projections: int):
+    rows = []
+    for k in (0.5, 1.0, 1.5, 1.9, 2.0, 2.1):
+        p1, p2 = np.zeros(3), np.array([1.3, 0.0, 0.0])
+        for n in range(1, max_projections + 1):
+            p1, p2, _ = csb.kernels.project_distance(p1, p2, 1.0, 1.0, 1.0, k)
+            c = float(np.linalg.norm(p2 - p1) - 1.0)
+            rows.append(dict(stiffness=k, projections=n, violation_m=c, closed_form_m=0.3 * (1 - k) ** n))
+    return rows
+
+
+def write(path: Path, rows) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--out", default="out/validation", help="output directory")
+    parser.add_argument("--quick", action="store_true", help="a coarse map and one limit (the tests' version)")
+    args = parser.parse_args()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+
+    dts = np.logspace(-5, -1, 5 if args.quick else 13)
+    stiffnesses = (1e2, 1e5) if args.quick else (1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7)
+    rows = stability_map(dts, stiffnesses, duration=0.2 if args.quick else 1.0)
+    write(out / "stability_map.csv", rows)
+    limits = []
+    for method in ("symplectic-euler", "velocity-verlet"):
+        for k in ((1e4,) if args.quick else (1e3, 1e4, 1e5)):
+            predicted, found = found_limit(method, k)
+            limits.append(dict(method=method, stiffness=k, predicted_dt=predicted, found_dt=found,
+                               found_over_predicted=found / predicted))
+    write(out / "stability_limits.csv", limits)
+    jacobi = jacobi_sweeps(20 if args.quick else 60)
+    write(out / "stability_jacobi.csv", jacobi)
+    over = overshoot(10)
+    write(out / "stability_overshoot.csv", over)
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
+
+    fig = plt.figure(figsize=(14, 8.5), constrained_layout=True)
+    grid = fig.add_gridspec(2, 4)
+    cmap = ListedColormap(["#4caf50", "#ffb300", "#e53935"])
+    for m, method in enumerate(METHODS):
+        ax = fig.add_subplot(grid[m // 3, m % 3])
+        pts = [r for r in rows if r["method"] == method]
+        ax.scatter([r["dt"] for r in pts], [r["stiffness"] for r in pts], c=[CLASSES[r["status"]] for r in pts],
+                   cmap=cmap, vmin=0, vmax=2, marker="s", s=70)
+        if method in ("symplectic-euler", "velocity-verlet", "explicit-euler"):
+            ks = np.array(stiffnesses)
+            # h_crit = 2/ω_max scales as 1/sqrt(k): draw it through the measured limit at 1e4 N/m.
+            ref_limit = [lim for lim in limits if lim["stiffness"] == 1e4][0]["predicted_dt"]
+            ax.plot(ref_limit * np.sqrt(1e4 / ks), ks, "k--", lw=1, label="2/ω_max")
+            ax.legend(fontsize="x-small", loc="lower left")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_title(method, fontsize="medium")
+        ax.set_xlabel("time step (s)")
+        ax.set_ylabel("stiffness k = 1/α (N/m)")
+    ax = fig.add_subplot(grid[0, 3])
+    for solver in ("gauss-seidel", "jacobi", "jacobi-summed"):
+        pts = [r for r in jacobi if r["solver"] == solver and math.isfinite(r["max_violation_m"])]
+        ax.semilogy([r["iterations"] for r in pts], [r["max_violation_m"] for r in pts], label=solver)
+    ax.set_xlabel("sweeps")
+    ax.set_ylabel("largest violation (m)")
+    ax.set_title("cloth stretched 20 %: sweeps", fontsize="medium")
+    ax.legend(fontsize="x-small")
+    ax = fig.add_subplot(grid[1, 3])
+    for k in sorted({r["stiffness"] for r in over}):
+        pts = [r for r in over if r["stiffness"] == k]
+        ax.plot([0] + [r["projections"] for r in pts], [0.3] + [r["violation_m"] for r in pts], "o-", ms=3,
+                label=f"k = {k}")
+    ax.set_yscale("symlog", linthresh=1e-4)
+    ax.set_xlabel("projections")
+    ax.set_ylabel("violation (m), signed")
+    ax.set_title("one constraint, PBD stiffness k", fontsize="medium")
+    ax.legend(fontsize="x-small")
+    fig.suptitle("Stability: green stable, amber stable but > 10 % off the reference, red blew up (5-link chain, 1 s)",
+                 fontsize="medium")
+    fig.savefig(out / "stability.png", dpi=110)
+
+    print(f"{'method':18s} {'stable':>7s} {'wrong':>7s} {'unstable':>9s}   (cells of the map)")
+    for method in METHODS:
+        pts = [r["status"] for r in rows if r["method"] == method]
+        print(f"{method:18s} {pts.count('stable'):>7d} {pts.count('wrong'):>7d} {pts.count('unstable'):>9d}")
+    for lim in limits:
+        print(f"{lim['method']:18s} k = {lim['stiffness']:.0e} N/m: 2/ω_max = {lim['predicted_dt']:.4e} s, found "
+              f"{lim['found_dt']:.6e} s ({100 * (lim['found_over_predicted'] - 1):+.4f} %)")
+    last = {s: [r for r in jacobi if r["solver"] == s][-1]["max_violation_m"] for s in ("gauss-seidel", "jacobi", "jacobi-summed")}
+    print("after the last sweep: " + ", ".join(f"{s} {v:.2e} m" for s, v in last.items()))
+    print("one constraint after 10 projections: " + ", ".join(
+        f"k={r['stiffness']} {r['violation_m']:+.2e} m" for r in over if r["projections"] == 10))
+    print(f"  wrote {out}/stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_overshoot.csv, "
+          f"stability.png")
+
+
+if __name__ == "__main__":
+    main()
