@@ -20,13 +20,12 @@ Writes convergence_iterations.csv, convergence_dt.csv and convergence.png.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import observed_order, pbd_errors, swinging_chain
+from csb.studies import observed_order, pbd_errors, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 ITERATIONS = (1, 2, 5, 10, 20, 50, 100)
@@ -56,10 +55,7 @@ def main() -> None:
     order = observed_order(np.array([r["dt"] for r in by_dt[-4:]]), np.array([r["max_error_m"] for r in by_dt[-4:]]))
 
     for name, rows in (("convergence_iterations.csv", by_iterations), ("convergence_dt.csv", by_dt)):
-        with open(out / name, "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_csv(out / name, rows)
 
     import matplotlib
 

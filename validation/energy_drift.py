@@ -16,14 +16,13 @@ and energy_drift.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import drift_per_second, energy_series, pendulum_model, spinning_cloth, swinging_chain
+from csb.studies import drift_per_second, energy_series, pendulum_model, spinning_cloth, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 DT = 1 / 60
@@ -61,14 +60,8 @@ def main() -> None:
                              final_change=(energy[-1] - energy[0]) / kinetic))
             series += [dict(scene=name, method=method, t=t, relative_energy=(e - energy[0]) / kinetic)
                        for t, e in zip(times, energy)]
-    with open(out / "energy_drift.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-    with open(out / "energy_drift_series.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(series[0]))
-        w.writeheader()
-        w.writerows(series)
+    write_csv(out / "energy_drift.csv", rows)
+    write_csv(out / "energy_drift_series.csv", series)
 
     import matplotlib
 

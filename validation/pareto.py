@@ -23,7 +23,6 @@ Writes pareto_<scene>.csv, pareto.png and, per scene, the fastest method at 10 %
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 import time
 from pathlib import Path
@@ -31,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import csb
-from csb.studies import make_stepper, omega_max, run_method, swinging_chain
+from csb.studies import make_stepper, omega_max, run_method, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 LEVELS = (0.1, 0.01, 0.001)
@@ -116,10 +115,7 @@ def main() -> None:
     for name, model in scenes.items():
         rows = sweep(model, duration, args.quick)
         results[name] = rows
-        with open(out / f"pareto_{name}.csv", "w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_csv(out / f"pareto_{name}.csv", rows)
 
     import matplotlib
 

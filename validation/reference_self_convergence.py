@@ -16,13 +16,12 @@ for the cost. Writes reference_self_convergence.csv and reference_cost.csv.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import pbd_errors, relative_energy_drift, swinging_chain
+from csb.studies import pbd_errors, relative_energy_drift, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 
@@ -68,10 +67,7 @@ def main() -> None:
             print(f"{name:8s} {rtol:>7.0e} {spread:>11.2e} {spread / smallest:>11.2e} {drift:>13.2e} "
                   f"{r.stats['steps']:>9d} {r.stats['wall_time']:>9.2f} {r.stats['linear_solver']}")
         print(f"         smallest PBD error measured against it (dt = 1/3840 s, 50 iterations): {smallest:.3e} m")
-    with open(out / "reference_self_convergence.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out / "reference_self_convergence.csv", rows)
     print(f"  wrote {out / 'reference_self_convergence.csv'}")
 
     if args.skip_cost:
@@ -82,10 +78,7 @@ def main() -> None:
     cost = dict(cloth="32x32", particles=model.num_particles, constraints=model.num_constraints, duration_s=2.0,
                 rtol=1e-8, atol=1e-10, **{k: s[k] for k in ("steps", "newton_iters", "linear_iters", "jacobian_evals",
                                                             "rhs_evals", "wall_time", "linear_solver")})
-    with open(out / "reference_cost.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(cost))
-        w.writeheader()
-        w.writerow(cost)
+    write_csv(out / "reference_cost.csv", [cost])
     print(f"reference cost, 32 x 32 cloth ({model.num_particles} particles, {model.num_constraints} constraints), "
           f"2 s: {s['steps']} steps, {s['newton_iters']} Newton iterations, {s['linear_iters']} GMRES iterations, "
           f"{s['jacobian_evals']} preconditioner set-ups, {s['wall_time']:.1f} s wall")

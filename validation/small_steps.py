@@ -18,13 +18,12 @@ small_steps.csv and small_steps.png.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import swinging_chain
+from csb.studies import swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 
@@ -75,10 +74,7 @@ def main() -> None:
                 strain, lost, error = run(model, start, times, ref, substeps=sub, iterations=it)
                 rows.append(dict(scene=name, n=n, split=split, max_strain=strain, energy_change=lost / kinetic,
                                  max_error_m=error))
-    with open(out / "small_steps.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out / "small_steps.csv", rows)
 
     import matplotlib
 

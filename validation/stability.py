@@ -24,14 +24,13 @@ and stability.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import math
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import make_stepper, omega_max, run_method
+from csb.studies import make_stepper, omega_max, run_method, write_csv
 
 G = (0.0, -9.81, 0.0)
 METHODS = ("explicit-euler", "symplectic-euler", "velocity-verlet", "pbd", "xpbd", "jakobsen")
@@ -123,13 +122,6 @@ def overshoot(max_projections: int):
     return rows
 
 
-def write(path: Path, rows) -> None:
-    with open(path, "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="out/validation", help="output directory")
@@ -141,18 +133,18 @@ def main() -> None:
     dts = np.logspace(-5, -1, 5 if args.quick else 13)
     stiffnesses = (1e2, 1e5) if args.quick else (1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7)
     rows = stability_map(dts, stiffnesses, duration=0.2 if args.quick else 1.0)
-    write(out / "stability_map.csv", rows)
+    write_csv(out / "stability_map.csv", rows)
     limits = []
     for method in ("symplectic-euler", "velocity-verlet"):
         for k in ((1e4,) if args.quick else (1e3, 1e4, 1e5)):
             predicted, found = found_limit(method, k)
             limits.append(dict(method=method, stiffness=k, predicted_dt=predicted, found_dt=found,
                                found_over_predicted=found / predicted))
-    write(out / "stability_limits.csv", limits)
+    write_csv(out / "stability_limits.csv", limits)
     jacobi = jacobi_sweeps(20 if args.quick else 60)
-    write(out / "stability_jacobi.csv", jacobi)
+    write_csv(out / "stability_jacobi.csv", jacobi)
     over = overshoot(10)
-    write(out / "stability_overshoot.csv", over)
+    write_csv(out / "stability_overshoot.csv", over)
 
     import matplotlib
 

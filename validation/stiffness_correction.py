@@ -21,10 +21,9 @@ independent_of_iterations.
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
-from csb.studies import spring_k_eff
+from csb.studies import spring_k_eff, write_csv
 
 M, L0, S0, DT = 0.3, 1.0, 0.2, 0.01   # kg, m, m, s
 
@@ -48,10 +47,7 @@ def main() -> None:
                 got = spring_k_eff(k, n, correction=correction, mass=M, rest_length=L0, stretch=S0, dt=DT)
                 rows.append(dict(k=k, iterations=n, correction=int(correction), k_eff=got, closed_form=expect,
                                  rel_error=abs(got / expect - 1)))
-    with open(out / "stiffness_correction.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out / "stiffness_correction.csv", rows)
 
     import matplotlib
 

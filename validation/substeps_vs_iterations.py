@@ -16,13 +16,12 @@ Writes substeps_vs_iterations.csv (max and RMS strain over every step, wall time
 from __future__ import annotations
 
 import argparse
-import csv
 from pathlib import Path
 
 import numpy as np
 
 import csb
-from csb.studies import strain_history
+from csb.studies import strain_history, write_csv
 
 SPLITS = ((4, 10), (10, 4), (20, 2), (40, 1))
 
@@ -38,11 +37,7 @@ def main() -> None:
     steps = 60 if args.quick else None
     results = [strain_history(scene, substeps=s, iterations=i, steps=steps) for s, i in SPLITS]
     fields = ["substeps", "iterations", "max_strain", "mean_rms_strain", "wall_time_s"]
-    with open(out / "substeps_vs_iterations.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields)
-        w.writeheader()
-        for r in results:
-            w.writerow({k: r[k] for k in fields})
+    write_csv(out / "substeps_vs_iterations.csv", [{k: r[k] for k in fields} for r in results])
 
     import matplotlib
 

@@ -22,7 +22,6 @@ Writes xpbd_stiffness.csv, xpbd_forces.csv, xpbd_cost.csv and xpbd.png.
 from __future__ import annotations
 
 import argparse
-import csv
 import statistics
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 import csb
+from csb.studies import write_csv
 from csb.bench import cloth_simulation
 
 G = (0.0, -9.81, 0.0)
@@ -106,10 +106,7 @@ def main() -> None:
             rows.append(dict(method=label, iterations=iterations[-1], dt=dt,
                              sag_m=sag(model, method=method, iterations=iterations[-1], dt=dt, correction=corr,
                                        seconds=seconds)))
-    with open(out / "xpbd_stiffness.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(rows[0]))
-        w.writeheader()
-        w.writerows(rows)
+    write_csv(out / "xpbd_stiffness.csv", rows)
 
     b = csb.ModelBuilder()
     g = b.add_group("chain")
@@ -127,10 +124,7 @@ def main() -> None:
         stepper.step(chain, s)
         force = -stepper.multipliers()["distance"][0] / stepper.substep_size**2
         forces.append(dict(iterations=it, support_force_N=force, newton_N=exact, relative_error=abs(force / exact - 1)))
-    with open(out / "xpbd_forces.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(forces[0]))
-        w.writeheader()
-        w.writerows(forces)
+    write_csv(out / "xpbd_forces.csv", forces)
 
     cost = []
     for size in ((32,) if args.quick else (64, 128)):
@@ -148,10 +142,7 @@ def main() -> None:
             row[f"{method}_ms"] = statistics.median(times)
         row["xpbd_over_pbd"] = row["xpbd_ms"] / row["pbd_ms"]
         cost.append(row)
-    with open(out / "xpbd_cost.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(cost[0]))
-        w.writeheader()
-        w.writerows(cost)
+    write_csv(out / "xpbd_cost.csv", cost)
 
     import matplotlib
 

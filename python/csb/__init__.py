@@ -19,7 +19,7 @@ Units are SI throughout: m, kg, s, rad; time step (dt), substeps and iterations 
 
 from __future__ import annotations
 
-from . import _core
+from . import _core  # noqa: F401  (csb._core, the compiled module)
 from ._core import (
     Error,
     ForceStepper,

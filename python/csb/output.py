@@ -67,7 +67,6 @@ class FrameWriter:
     a ParaView .pvd collection."""
 
     def __init__(self, directory: Path, name: str, model: _core.Model, *, xdmf: bool = True, vtu: bool = True):
-        import meshio
 
         self.directory, self.name, self.model = directory, name, model
         self.cells = _cells(model)

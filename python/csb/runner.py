@@ -2,16 +2,13 @@
 
 from __future__ import annotations
 
-import math
 import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
-import numpy as np
 
-from . import _core
 from .output import FrameWriter, metrics_row, plot_summary, write_csv
 
 if TYPE_CHECKING:

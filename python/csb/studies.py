@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import dataclasses
 import math
 import time
@@ -11,6 +12,14 @@ import numpy as np
 from . import _core
 from .model import ModelBuilder
 from .scene import Scene
+
+
+def write_csv(path, rows: list[dict]) -> None:
+    """Rows of a study as a CSV file, the first row's keys as the header."""
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
 
 
 def spring_k_eff(stiffness: float, iterations: int, *, correction: bool, mass: float = 0.3,

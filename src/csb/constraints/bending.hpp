@@ -73,24 +73,40 @@ inline bool dihedral_angle_and_gradient(const Vec3& a, const Vec3& b, const Vec3
   return true;
 }
 
+// What both projections need: the violation θ - θ0, the gradient and Σ w |∇C|². ok = false for a
+// degenerate pair, which is left alone.
+struct BendingGeometry {
+  bool ok = false;
+  Real violation = 0;
+  Vec3 grad[4];
+  Real wgrad = 0;
+};
+
+inline BendingGeometry bending_geometry(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Real wa, Real wb,
+                                        Real wc, Real wd, Real rest_angle) {
+  BendingGeometry g;
+  Real theta = 0;
+  if (!dihedral_angle_and_gradient(a, b, c, d, theta, g.grad)) return g;
+  g.ok = true;
+  g.violation = wrap_angle(theta - rest_angle);
+  g.wgrad = wa * g.grad[0].squaredNorm() + wb * g.grad[1].squaredNorm() + wc * g.grad[2].squaredNorm() +
+            wd * g.grad[3].squaredNorm();
+  return g;
+}
+
 // Projects one bending constraint in place (positions as 3-vectors of a, b, c, d); returns the
 // violation before the projection (rad).
 inline Real project_bending(Real* pa, Real* pb, Real* pc, Real* pd, Real wa, Real wb, Real wc, Real wd,
                             Real rest_angle, Real stiffness) {
   Eigen::Map<Vec3> a(pa), b(pb), c(pc), d(pd);
-  Real theta = 0;
-  Vec3 grad[4];
-  if (!dihedral_angle_and_gradient(a, b, c, d, theta, grad)) return 0;
-  const Real violation = wrap_angle(theta - rest_angle);
-  const Real denom = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
-                     wd * grad[3].squaredNorm();
-  if (!(denom > 0)) return violation;
-  const Real s = stiffness * violation / denom;
-  a -= (s * wa) * grad[0];
-  b -= (s * wb) * grad[1];
-  c -= (s * wc) * grad[2];
-  d -= (s * wd) * grad[3];
-  return violation;
+  const BendingGeometry g = bending_geometry(a, b, c, d, wa, wb, wc, wd, rest_angle);
+  if (!(g.ok && g.wgrad > 0)) return g.violation;
+  const Real s = stiffness * g.violation / g.wgrad;
+  a -= (s * wa) * g.grad[0];
+  b -= (s * wb) * g.grad[1];
+  c -= (s * wc) * g.grad[2];
+  d -= (s * wd) * g.grad[3];
+  return g.violation;
 }
 
 // XPBD form (Macklin et al. 2016, Eq. (18) and (26)) of the same constraint, compliance α in
@@ -100,24 +116,19 @@ inline Real project_bending_xpbd(Real* pa, Real* pb, Real* pc, Real* pd, const R
                                  const Real* xc, const Real* xd, Real wa, Real wb, Real wc, Real wd, Real rest_angle,
                                  Real alpha_tilde, Real gamma, Real& lambda) {
   Eigen::Map<Vec3> a(pa), b(pb), c(pc), d(pd);
-  Real theta = 0;
-  Vec3 grad[4];
-  if (!dihedral_angle_and_gradient(a, b, c, d, theta, grad)) return 0;
-  const Real violation = wrap_angle(theta - rest_angle);
-  const Real wgrad = wa * grad[0].squaredNorm() + wb * grad[1].squaredNorm() + wc * grad[2].squaredNorm() +
-                     wd * grad[3].squaredNorm();
-  if (!(wgrad > 0)) return violation;
+  const BendingGeometry g = bending_geometry(a, b, c, d, wa, wb, wc, wd, rest_angle);
+  if (!(g.ok && g.wgrad > 0)) return g.violation;
   const Real moved = gamma == 0 ? Real(0)
-                                : grad[0].dot(a - Eigen::Map<const Vec3>(xa)) + grad[1].dot(b - Eigen::Map<const Vec3>(xb)) +
-                                      grad[2].dot(c - Eigen::Map<const Vec3>(xc)) +
-                                      grad[3].dot(d - Eigen::Map<const Vec3>(xd));
-  const Real dl = (-violation - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wgrad + alpha_tilde);
+                                : g.grad[0].dot(a - Eigen::Map<const Vec3>(xa)) + g.grad[1].dot(b - Eigen::Map<const Vec3>(xb)) +
+                                      g.grad[2].dot(c - Eigen::Map<const Vec3>(xc)) +
+                                      g.grad[3].dot(d - Eigen::Map<const Vec3>(xd));
+  const Real dl = (-g.violation - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * g.wgrad + alpha_tilde);
   lambda += dl;
-  a += (wa * dl) * grad[0];
-  b += (wb * dl) * grad[1];
-  c += (wc * dl) * grad[2];
-  d += (wd * dl) * grad[3];
-  return violation;
+  a += (wa * dl) * g.grad[0];
+  b += (wb * dl) * g.grad[1];
+  c += (wc * dl) * g.grad[2];
+  d += (wd * dl) * g.grad[3];
+  return g.violation;
 }
 
 }  // namespace csb

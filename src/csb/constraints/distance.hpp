@@ -32,6 +32,16 @@ inline Real distance_violation(Real c, int sense) {
   return c - sense * std::max(sense * c, Real(0));
 }
 
+// p1 -= w1 s d, p2 += w2 s d: a correction along d = p1 - p2, shared by inverse mass.
+inline void move_apart(Real* p1, Real* p2, Real w1, Real w2, Real s, Real dx, Real dy, Real dz) {
+  p1[0] -= w1 * s * dx;
+  p1[1] -= w1 * s * dy;
+  p1[2] -= w1 * s * dz;
+  p2[0] += w2 * s * dx;
+  p2[1] += w2 * s * dy;
+  p2[2] += w2 * s * dz;
+}
+
 // Projects one distance constraint in place; returns its violation before the projection (m).
 // Coincident particles have no gradient direction and are left alone.
 inline Real project_distance(Real* p1, Real* p2, Real w1, Real w2, Real rest_length, Real stiffness, int sense) {
@@ -41,13 +51,7 @@ inline Real project_distance(Real* p1, Real* p2, Real w1, Real w2, Real rest_len
   const Real wsum = w1 + w2;
   if (wsum <= 0 || len <= 0) return violation;
   // s = k C / ((w1 + w2) |p1 - p2|): the 1/|p1 - p2| normalises n.
-  const Real s = stiffness * violation / (wsum * len);
-  p1[0] -= w1 * s * dx;
-  p1[1] -= w1 * s * dy;
-  p1[2] -= w1 * s * dz;
-  p2[0] += w2 * s * dx;
-  p2[1] += w2 * s * dy;
-  p2[2] += w2 * s * dz;
+  move_apart(p1, p2, w1, w2, stiffness * violation / (wsum * len), dx, dy, dz);
   return violation;
 }
 
@@ -101,13 +105,7 @@ inline Real project_distance_jakobsen(Real* p1, Real* p2, Real w1, Real w2, Real
   const Real violation = distance_violation((dd - r2) / (2 * rest_length), sense);
   const Real wsum = w1 + w2;
   if (wsum <= 0 || violation == 0) return violation;
-  const Real s = stiffness * (dd - r2) / (dd + r2) / wsum;
-  p1[0] -= w1 * s * dx;
-  p1[1] -= w1 * s * dy;
-  p1[2] -= w1 * s * dz;
-  p2[0] += w2 * s * dx;
-  p2[1] += w2 * s * dy;
-  p2[2] += w2 * s * dz;
+  move_apart(p1, p2, w1, w2, stiffness * (dd - r2) / (dd + r2) / wsum, dx, dy, dz);
   return violation;
 }
 
