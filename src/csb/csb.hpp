@@ -9,6 +9,7 @@
 #include "csb/pbd.hpp"
 #include "csb/reference.hpp"
 #include "csb/force.hpp"
+#include "csb/interaction.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/shapes.hpp"
 #include "csb/types.hpp"

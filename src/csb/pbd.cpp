@@ -129,6 +129,19 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   const Index n3 = 3 * n;
   Real* x = state.x.data();
   Real* v = state.v.data();
+  for (Index i : stop_)  // a pin let go stays where it was put
+    if (i < n) state.v.col(i).setZero();
+  stop_.clear();
+  if (!grabs_.empty()) {  // kinematic grabs: infinite mass while held
+    w_ = model.inv_mass;
+    for (const Grab& g : grabs_) {
+      if (g.particle >= n)
+        throw InvalidArgument("grab " + std::to_string(g.handle) + " holds particle " + std::to_string(g.particle) +
+                              ", but this model has " + std::to_string(n) + " particles");
+      if (g.compliance == 0) w_[g.particle] = 0;
+    }
+    grab_lambda_.assign(grabs_.size(), 0);
+  }
   if (verlet) {  // the Verlet front end keeps the previous positions instead of the velocity
     Real* xp = x_prev_.data();
     for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
@@ -136,6 +149,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   for (std::int64_t s = 0; s < steps; ++s) {
     for (int sub = 0; sub < settings_.substeps; ++sub) {
       predict(model, state, h);
+      if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
       if (settings_.method == Method::Xpbd) {
         std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
         std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
@@ -167,6 +181,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     }
     ++state.step;
     state.t += settings_.dt;
+    for (Grab& g : grabs_) g.from = g.target;
   }
   if (verlet) state.v = (state.x - x_prev_) / h;
 }
@@ -210,13 +225,12 @@ void PbdStepper::predict(const Model& model, State& state, Real h) {
 // Jacobi whether the kernels see the positions at the sweep's start (corrections collected in
 // delta_ and count_) or each other's corrections as they come (Gauss-Seidel).
 template <Method M, bool Jacobi>
-static void sweep_batches(const Model& model, const PbdSettings& settings, Real* p, const Real* from,
+static void sweep_batches(const Model& model, const Real* w, const PbdSettings& settings, Real* p, const Real* from,
                           const Real* x_start, Real* delta, Real* count, const std::vector<Real>& k_dist,
                           const std::vector<Real>& k_bend, const std::vector<Real>& k_att,
                           const std::vector<Real>& a_dist, const std::vector<Real>& a_bend,
                           const std::vector<Real>& a_att, const std::vector<Real>& g_dist,
                           const std::vector<Real>& g_bend, const std::vector<Real>& g_att, Multipliers& lambda) {
-  const Real* w = model.inv_mass.data();
   const auto& dist = model.distance;
   const auto& bend = model.bending;
   const auto& att = model.attachments;
@@ -282,6 +296,7 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
   const Solver solver = settings_.solver;
   const bool jacobi = solver != Solver::GaussSeidel;
   const Index n = model.num_particles();
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   for (int it = 0; it < settings_.iterations; ++it) {
     if (jacobi) {
       p_start_ = p_;
@@ -294,7 +309,7 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
     Real* count = jacobi ? count_.data() : nullptr;
     const auto run = [&](auto method, auto jacobi_tag) {
       sweep_batches<decltype(method)::value, decltype(jacobi_tag)::value>(
-          model, settings_, p, from, x_start.data(), delta, count, k_distance_, k_bending_, k_attachment_,
+          model, w, settings_, p, from, x_start.data(), delta, count, k_distance_, k_bending_, k_attachment_,
           a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_);
     };
     using Pbd = std::integral_constant<Method, Method::Pbd>;
@@ -320,6 +335,71 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
         p_.col(i) = p_start_.col(i) + scale * delta_.col(i);
       }
     }
+    project_grabs(x_start);
+  }
+}
+
+// ---------------------------------------------------------------------------------- interaction
+
+int PbdStepper::grab(const Model& model, const State& state, Index particle, const Vec3& target, Real compliance) {
+  if (particle < 0 || particle >= model.num_particles())
+    throw InvalidArgument("grab: particle " + std::to_string(particle) + " is out of range (the model has " +
+                          std::to_string(model.num_particles()) + " particles)");
+  if (state.x.cols() != model.num_particles()) throw InvalidArgument("grab: the state does not belong to the model");
+  if (!target.allFinite()) throw InvalidArgument("grab: target must be finite, got " + str(target));
+  if (!(compliance >= 0) || !std::isfinite(compliance))
+    throw InvalidArgument("grab: compliance must be a finite value >= 0 m/N, got " + str(compliance));
+  for (const Grab& g : grabs_)
+    if (g.particle == particle)
+      throw InvalidArgument("grab: particle " + std::to_string(particle) + " is already held (handle " +
+                            std::to_string(g.handle) + ")");
+  Grab g;
+  g.handle = next_grab_++;
+  g.particle = particle;
+  g.target = target;
+  g.from = state.x.col(particle);
+  g.compliance = compliance;
+  g.pinned = model.inv_mass[particle] == 0;
+  grabs_.push_back(g);
+  return g.handle;
+}
+
+Grab& PbdStepper::find_grab(int handle) {
+  for (Grab& g : grabs_)
+    if (g.handle == handle) return g;
+  throw InvalidArgument("no grab with handle " + std::to_string(handle) + " (released already?)");
+}
+
+void PbdStepper::move_grab(int handle, const Vec3& target) {
+  if (!target.allFinite()) throw InvalidArgument("move_grab: target must be finite, got " + str(target));
+  find_grab(handle).target = target;
+}
+
+void PbdStepper::release(int handle) {
+  const Grab& g = find_grab(handle);
+  if (g.pinned) stop_.push_back(g.particle);
+  grabs_.erase(grabs_.begin() + (&g - grabs_.data()));
+}
+
+// The hand's position `fraction` of the way through this step: kinematic grabs are put there,
+// compliant ones pull towards it.
+void PbdStepper::apply_grab_targets(Real fraction) {
+  grab_fraction_ = fraction;
+  for (const Grab& g : grabs_)
+    if (g.compliance == 0) p_.col(g.particle) = fraction >= 1 ? g.target : Vec3(g.from + fraction * (g.target - g.from));
+  std::fill(grab_lambda_.begin(), grab_lambda_.end(), 0.0);
+}
+
+// Compliant grabs: XPBD attachments to the hand (Macklin 2016 Eq. 18), after each sweep.
+void PbdStepper::project_grabs(const Positions& x_start) {
+  const Real h = substep_size();
+  for (std::size_t k = 0; k < grabs_.size(); ++k) {
+    const Grab& g = grabs_[k];
+    if (g.compliance == 0) continue;
+    const Index i = g.particle;
+    const Vec3 target = g.from + grab_fraction_ * (g.target - g.from);
+    project_attachment_xpbd(p_.col(i).data(), x_start.col(i).data(), w_[i], target.data(),
+                            g.compliance / (h * h), 0, grab_lambda_[k]);
   }
 }
 
@@ -454,7 +534,7 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
     a = positions;
     auto t0 = std::chrono::steady_clock::now();
     for (int s = 0; s < sweeps; ++s)
-      sweep_batches<Method::Pbd, false>(model, settings, a.data(), a.data(), a.data(), nullptr, nullptr, kd, kb, ka,
+      sweep_batches<Method::Pbd, false>(model, w, settings, a.data(), a.data(), a.data(), nullptr, nullptr, kd, kb, ka,
                                         none, none, none, none, none, none, unused);
     auto t1 = std::chrono::steady_clock::now();
     t.batched_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / t.projections);

@@ -64,6 +64,25 @@ struct Multipliers {
   std::vector<Real> distance, bending, attachment;
 };
 
+// A particle held by the user's hand at a moving point (click and drag). The stepper owns its
+// grabs, the Model stays immutable: a grab is interaction, not material.
+//  - compliance 0: the particle follows the hand exactly (kinematic): while held its inverse
+//    mass is 0 in every projection and its prediction is the hand's position, interpolated
+//    linearly over the sub-steps of a step from where the hand was at the previous step, so a
+//    fast drag does not arrive as one jump; the rest of the mesh follows through the constraints.
+//    On release the particle keeps the velocity of the last sub-step (a throw).
+//  - compliance α > 0 (m/N): an XPBD spring of stiffness 1/α to the hand, for every method;
+//    the particle keeps its mass. A pinned particle (w = 0) cannot be pulled by a spring, but a
+//    kinematic grab moves it, and it stays pinned where it is released.
+struct Grab {
+  int handle = 0;
+  Index particle = 0;
+  Vec3 target = Vec3::Zero();  // m, where the hand is
+  Vec3 from = Vec3::Zero();    // m, where the hand was at the end of the previous step
+  Real compliance = 0;         // m/N
+  bool pinned = false;         // the model pins the particle: released, it stops where it is
+};
+
 class PbdStepper {
  public:
   explicit PbdStepper(const PbdSettings& settings);
@@ -80,6 +99,17 @@ class PbdStepper {
 
   // XPBD only: the multipliers of the last sub-step (empty for the other methods).
   const Multipliers& multipliers() const { return lambda_; }
+
+  // Grabs particle `particle` of `model` with the hand at `target` (m); returns a handle. The
+  // hand starts where the particle is in `state`, so the first step moves it from there to
+  // `target`. Throws InvalidArgument for an index out of range, a non-finite target, a
+  // compliance < 0 or a particle already held.
+  int grab(const Model& model, const State& state, Index particle, const Vec3& target, Real compliance = 0);
+  // Moves the hand of a grab (m); the next step() takes the particle there.
+  void move_grab(int handle, const Vec3& target);
+  // Lets go; unknown handles are an error.
+  void release(int handle);
+  const std::vector<Grab>& grabs() const { return grabs_; }
 
  private:
   void prepare(const Model& model);
@@ -98,6 +128,16 @@ class PbdStepper {
   std::vector<Real> a_distance_, a_bending_, a_attachment_;  // XPBD: α̃ = α/h²
   std::vector<Real> g_distance_, g_bending_, g_attachment_;  // XPBD: γ = α β / h
   Multipliers lambda_;
+  // Interaction.
+  std::vector<Grab> grabs_;
+  int next_grab_ = 1;
+  std::vector<Real> w_;                  // inverse masses with kinematic grabs at 0
+  std::vector<Real> grab_lambda_;        // multipliers of compliant grabs, per sub-step
+  Real grab_fraction_ = 1;               // how far through the step the hand is
+  std::vector<Index> stop_;              // pinned particles released since the last step
+  void apply_grab_targets(Real fraction);
+  void project_grabs(const Positions& x_start);
+  Grab& find_grab(int handle);
 };
 
 // The stiffness used in each of n iterations so that n of them act like one of stiffness k:

@@ -520,7 +520,48 @@ PYBIND11_MODULE(_core, m) {
         d["attachment"] = py::array_t<Real>(static_cast<py::ssize_t>(l.attachment.size()), l.attachment.data());
         return d;
       }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); "
-         "the constraint force is λ/h² along ∇C (N for distance constraints).");
+         "the constraint force is λ/h² along ∇C (N for distance constraints).")
+      .def("grab", [](PbdStepper& s, const Model& model, const State& state, Index particle, py::handle target,
+                      double compliance) {
+        return s.grab(model, state, particle, to_vec3(target, "target"), compliance);
+      }, py::arg("model"), py::arg("state"), py::arg("particle"), py::arg("target"), py::kw_only(),
+         py::arg("compliance") = 0.0,
+         "Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the "
+         "particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; "
+         "compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.")
+      .def("move_grab", [](PbdStepper& s, int handle, py::handle target) { s.move_grab(handle, to_vec3(target, "target")); },
+           py::arg("handle"), py::arg("target"), "Moves the hand of a grab (m); the next step takes the particle there.")
+      .def("release", &PbdStepper::release, py::arg("handle"),
+           "Lets go of a grab; the particle keeps the velocity it had.")
+      .def_property_readonly("grabs", [](const PbdStepper& s) {
+        py::list out;
+        for (const Grab& g : s.grabs()) {
+          py::dict d;
+          d["handle"] = g.handle;
+          d["particle"] = g.particle;
+          d["target"] = std::vector<double>{g.target.x(), g.target.y(), g.target.z()};
+          d["compliance"] = g.compliance;
+          out.append(d);
+        }
+        return out;
+      }, "The grabs held now: handle, particle, target (m), compliance (m/N).");
+
+  py::class_<Pick>(m, "Pick", "What a ray cast found: the particle (-1: none), the distance along the ray (m) and "
+                               "the surface triangle hit (-1: found by proximity to the ray).")
+      .def_readonly("particle", &Pick::particle)
+      .def_readonly("distance", &Pick::distance)
+      .def_readonly("triangle", &Pick::triangle)
+      .def("__repr__", [](const Pick& p) {
+        return "Pick(particle=" + std::to_string(p.particle) + ", distance=" + std::to_string(p.distance) +
+               ", triangle=" + std::to_string(p.triangle) + ")";
+      });
+  m.def("pick_particle", [](const Model& model, const State& state, py::handle origin, py::handle direction,
+                            double max_distance) {
+    return pick_particle(model, state, to_vec3(origin, "origin"), to_vec3(direction, "direction"), max_distance);
+  }, py::arg("model"), py::arg("state"), py::arg("origin"), py::arg("direction"), py::kw_only(),
+     py::arg("max_distance") = 0.05,
+     "The particle under a ray (the cursor): the first surface triangle it crosses, then that triangle's vertex "
+     "nearest the hit; without a hit, the particle nearest the ray within max_distance (m).");
 
   py::class_<ForceStepper>(m, "ForceStepper",
       "Force-based mass-spring integrators on the reference's spring network (every constraint a spring of "

@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'SimulationError', 'SpringNetwork', 'State', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'readable_extensions', 'save_mesh', 'topology']
+__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'topology']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -246,15 +246,32 @@ class PbdStepper:
         """
         method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots.
         """
+    def grab(self, model: Model, state: State, particle: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, *, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+        """
+        Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.
+        """
+    def move_grab(self, handle: typing.SupportsInt | typing.SupportsIndex, target: typing.Any) -> None:
+        """
+        Moves the hand of a grab (m); the next step takes the particle there.
+        """
     def multipliers(self) -> dict:
         """
         XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints).
         """
     def projections_per_step(self, model: Model) -> int:
         ...
+    def release(self, handle: typing.SupportsInt | typing.SupportsIndex) -> None:
+        """
+        Lets go of a grab; the particle keeps the velocity it had.
+        """
     def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
         """
         Advances state by `steps` steps of dt (the GIL is released meanwhile).
+        """
+    @property
+    def grabs(self) -> list:
+        """
+        The grabs held now: handle, particle, target (m), compliance (m/N).
         """
     @property
     def settings(self) -> PbdSettings:
@@ -264,6 +281,21 @@ class PbdStepper:
         """
         h = dt/substeps, s
         """
+class Pick:
+    """
+    What a ray cast found: the particle (-1: none), the distance along the ray (m) and the surface triangle hit (-1: found by proximity to the ray).
+    """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def distance(self) -> float:
+        ...
+    @property
+    def particle(self) -> int:
+        ...
+    @property
+    def triangle(self) -> int:
+        ...
 class ForceStepper:
     """
     Force-based mass-spring integrators on the reference's spring network (every constraint a spring of stiffness 1/α): the methods that fail, for the stability studies.
@@ -350,6 +382,10 @@ def measure(model: Model, state: State, gravity: typing.Any) -> dict:
 def pendulum(length: typing.SupportsFloat | typing.SupportsIndex, angle: typing.SupportsFloat | typing.SupportsIndex, anchor: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
     """
     Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.
+    """
+def pick_particle(model: Model, state: State, origin: typing.Any, direction: typing.Any, *, max_distance: typing.SupportsFloat | typing.SupportsIndex = 0.05) -> Pick:
+    """
+    The particle under a ray (the cursor): the first surface triangle it crosses, then that triangle's vertex nearest the hit; without a hit, the particle nearest the ray within max_distance (m).
     """
 def readable_extensions() -> list[str]:
     """
