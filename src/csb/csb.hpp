@@ -11,4 +11,5 @@
 #include "csb/force.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/shapes.hpp"
+#include "csb/tetmesh.hpp"
 #include "csb/types.hpp"
