@@ -114,7 +114,7 @@ class ModelBuilder(_core.ModelBuilder):
         (None: none), with ``stretch_compliance`` in m/N; ``volume_stiffness`` in [0, 1] a volume
         constraint C = V - V0 on every tet (None: none), with ``volume_compliance`` in m⁶/J (the
         potential is C²/(2α) with C in m³; a material of bulk modulus K in Pa gives a tet of rest
-        volume V0 the compliance 1/(K V0)). 0 is hard. The boundary faces become the model's
+        volume V0 the compliance V0/K, from its strain energy K/2 (ΔV/V0)² V0). 0 is hard. The boundary faces become the model's
         triangles (``instance.triangles``, wound outwards), for output and for :meth:`add_balloon`.
 
         Inverted tets (negative signed volume) are re-oriented by swapping their last two points,

@@ -10,7 +10,7 @@
 // PBD: s = k C / Σ_j w_j |grad_j C|²,  Δp_i = -s w_i grad_i C  (§3.3, k in [0, 1]).
 // XPBD (Macklin et al. 2016, Eq. (18) and (26)): compliance α in m⁶/J (C is in m³ and the
 // potential C²/(2α) in J, so α = m⁶/J = m⁵/N; for a material of bulk modulus K (Pa) a tet of rest
-// volume V0 has α = 1/(K V0)), α̃ = α/h², γ = α β / h,
+// volume V0 has α = V0/K, from the strain energy K/2 (ΔV/V0)² V0), α̃ = α/h², γ = α β / h,
 //
 //   Δλ = (-C - α̃ λ - γ Σ_j grad_j C · (p_j - x_j)) / ((1 + γ) Σ_j w_j |grad_j C|² + α̃),
 //   Δp_i = w_i grad_i C Δλ.
