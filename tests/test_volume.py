@@ -170,9 +170,9 @@ def test_inverted_tets_are_reoriented_with_a_warning():
 
 def test_degenerate_tet_is_an_error_naming_it():
     m = csb.tet_box([1.0, 1.0, 1.0], [1, 1, 1])
-    pts = np.vstack([m.points, [[0.5, 0.5, 0.5]]])
-    tets = np.vstack([m.tets, [[0, 1, 3, 8]]])  # 0, 1, 3 on the z = -0.5 face ... flatten it:
-    pts[8] = (pts[0] + pts[1] + pts[3]) / 3
+    # A seventh tet whose fourth point is the centroid of the other three: flat, volume 0.
+    pts = np.vstack([m.points, (m.points[0] + m.points[1] + m.points[3]) / 3])
+    tets = np.vstack([m.tets, [[0, 1, 3, 8]]])
     with pytest.raises(csb.MeshError, match=r"flat.msh: tet 6 is degenerate .*signed volume"):
         csb.ModelBuilder().add_tet_mesh(csb.TetMesh(pts, tets, name="flat.msh"), mass=1.0)
     b = csb.ModelBuilder()
