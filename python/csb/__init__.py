@@ -31,6 +31,7 @@ from ._core import (
     Pick,
     SimulationError,
     State,
+    balloon_volumes,
     bending_violations,
     build_info,
     chain,
@@ -46,9 +47,11 @@ from ._core import (
     readable_extensions,
     save_mesh,
     topology,
+    volume_violations,
 )
 from .mesh import Mesh, MeshReport, MeshWarning, clean, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
+from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
 from .runner import RunResult
 from .scene import Scene, SceneError, Simulation, bundled_scenes, find_scene, load_scene
@@ -59,6 +62,7 @@ __all__ = [
     "Error", "ParameterError", "MeshError", "SimulationError", "SceneError", "MeshWarning",
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum",
+    "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
     "Model", "ModelBuilder", "MeshInstance", "State",
     "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick",
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",

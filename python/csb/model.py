@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
 
 from . import _core
 from .mesh import Mesh, MeshReport
+from .tetmesh import TetMesh
 
 __all__ = ["ModelBuilder", "MeshInstance"]
 
@@ -25,6 +26,12 @@ class MeshInstance:
     report: MeshReport
     vertices: np.ndarray
     """(N, 3) positions of the mesh's vertices as added, m"""
+    triangles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int32))
+    """(T, 3) the surface triangles it added to the model, particle indices (a tet mesh's boundary, wound outwards)"""
+    num_volume: int = 0
+    """tet meshes: volume constraints added (one per tet)"""
+    flipped_tets: int = 0
+    """tet meshes: inverted tets (negative signed volume) that were re-oriented"""
 
     @property
     def particles(self) -> np.ndarray:
@@ -85,3 +92,68 @@ class ModelBuilder(_core.ModelBuilder):
         report = MeshReport._from_core(d.pop("report"))
         report._emit()
         return MeshInstance(**d, report=report, vertices=mesh.vertices)
+
+    def add_tet_mesh(
+        self,
+        mesh: TetMesh,
+        *,
+        group: int = -1,
+        mass: float | None = None,
+        density: float | None = None,
+        particle_mass: float | None = None,
+        stretch_stiffness: float | None = 1.0,
+        stretch_compliance: float = 0.0,
+        volume_stiffness: float | None = 1.0,
+        volume_compliance: float = 0.0,
+    ) -> MeshInstance:
+        """Add every point of a tet mesh as a particle (numbering kept) with its constraints.
+
+        Give exactly one of ``mass`` (kg, whole mesh, shared by lumped volume: a quarter of each
+        adjacent tet per point), ``density`` (kg/m³) or ``particle_mass`` (kg each).
+        ``stretch_stiffness`` in [0, 1] puts a distance constraint on every unique tet edge
+        (None: none), with ``stretch_compliance`` in m/N; ``volume_stiffness`` in [0, 1] a volume
+        constraint C = V - V0 on every tet (None: none), with ``volume_compliance`` in m⁶/J (the
+        potential is C²/(2α) with C in m³; a material of bulk modulus K in Pa gives a tet of rest
+        volume V0 the compliance V0/K, from its strain energy K/2 (ΔV/V0)² V0). 0 is hard. The boundary faces become the model's
+        triangles (``instance.triangles``, wound outwards), for output and for :meth:`add_balloon`.
+
+        Inverted tets (negative signed volume) are re-oriented by swapping their last two points,
+        counted in ``flipped_tets`` and reported as a :class:`csb.MeshWarning`; a degenerate tet
+        (|V| below 1e-12 x the bounding-box diagonal cubed) raises :class:`csb.MeshError` naming the
+        tet and its volume.
+        """
+        d = self._add_tet_mesh(
+            mesh,
+            group=group,
+            mass=mass,
+            density=density,
+            particle_mass=particle_mass,
+            stretch_stiffness=stretch_stiffness,
+            stretch_compliance=stretch_compliance,
+            volume_stiffness=volume_stiffness,
+            volume_compliance=volume_compliance,
+        )
+        report = MeshReport._from_core(d.pop("report"))
+        report._emit()
+        return MeshInstance(**d, report=report, vertices=mesh.points)
+
+    def add_balloon(
+        self,
+        surface: MeshInstance | np.ndarray | Sequence[Sequence[int]],
+        *,
+        pressure: float = 1.0,
+        stiffness: float = 1.0,
+        compliance: float = 0.0,
+    ) -> int:
+        """An overpressure constraint (Müller 2007 §4.5) over a closed surface: C = V - pressure V0.
+
+        ``surface`` is a :class:`MeshInstance` (its ``triangles``: a closed mesh from
+        :meth:`add_mesh`, or a tet mesh's boundary) or a (T, 3) array of particle indices, wound
+        outwards. V0 is the volume it encloses now (m³), ``pressure`` >= 0 the dimensionless factor
+        k_pressure on it, ``stiffness`` in [0, 1] the PBD stiffness, ``compliance`` in m⁶/J
+        (0: hard). Raises :class:`csb.ParameterError` for an open or inconsistently wound surface
+        (naming the count of boundary, non-manifold and misoriented edges and one example) and
+        for one wound inwards (negative enclosed volume). Returns the balloon's index.
+        """
+        triangles = surface.triangles if isinstance(surface, MeshInstance) else surface
+        return int(self._add_balloon(np.asarray(triangles), pressure=pressure, stiffness=stiffness, compliance=compliance))

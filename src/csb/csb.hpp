@@ -12,4 +12,5 @@
 #include "csb/interaction.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/shapes.hpp"
+#include "csb/tetmesh.hpp"
 #include "csb/types.hpp"

@@ -24,7 +24,8 @@ class Constraint {
   virtual Real project(bool equality, Real stiffness, const Real* inverse_mass, Real* positions) const = 0;
 };
 
-// One object per constraint of the model, in the batches' order (distance, bending, attachments).
+// One object per constraint of the model, in the batches' order (distance, bending, volume,
+// balloons, attachments).
 std::vector<std::unique_ptr<Constraint>> polymorphic_constraints(const Model& model);
 
 struct DispatchTiming {

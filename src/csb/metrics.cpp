@@ -2,6 +2,7 @@
 
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
+#include "csb/constraints/volume.hpp"
 
 #include <cmath>
 
@@ -43,6 +44,31 @@ std::vector<Real> bending_violations(const Model& model, const State& state) {
   return out;
 }
 
+std::vector<Real> volume_violations(const Model& model, const State& state) {
+  const auto& b = model.volume;
+  std::vector<Real> out(b.size());
+  for (Index c = 0; c < b.size(); ++c) {
+    const auto& q = b.particles[c];
+    out[c] = tet_volume(state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3])) - b.rest_volume[c];
+  }
+  return out;
+}
+
+std::vector<Real> balloon_volumes(const Model& model, const State& state) {
+  const auto& b = model.balloons;
+  std::vector<Real> out(b.size());
+  for (Index c = 0; c < b.size(); ++c)
+    out[c] = enclosed_volume(state.x.data(), b.particles.data() + b.particle_offsets[c],
+                             b.triangles.data() + b.triangle_offsets[c], b.num_triangles(c));
+  return out;
+}
+
+std::vector<Real> balloon_violations(const Model& model, const State& state) {
+  std::vector<Real> out = balloon_volumes(model, state);
+  for (std::size_t c = 0; c < out.size(); ++c) out[c] -= model.balloons.pressure[c] * model.balloons.rest_volume[c];
+  return out;
+}
+
 namespace {
 
 std::vector<Real> attachment_violations(const Model& model, const State& state) {
@@ -65,6 +91,8 @@ Real potential(const std::vector<Real>& violation, const std::vector<Real>& comp
 Real elastic_energy(const Model& model, const State& state) {
   return potential(distance_violations(model, state), model.distance.compliance) +
          potential(bending_violations(model, state), model.bending.compliance) +
+         potential(volume_violations(model, state), model.volume.compliance) +
+         potential(balloon_violations(model, state), model.balloons.compliance) +
          potential(attachment_violations(model, state), model.attachments.compliance);
 }
 
@@ -87,8 +115,13 @@ Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
   m.bending = summarise(bv);
   const std::vector<Real> av = attachment_violations(model, state);
   m.attachment = summarise(av);
+  const std::vector<Real> vv = volume_violations(model, state);
+  const std::vector<Real> pv = balloon_violations(model, state);
+  m.volume = summarise(vv);
+  m.balloon = summarise(pv);
   m.elastic_energy = potential(dv, model.distance.compliance) + potential(bv, model.bending.compliance) +
-                     potential(av, model.attachments.compliance);
+                     potential(av, model.attachments.compliance) + potential(vv, model.volume.compliance) +
+                     potential(pv, model.balloons.compliance);
   std::vector<Real> strain(dv.size());
   for (std::size_t c = 0; c < dv.size(); ++c) strain[c] = dv[c] / model.distance.rest_length[c];
   const Violation s = summarise(strain);

@@ -24,6 +24,8 @@ struct Metrics {
   Violation distance;              // m
   Violation bending;               // rad
   Violation attachment;            // m
+  Violation volume;                // m³, V - V0 per tet
+  Violation balloon;               // m³, V - pressure V0 per balloon
   Real max_strain = 0;             // max |violation| / rest length over distance constraints
   Real rms_strain = 0;
 };
@@ -37,5 +39,10 @@ Real elastic_energy(const Model& model, const State& state);
 // Violation of every distance constraint (m) and of every bending constraint (rad).
 std::vector<Real> distance_violations(const Model& model, const State& state);
 std::vector<Real> bending_violations(const Model& model, const State& state);
+// V - V0 of every tetrahedral volume constraint (m³), V - pressure V0 of every balloon (m³), and
+// the volume every balloon encloses (m³).
+std::vector<Real> volume_violations(const Model& model, const State& state);
+std::vector<Real> balloon_violations(const Model& model, const State& state);
+std::vector<Real> balloon_volumes(const Model& model, const State& state);
 
 }  // namespace csb

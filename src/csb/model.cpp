@@ -2,9 +2,11 @@
 #include "csb/format.hpp"
 
 #include "csb/constraints/bending.hpp"
+#include "csb/constraints/volume.hpp"
 
 #include <atomic>
 #include <cmath>
+#include <map>
 #include <sstream>
 
 namespace csb {
@@ -106,6 +108,7 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
 
   const Index f = inst.first_particle;
   for (const auto& t : mesh.triangles) triangles_.push_back({f + t[0], f + t[1], f + t[2]});
+  inst.triangles.assign(triangles_.end() - static_cast<std::ptrdiff_t>(mesh.triangles.size()), triangles_.end());
   const Topology topo = topology(mesh);
   if (options.stretch_stiffness) {
     for (const auto& e : topo.edges)
@@ -166,6 +169,199 @@ Index ModelBuilder::add_bending(Index a, Index b, Index c, Index d, Real stiffne
   return bending_.size() - 1;
 }
 
+Index ModelBuilder::add_tetrahedron(Index a, Index b, Index c, Index d, Real stiffness, Real compliance,
+                                    std::optional<Real> rest_volume) {
+  const std::string what = "volume constraint " + std::to_string(volume_.size()) + " (particles " +
+                           std::to_string(a) + ", " + std::to_string(b) + ", " + std::to_string(c) + ", " +
+                           std::to_string(d) + ")";
+  for (Index p : {a, b, c, d}) require_particle(p, what);
+  if (a == b || a == c || a == d || b == c || b == d || c == d)
+    throw InvalidArgument(what + ": needs four different particles");
+  require_stiffness(stiffness, what);
+  require_compliance(compliance, what);
+  const Real v = tet_volume(position(a), position(b), position(c), position(d));
+  Real diag2 = 0;
+  for (Index p : {b, c, d}) diag2 = std::max(diag2, (position(p) - position(a)).squaredNorm());
+  // Relative to the tet's own size: its longest edge from a, cubed.
+  if (!(std::abs(v) > kDegenerateTetVolume * diag2 * std::sqrt(diag2)))
+    throw InvalidArgument(what + ": degenerate at rest (signed volume " + str(v) + " m³; flat or collapsed)");
+  if (v < 0)
+    throw InvalidArgument(what + ": negative signed volume " + str(v) +
+                          " m³ (inverted): swap two of its particles so that d lies on the side of (b - a) x (c - a)");
+  if (rest_volume && !(*rest_volume > 0 && std::isfinite(*rest_volume)))
+    throw InvalidArgument(what + ": rest volume must be a finite volume > 0 m³, got " + str(*rest_volume));
+  volume_.particles.push_back({a, b, c, d});
+  volume_.rest_volume.push_back(rest_volume ? *rest_volume : v);
+  volume_.stiffness.push_back(stiffness);
+  volume_.compliance.push_back(compliance);
+  return volume_.size() - 1;
+}
+
+MeshInstance ModelBuilder::add_tet_mesh(const TetMesh& input, const TetMeshOptions& options) {
+  const std::string& name = input.name;
+  if (options.stretch_stiffness) require_stiffness(*options.stretch_stiffness, name + " stretch");
+  if (options.volume_stiffness) require_stiffness(*options.volume_stiffness, name + " volume");
+  require_compliance(options.stretch_compliance, name + " stretch");
+  require_compliance(options.volume_compliance, name + " volume");
+  if (!(options.mass.value > 0) || !std::isfinite(options.mass.value))
+    throw InvalidArgument(name + ": " +
+                          (options.mass.kind == MassSpec::Kind::Total     ? "mass must be > 0 kg"
+                           : options.mass.kind == MassSpec::Kind::Density ? "density must be > 0 kg/m^3"
+                                                                          : "particle mass must be > 0 kg") +
+                          ", got " + str(options.mass.value));
+  if (options.group >= static_cast<Index>(group_names_.size()))
+    throw InvalidArgument(name + ": group " + std::to_string(options.group) + " does not exist");
+  validate(input);
+
+  MeshInstance inst;
+  TetMesh mesh = input;
+  const Index n = mesh.num_points();
+  std::vector<Real> vol = tet_volumes(mesh);
+  const Real diag = bounding_box_diagonal(mesh.points);
+  const Real tiny = kDegenerateTetVolume * diag * diag * diag;
+  Index first_flipped = -1;
+  for (Index t = 0; t < mesh.num_tets(); ++t) {
+    if (!(std::abs(vol[t]) > tiny))
+      throw MeshError(name + ": tet " + std::to_string(t) + " is degenerate (flat or collapsed): signed volume " +
+                      str(vol[t]) + " m³, below " + str(kDegenerateTetVolume) +
+                      " x the bounding-box diagonal cubed (" + str(tiny) + " m³)");
+    if (vol[t] < 0) {
+      // Inverted (the file's convention or a mistake): re-orient rather than simulate a tet that
+      // the volume constraint would try to keep inside out.
+      std::swap(mesh.tets[t][2], mesh.tets[t][3]);
+      vol[t] = -vol[t];
+      if (first_flipped < 0) first_flipped = t;
+      ++inst.flipped_tets;
+    }
+  }
+  inst.report.input_vertices = n;
+  if (inst.flipped_tets > 0)
+    inst.report.warnings.push_back(name + ": " + std::to_string(inst.flipped_tets) +
+                                   " inverted tets (negative signed volume, first: tet " + std::to_string(first_flipped) +
+                                   ") were re-oriented by swapping their last two points");
+
+  std::vector<Real> mass(n, options.mass.value);
+  if (options.mass.kind != MassSpec::Kind::PerParticle) {
+    std::vector<Real> measure(n, 0.0);
+    Real total = 0;
+    for (Index t = 0; t < mesh.num_tets(); ++t) {
+      for (Index p : mesh.tets[t]) measure[p] += vol[t] / 4;
+      total += vol[t];
+    }
+    for (Index i = 0; i < n; ++i) {
+      if (!(measure[i] > 0))
+        throw MeshError(name + ": point " + std::to_string(i) +
+                        " belongs to no tet, so mass and density give it no mass; give a per-particle mass or "
+                        "remove the point");
+      mass[i] = options.mass.kind == MassSpec::Kind::Total ? options.mass.value * measure[i] / total
+                                                           : options.mass.value * measure[i];
+    }
+  }
+  inst.group = options.group >= 0 ? options.group : add_group(name);
+  inst.first_particle = num_particles();
+  inst.num_particles = n;
+  for (Index i = 0; i < n; ++i) add_particle(mesh.points.col(i), mass[i], inst.group);
+  const Index f = inst.first_particle;
+
+  for (const Triangle& t : tet_surface(mesh)) {
+    triangles_.push_back({f + t[0], f + t[1], f + t[2]});
+    inst.triangles.push_back(triangles_.back());
+  }
+  if (options.stretch_stiffness) {
+    std::vector<Edge> edges;
+    for (const Tet& q : mesh.tets)
+      for (int a = 0; a < 4; ++a)
+        for (int b = a + 1; b < 4; ++b) edges.push_back({std::min(q[a], q[b]), std::max(q[a], q[b])});
+    std::sort(edges.begin(), edges.end());
+    edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
+    for (const Edge& e : edges)
+      add_distance(f + e[0], f + e[1], *options.stretch_stiffness, -1, 0, options.stretch_compliance);
+    inst.num_distance = static_cast<Index>(edges.size());
+  }
+  if (options.volume_stiffness) {
+    for (const Tet& q : mesh.tets)
+      add_tetrahedron(f + q[0], f + q[1], f + q[2], f + q[3], *options.volume_stiffness, options.volume_compliance);
+    inst.num_volume = mesh.num_tets();
+  }
+  return inst;
+}
+
+Index ModelBuilder::add_balloon(const std::vector<Triangle>& triangles, Real pressure, Real stiffness,
+                                Real compliance) {
+  const std::string what = "balloon " + std::to_string(balloons_.size());
+  if (triangles.empty()) throw InvalidArgument(what + ": needs the triangles of a closed surface, got none");
+  for (std::size_t t = 0; t < triangles.size(); ++t) {
+    const Triangle& tri = triangles[t];
+    for (Index p : tri) require_particle(p, what + " triangle " + std::to_string(t));
+    if (tri[0] == tri[1] || tri[1] == tri[2] || tri[0] == tri[2])
+      throw InvalidArgument(what + ": triangle " + std::to_string(t) + " repeats a particle");
+  }
+  if (!(pressure >= 0) || !std::isfinite(pressure))
+    throw InvalidArgument(what + ": pressure (the factor k_pressure on the rest volume) must be finite and >= 0, got " +
+                          str(pressure));
+  require_stiffness(stiffness, what);
+  require_compliance(compliance, what);
+  // Closed and consistently wound: every edge used once in each direction.
+  std::map<Edge, std::pair<int, int>> uses;  // (min, max) -> (times a->b with a < b, times b->a)
+  for (const Triangle& tri : triangles)
+    for (int k = 0; k < 3; ++k) {
+      const Index a = tri[k], b = tri[(k + 1) % 3];
+      auto& u = uses[{std::min(a, b), std::max(a, b)}];
+      (a < b ? u.first : u.second) += 1;
+    }
+  Index boundary = 0, non_manifold = 0, misoriented = 0;
+  std::string example;
+  for (const auto& [e, u] : uses) {
+    const int total = u.first + u.second;
+    const std::string edge = "(" + std::to_string(e[0]) + ", " + std::to_string(e[1]) + ")";
+    if (total == 1) {
+      if (!boundary++ && example.empty()) example = "boundary edge " + edge;
+    } else if (total > 2) {
+      if (!non_manifold++ && example.empty()) example = "edge " + edge + " shared by " + std::to_string(total) + " triangles";
+    } else if (u.first != 1) {
+      if (!misoriented++ && example.empty()) example = "edge " + edge + " used twice in the same direction";
+    }
+  }
+  if (boundary + non_manifold + misoriented > 0)
+    throw InvalidArgument(what + ": the surface is not closed and consistently wound: " + std::to_string(boundary) +
+                          " boundary edges, " + std::to_string(non_manifold) + " non-manifold edges, " +
+                          std::to_string(misoriented) + " edges with inconsistent winding (e.g. " + example + ")");
+  // Local numbering: the balloon's particles in increasing order.
+  std::vector<Index> particles;
+  for (const Triangle& tri : triangles) particles.insert(particles.end(), tri.begin(), tri.end());
+  std::sort(particles.begin(), particles.end());
+  particles.erase(std::unique(particles.begin(), particles.end()), particles.end());
+  std::vector<Triangle> local;
+  for (const Triangle& tri : triangles) {
+    Triangle l;
+    for (int k = 0; k < 3; ++k)
+      l[k] = static_cast<Index>(std::lower_bound(particles.begin(), particles.end(), tri[k]) - particles.begin());
+    local.push_back(l);
+  }
+  Positions x(3, static_cast<Eigen::Index>(particles.size()));
+  std::vector<Index> identity(particles.size());
+  for (std::size_t k = 0; k < particles.size(); ++k) {
+    x.col(static_cast<Eigen::Index>(k)) = position(particles[k]);
+    identity[k] = static_cast<Index>(k);
+  }
+  const Real v0 = enclosed_volume(x.data(), identity.data(), local.data(), static_cast<Index>(local.size()));
+  const Real diag = bounding_box_diagonal(x);
+  if (!(std::abs(v0) > kDegenerateTetVolume * diag * diag * diag))
+    throw InvalidArgument(what + ": the surface encloses no volume (" + str(v0) + " m³): it is flat or collapsed");
+  if (v0 < 0)
+    throw InvalidArgument(what + ": the surface encloses a negative volume (" + str(v0) +
+                          " m³): its triangles are wound inwards; reverse the winding of every triangle");
+  balloons_.particles.insert(balloons_.particles.end(), particles.begin(), particles.end());
+  balloons_.particle_offsets.push_back(static_cast<Index>(balloons_.particles.size()));
+  balloons_.triangles.insert(balloons_.triangles.end(), local.begin(), local.end());
+  balloons_.triangle_offsets.push_back(static_cast<Index>(balloons_.triangles.size()));
+  balloons_.rest_volume.push_back(v0);
+  balloons_.pressure.push_back(pressure);
+  balloons_.stiffness.push_back(stiffness);
+  balloons_.compliance.push_back(compliance);
+  return balloons_.size() - 1;
+}
+
 void ModelBuilder::pin(Index i) {
   require_particle(i, "pin");
   pinned_[i] = 1;
@@ -207,6 +403,8 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
   model->triangles = triangles_;
   model->distance = distance_;
   model->bending = bending_;
+  model->volume = volume_;
+  model->balloons = balloons_;
   model->attachments.particle = attached_;
   model->attachments.stiffness = attachment_stiffness_;
   model->attachments.compliance = attachment_compliance_;

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "csb/mesh.hpp"
+#include "csb/tetmesh.hpp"
 #include "csb/types.hpp"
 
 #include <memory>
@@ -19,7 +20,8 @@ namespace csb {
 //  - stiffness k in [0, 1], dimensionless: the fraction of the violation one PBD projection
 //    removes (Müller 2007 §3.3); it is what the PBD stepper uses;
 //  - compliance α >= 0 in SI units (m/N for lengths, 1/(N m) = rad²/J for angles): the inverse
-//    of a physical stiffness, with potential energy C²/(2α); 0 is a hard constraint. It is what
+//    of a physical stiffness, with potential energy C²/(2α); 0 is a hard constraint (m⁶/J for
+//    volumes, whose C is in m³). It is what
 //    the reference integrator (and XPBD) use, so that they model the same material.
 
 // Distance constraints: mesh edges (stretch), springs, chain links. Plain arrays, one entry per
@@ -42,6 +44,33 @@ struct BendingBatch {
   Index size() const { return static_cast<Index>(particles.size()); }
 };
 
+// Tetrahedral volume constraints C = V - V0 (see constraints/volume.hpp).
+struct VolumeBatch {
+  std::vector<std::array<Index, 4>> particles;  // (p0, p1, p2, p3), positively oriented at rest
+  std::vector<Real> rest_volume;                // m³, > 0
+  std::vector<Real> stiffness;                  // dimensionless, in [0, 1]
+  std::vector<Real> compliance;                 // m⁶/J, >= 0
+  Index size() const { return static_cast<Index>(particles.size()); }
+};
+
+// Overpressure constraints over closed surfaces (Müller 2007 §4.5), C = V - pressure V0, one
+// constraint per balloon. Balloon b moves particles[particle_offsets[b] .. [b+1]) and has the
+// triangles triangles[triangle_offsets[b] .. [b+1]), whose indices point into its own particle
+// list (local numbering), wound outwards.
+struct BalloonBatch {
+  std::vector<Index> particle_offsets{0};
+  std::vector<Index> particles;
+  std::vector<Index> triangle_offsets{0};
+  std::vector<Triangle> triangles;
+  std::vector<Real> rest_volume;  // m³, V0 > 0, enclosed at build time
+  std::vector<Real> pressure;     // dimensionless k_pressure >= 0: target volume k_pressure V0
+  std::vector<Real> stiffness;    // dimensionless, in [0, 1]
+  std::vector<Real> compliance;   // m⁶/J, >= 0
+  Index size() const { return static_cast<Index>(rest_volume.size()); }
+  Index num_particles(Index b) const { return particle_offsets[b + 1] - particle_offsets[b]; }
+  Index num_triangles(Index b) const { return triangle_offsets[b + 1] - triangle_offsets[b]; }
+};
+
 // Particles held at points fixed in the world.
 struct AttachmentBatch {
   std::vector<Index> particle;
@@ -62,7 +91,9 @@ struct State {
 class Model {
  public:
   Index num_particles() const { return static_cast<Index>(mass.size()); }
-  Index num_constraints() const { return distance.size() + bending.size() + attachments.size(); }
+  Index num_constraints() const {
+    return distance.size() + bending.size() + volume.size() + balloons.size() + attachments.size();
+  }
   Index num_groups() const { return static_cast<Index>(group_names.size()); }
   // Rest positions, zero velocities, t = 0.
   State initial_state() const;
@@ -78,6 +109,8 @@ class Model {
   std::vector<Triangle> triangles;   // surface triangles, for output and rendering
   DistanceBatch distance;
   BendingBatch bending;
+  VolumeBatch volume;
+  BalloonBatch balloons;
   AttachmentBatch attachments;
 };
 
@@ -102,12 +135,29 @@ struct MeshOptions {
   Real bending_compliance = 0;   // 1/(N m)
 };
 
+// How add_tet_mesh turns a tet mesh into particles and constraints.
+struct TetMeshOptions {
+  Index group = -1;  // existing group, or -1 for a new group named after the mesh
+  // Total: kg for the whole mesh; Density: kg/m³; PerParticle: kg each. Total and Density share
+  // by lumped volume (a quarter of each adjacent tet's volume per point).
+  MassSpec mass;
+  // Stiffness in [0, 1] of the distance constraint on every unique tet edge; none: no stretch.
+  std::optional<Real> stretch_stiffness = Real(1);
+  Real stretch_compliance = 0;  // m/N
+  // Stiffness in [0, 1] of the volume constraint on every tet; none: no volume constraints.
+  std::optional<Real> volume_stiffness = Real(1);
+  Real volume_compliance = 0;   // m⁶/J
+};
+
 struct MeshInstance {
   Index first_particle = 0;  // vertex i of the mesh is particle first_particle + i
   Index num_particles = 0;
   Index group = 0;
   Index num_distance = 0;
   Index num_bending = 0;
+  Index num_volume = 0;      // tet meshes: volume constraints (one per tet)
+  Index flipped_tets = 0;    // tet meshes: inverted tets that were re-oriented
+  std::vector<Triangle> triangles;  // the surface triangles it added to the model (particle indices)
   MeshReport report;         // degenerate triangles dropped, non-manifold edges, ...
 };
 
@@ -129,6 +179,24 @@ class ModelBuilder {
   // A bending constraint across edge (a, b) with wings c, d. No rest angle: the current one.
   // compliance in 1/(N m) (0: hard).
   Index add_bending(Index a, Index b, Index c, Index d, Real stiffness, std::optional<Real> rest_angle = {},
+                    Real compliance = 0);
+  // A tetrahedral volume constraint; compliance in m⁶/J (0: hard). No rest volume: the current
+  // signed volume, which must be positive (orient (a, b, c, d) so that d lies on the side of
+  // (b - a) x (c - a)) and not degenerate.
+  Index add_tetrahedron(Index a, Index b, Index c, Index d, Real stiffness = 1, Real compliance = 0,
+                        std::optional<Real> rest_volume = {});
+  // Every point of a tet mesh becomes a particle (numbering kept), every unique tet edge a distance
+  // constraint and every tet a volume constraint, as the options ask; the boundary faces (used by
+  // one tet) go to the model's triangles, wound outwards. Inverted tets (negative signed volume)
+  // are re-oriented by swapping their last two points, counted in flipped_tets and reported as a
+  // warning; a degenerate tet (|V| below kDegenerateTetVolume times the bounding-box diagonal
+  // cubed) is a MeshError naming the tet and its volume.
+  MeshInstance add_tet_mesh(const TetMesh& mesh, const TetMeshOptions& options);
+  // An overpressure constraint over a closed surface (particle indices, wound outwards): C = V -
+  // pressure V0 with V0 the volume it encloses now. Throws InvalidArgument naming the count of
+  // boundary, non-manifold and inconsistently wound edges and one example, or for a surface that
+  // encloses a negative (inward winding) or vanishing volume. compliance in m⁶/J (0: hard).
+  Index add_balloon(const std::vector<Triangle>& triangles, Real pressure = 1, Real stiffness = 1,
                     Real compliance = 0);
   // Fixes particle i where it is: inverse mass 0 (its mass is kept for reporting).
   void pin(Index i);
@@ -154,6 +222,8 @@ class ModelBuilder {
   std::vector<Triangle> triangles_;
   DistanceBatch distance_;
   BendingBatch bending_;
+  VolumeBatch volume_;
+  BalloonBatch balloons_;
   std::vector<Index> attached_;
   std::vector<Vec3> attachment_targets_;
   std::vector<Real> attachment_stiffness_;

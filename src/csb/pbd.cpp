@@ -5,6 +5,7 @@
 #include "csb/constraints/attachment.hpp"
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
+#include "csb/constraints/volume.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -36,6 +37,18 @@ struct Local {
     delta[1] += p[1] - from[1];
     delta[2] += p[2] - from[2];
   }
+};
+
+// The volume and balloon coefficients of one sweep, in the roles the distance ones have: PBD
+// stiffness (corrected or not), XPBD α̃ = α/h² and γ = α β / h; and the balloon gradient workspace.
+struct VolumeTerms {
+  const std::vector<Real>& k_volume;
+  const std::vector<Real>& a_volume;
+  const std::vector<Real>& g_volume;
+  const std::vector<Real>& k_balloon;
+  const std::vector<Real>& a_balloon;
+  const std::vector<Real>& g_balloon;
+  Vec3* grad;
 };
 
 }  // namespace
@@ -92,18 +105,27 @@ void PbdStepper::prepare(const Model& model) {
   };
   stiffness(model.distance.stiffness, k_distance_);
   stiffness(model.bending.stiffness, k_bending_);
+  stiffness(model.volume.stiffness, k_volume_);
+  stiffness(model.balloons.stiffness, k_balloon_);
   stiffness(model.attachments.stiffness, k_attachment_);
   if (settings_.method == Method::Xpbd) {
     compliance(model.distance.compliance, a_distance_, g_distance_);
     compliance(model.bending.compliance, a_bending_, g_bending_);
+    compliance(model.volume.compliance, a_volume_, g_volume_);
+    compliance(model.balloons.compliance, a_balloon_, g_balloon_);
     compliance(model.attachments.compliance, a_attachment_, g_attachment_);
     lambda_.distance.assign(model.distance.size(), 0);
     lambda_.bending.assign(model.bending.size(), 0);
+    lambda_.volume.assign(model.volume.size(), 0);
+    lambda_.balloon.assign(model.balloons.size(), 0);
     lambda_.attachment.assign(model.attachments.size(), 0);
   }
   const Index n = model.num_particles();
   p_.resize(3, n);
   if (settings_.front_end == FrontEnd::Verlet) x_prev_.resize(3, n);
+  Index largest_balloon = 0;
+  for (Index b = 0; b < model.balloons.size(); ++b) largest_balloon = std::max(largest_balloon, model.balloons.num_particles(b));
+  balloon_grad_.resize(largest_balloon);
   if (settings_.solver != Solver::GaussSeidel) {
     p_start_.resize(3, n);
     delta_.resize(3, n);
@@ -153,6 +175,8 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
       if (settings_.method == Method::Xpbd) {
         std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
         std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
+        std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
+        std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
         std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
       }
       project(model, state.x);
@@ -230,7 +254,8 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
                           const std::vector<Real>& k_bend, const std::vector<Real>& k_att,
                           const std::vector<Real>& a_dist, const std::vector<Real>& a_bend,
                           const std::vector<Real>& a_att, const std::vector<Real>& g_dist,
-                          const std::vector<Real>& g_bend, const std::vector<Real>& g_att, Multipliers& lambda) {
+                          const std::vector<Real>& g_bend, const std::vector<Real>& g_att, Multipliers& lambda,
+                          const VolumeTerms& vt) {
   const auto& dist = model.distance;
   const auto& bend = model.bending;
   const auto& att = model.attachments;
@@ -280,6 +305,36 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     }
     for (int s = 0; s < 4; ++s) collect(s, q[s]);
   }
+  const auto& vol = model.volume;
+  for (Index c = 0; c < vol.size(); ++c) {
+    const auto& q = vol.particles[c];
+    Real* r[4] = {at(0, q[0]), at(1, q[1]), at(2, q[2]), at(3, q[3])};
+    if constexpr (M == Method::Xpbd) {
+      project_volume_xpbd(r[0], r[1], r[2], r[3], x_start + 3 * q[0], x_start + 3 * q[1], x_start + 3 * q[2],
+                          x_start + 3 * q[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], vol.rest_volume[c], vt.a_volume[c],
+                          vt.g_volume[c], lambda.volume[c]);
+    } else {
+      project_volume(r[0], r[1], r[2], r[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], vol.rest_volume[c], vt.k_volume[c]);
+    }
+    for (int s = 0; s < 4; ++s) collect(s, q[s]);
+  }
+  // A balloon couples all its particles; Gauss-Seidel moves them in place, Jacobi reads the
+  // sweep's start and adds to the correction sums (and counts), like collect() does.
+  const auto& bal = model.balloons;
+  for (Index c = 0; c < bal.size(); ++c) {
+    const Index* ids = bal.particles.data() + bal.particle_offsets[c];
+    const Triangle* tris = bal.triangles.data() + bal.triangle_offsets[c];
+    const Real target = bal.pressure[c] * bal.rest_volume[c];
+    const Real* read = Jacobi ? from : p;
+    Real* out = Jacobi ? delta : p;
+    Real* counts = Jacobi ? count : nullptr;
+    if constexpr (M == Method::Xpbd)
+      project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0, x_start,
+                      vt.a_balloon[c], vt.g_balloon[c], &lambda.balloon[c], vt.grad);
+    else
+      project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
+                      vt.k_balloon[c], nullptr, 0, 0, nullptr, vt.grad);
+  }
   for (Index c = 0; c < att.size(); ++c) {
     const Index i = att.particle[c];
     Real* a = at(0, i);
@@ -307,10 +362,11 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
     const Real* from = jacobi ? p_start_.data() : p;
     Real* delta = jacobi ? delta_.data() : nullptr;
     Real* count = jacobi ? count_.data() : nullptr;
+    const VolumeTerms vt{k_volume_, a_volume_, g_volume_, k_balloon_, a_balloon_, g_balloon_, balloon_grad_.data()};
     const auto run = [&](auto method, auto jacobi_tag) {
       sweep_batches<decltype(method)::value, decltype(jacobi_tag)::value>(
           model, w, settings_, p, from, x_start.data(), delta, count, k_distance_, k_bending_, k_attachment_,
-          a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_);
+          a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_, vt);
     };
     using Pbd = std::integral_constant<Method, Method::Pbd>;
     using Xpbd = std::integral_constant<Method, Method::Xpbd>;
@@ -479,6 +535,40 @@ class BendingObject final : public Constraint {
   Real rest_;
 };
 
+class VolumeObject final : public Constraint {
+ public:
+  VolumeObject(const std::array<Index, 4>& q, Real rest) : q_(q), rest_(rest) {}
+  Real project(bool, Real stiffness, const Real* w, Real* p) const override {
+    return project_volume(p + 3 * q_[0], p + 3 * q_[1], p + 3 * q_[2], p + 3 * q_[3], w[q_[0]], w[q_[1]], w[q_[2]],
+                          w[q_[3]], rest_, stiffness);
+  }
+
+ private:
+  std::array<Index, 4> q_;
+  Real rest_;
+};
+
+// One balloon as an object: its own copies of the index lists and a gradient workspace (mutable:
+// scratch, not state).
+class BalloonObject final : public Constraint {
+ public:
+  BalloonObject(const BalloonBatch& b, Index c)
+      : ids_(b.particles.begin() + b.particle_offsets[c], b.particles.begin() + b.particle_offsets[c + 1]),
+        tris_(b.triangles.begin() + b.triangle_offsets[c], b.triangles.begin() + b.triangle_offsets[c + 1]),
+        target_(b.pressure[c] * b.rest_volume[c]),
+        grad_(ids_.size()) {}
+  Real project(bool, Real stiffness, const Real* w, Real* p) const override {
+    return project_balloon(p, p, nullptr, w, ids_.data(), static_cast<Index>(ids_.size()), tris_.data(),
+                           static_cast<Index>(tris_.size()), target_, stiffness, nullptr, 0, 0, nullptr, grad_.data());
+  }
+
+ private:
+  std::vector<Index> ids_;
+  std::vector<Triangle> tris_;
+  Real target_;
+  mutable std::vector<Vec3> grad_;
+};
+
 class AttachmentObject final : public Constraint {
  public:
   AttachmentObject(Index i, const Vec3& target) : i_(i), target_(target) {}
@@ -501,6 +591,9 @@ std::vector<std::unique_ptr<Constraint>> polymorphic_constraints(const Model& mo
     out.push_back(std::make_unique<DistanceObject>(d.particles[c][0], d.particles[c][1], d.rest_length[c], d.sense[c]));
   for (Index c = 0; c < model.bending.size(); ++c)
     out.push_back(std::make_unique<BendingObject>(model.bending.particles[c], model.bending.rest_angle[c]));
+  for (Index c = 0; c < model.volume.size(); ++c)
+    out.push_back(std::make_unique<VolumeObject>(model.volume.particles[c], model.volume.rest_volume[c]));
+  for (Index c = 0; c < model.balloons.size(); ++c) out.push_back(std::make_unique<BalloonObject>(model.balloons, c));
   for (Index c = 0; c < model.attachments.size(); ++c)
     out.push_back(std::make_unique<AttachmentObject>(model.attachments.particle[c], model.attachments.target.col(c)));
   return out;
@@ -512,19 +605,27 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
   // The stepper's own Gauss-Seidel sweep (PBD, stiffness corrected for `sweeps` iterations).
   PbdSettings settings;
   settings.iterations = sweeps;
-  std::vector<Real> kd, kb, ka, none;
+  std::vector<Real> kd, kb, ka, kv, kp, none;
   for (Real k : model.distance.stiffness) kd.push_back(corrected_stiffness(k, sweeps));
   for (Real k : model.bending.stiffness) kb.push_back(corrected_stiffness(k, sweeps));
+  for (Real k : model.volume.stiffness) kv.push_back(corrected_stiffness(k, sweeps));
+  for (Real k : model.balloons.stiffness) kp.push_back(corrected_stiffness(k, sweeps));
   for (Real k : model.attachments.stiffness) ka.push_back(corrected_stiffness(k, sweeps));
   Multipliers unused;
   // The same stiffness, one per object, in the objects' order.
   std::vector<Real> k_all(kd);
   k_all.insert(k_all.end(), kb.begin(), kb.end());
+  k_all.insert(k_all.end(), kv.begin(), kv.end());
+  k_all.insert(k_all.end(), kp.begin(), kp.end());
   k_all.insert(k_all.end(), ka.begin(), ka.end());
   std::vector<char> equality;
   for (Index c = 0; c < model.distance.size(); ++c) equality.push_back(model.distance.sense[c] == 0);
   equality.resize(k_all.size(), 1);
   const auto objects = polymorphic_constraints(model);
+  Index largest_balloon = 0;
+  for (Index c = 0; c < model.balloons.size(); ++c) largest_balloon = std::max(largest_balloon, model.balloons.num_particles(c));
+  std::vector<Vec3> grad(largest_balloon);
+  const VolumeTerms vt{kv, none, none, kp, none, none, grad.data()};
 
   DispatchTiming t;
   t.projections = static_cast<std::int64_t>(sweeps) * model.num_constraints();
@@ -535,7 +636,7 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
     auto t0 = std::chrono::steady_clock::now();
     for (int s = 0; s < sweeps; ++s)
       sweep_batches<Method::Pbd, false>(model, w, settings, a.data(), a.data(), a.data(), nullptr, nullptr, kd, kb, ka,
-                                        none, none, none, none, none, none, unused);
+                                        none, none, none, none, none, none, unused, vt);
     auto t1 = std::chrono::steady_clock::now();
     t.batched_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / t.projections);
     b = positions;

@@ -6,8 +6,8 @@
 //   (6)  dampVelocities(v)           §3.5, per group, leaves rigid motion untouched
 //   (7)  p <- x + h v                explicit Euler prediction
 //        or p <- x + (1 - d)(x - x*) + h² g                                    [Verlet front end]
-//   (9-11) `iterations` sweeps of projectConstraints over every distance, bending and attachment
-//          constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
+//   (9-11) `iterations` sweeps of projectConstraints over every distance, bending, volume, balloon
+//          and attachment constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
 //          the positions at the start of the sweep, corrections averaged or summed)
 //   (12-15) v <- (p - x)/h, x <- p      (Verlet: x* <- x, x <- p)
 //
@@ -47,7 +47,7 @@ struct PbdSettings {
   // (by their number); JacobiSummed adds them, and diverges on stiff networks (kept to show it).
   Solver solver = Solver::GaussSeidel;
   // XPBD constraint damping β (Macklin 2016 Eq. 26), in N s/m for distance constraints and
-  // attachments (J s for bending); 0: none.
+  // attachments (J s for bending, J s/m⁶ for volumes and balloons); 0: none.
   Real xpbd_damping = 0;
   // Jakobsen's drag d in [0, 1): p = x + (1 - d)(x - x*) + h² g (his x' = 1.99x - 0.99x* is 0.01).
   Real verlet_drag = 0;
@@ -59,9 +59,11 @@ struct PbdSettings {
 void validate(const PbdSettings& settings);
 
 // Lagrange multipliers of the last XPBD (sub)step, one per constraint of each batch; the
-// constraint force is λ/h² along ∇C (N for distance constraints and attachments).
+// constraint force is λ/h² along ∇C (N for distance constraints and attachments; for volumes and
+// balloons λ/h² is a pressure, Pa).
 struct Multipliers {
   std::vector<Real> distance, bending, attachment;
+  std::vector<Real> volume, balloon;
 };
 
 // A particle held by the user's hand at a moving point (click and drag). The stepper owns its
@@ -127,6 +129,9 @@ class PbdStepper {
   std::vector<Real> k_distance_, k_bending_, k_attachment_;  // PBD: stiffness used per iteration
   std::vector<Real> a_distance_, a_bending_, a_attachment_;  // XPBD: α̃ = α/h²
   std::vector<Real> g_distance_, g_bending_, g_attachment_;  // XPBD: γ = α β / h
+  std::vector<Real> k_volume_, a_volume_, g_volume_;     // volume: PBD stiffness, XPBD α̃ and γ
+  std::vector<Real> k_balloon_, a_balloon_, g_balloon_;  // balloons: the same
+  std::vector<Vec3> balloon_grad_;                       // balloon gradient workspace (largest balloon)
   Multipliers lambda_;
   // Interaction.
   std::vector<Grab> grabs_;

@@ -3,6 +3,7 @@
 
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
+#include "csb/constraints/volume.hpp"
 
 #include <cvode/cvode.h>
 #include <nvector/nvector_serial.h>
@@ -70,6 +71,32 @@ std::string hard_message(const std::string& what, Index c, const char* unit) {
          "C²/(2α) and needs a compliance α > 0 (" + unit + "): give the model's constraints a compliance";
 }
 
+// [u]x, the matrix of u x (.).
+Mat3r skew(const Vec3& u) {
+  Mat3r m;
+  m << 0, -u.z(), u.y(), u.z(), 0, -u.x(), -u.y(), u.x(), 0;
+  return m;
+}
+
+// Hessian blocks H[i][j] = ∂²V/∂p_i∂p_j of V = (1/6) det(e1, e2, e3), e_i = p_i - p0. V is linear
+// in each e_i, so H[i][i] = 0 and, from ∂²det/∂e1∂e2 = -[e3]x and its cyclic shifts,
+// H[1][2] = -[e3]x/6, H[2][3] = -[e1]x/6, H[3][1] = -[e2]x/6, H[j][i] = H[i][j]ᵀ; translation
+// invariance gives the p0 row and column: H[0][j] = -Σ_{i>0} H[i][j].
+void tet_volume_hessian(const Vec3& p0, const Vec3& p1, const Vec3& p2, const Vec3& p3, Mat3r H[4][4]) {
+  const Vec3 e[4] = {Vec3::Zero(), p1 - p0, p2 - p0, p3 - p0};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) H[i][j].setZero();
+  for (int i = 1; i <= 3; ++i) {
+    const int j = i % 3 + 1, k = j % 3 + 1;  // (1, 2, 3), (2, 3, 1), (3, 1, 2)
+    H[i][j] = -skew(e[k]) / 6;
+    H[j][i] = H[i][j].transpose();
+  }
+  for (int j = 1; j <= 3; ++j) {
+    H[0][j] = -(H[1][j] + H[2][j] + H[3][j]);
+    H[j][0] = H[0][j].transpose();
+  }
+}
+
 }  // namespace
 
 // ------------------------------------------------------------------------------------ network
@@ -123,6 +150,34 @@ SpringNetwork::SpringNetwork(const Model& model, const State& start, const Refer
     e.rest = b.rest_angle[c];
     bending_.push_back(e);
   }
+  const auto& vb = model.volume;
+  for (Index c = 0; c < vb.size(); ++c) {
+    if (!(vb.compliance[c] > 0)) throw InvalidArgument(hard_message("volume", c, "m⁶/J"));
+    Volume e;
+    bool any = false;
+    for (int k = 0; k < 4; ++k) {
+      e.slot[k] = slot_of_[vb.particles[c][k]];
+      e.fixed[k] = start.x.col(vb.particles[c][k]);
+      any = any || e.slot[k] >= 0;
+    }
+    if (!any) continue;
+    e.k = 1 / vb.compliance[c];
+    e.rest = vb.rest_volume[c];
+    volumes_.push_back(e);
+  }
+  const auto& bb = model.balloons;
+  for (Index c = 0; c < bb.size(); ++c) {
+    if (!(bb.compliance[c] > 0)) throw InvalidArgument(hard_message("balloon", c, "m⁶/J"));
+    Balloon e;
+    for (Index o = bb.particle_offsets[c]; o < bb.particle_offsets[c + 1]; ++o) {
+      e.slot.push_back(slot_of_[bb.particles[o]]);
+      e.fixed.push_back(start.x.col(bb.particles[o]));
+    }
+    e.triangles.assign(bb.triangles.begin() + bb.triangle_offsets[c], bb.triangles.begin() + bb.triangle_offsets[c + 1]);
+    e.k = 1 / bb.compliance[c];
+    e.target = bb.pressure[c] * bb.rest_volume[c];
+    if (std::any_of(e.slot.begin(), e.slot.end(), [](Index s) { return s >= 0; })) balloons_.push_back(std::move(e));
+  }
   const auto& a = model.attachments;
   for (Index c = 0; c < a.size(); ++c) {
     if (!(a.compliance[c] > 0)) throw InvalidArgument(hard_message("attachment", c, "m/N"));
@@ -132,7 +187,7 @@ SpringNetwork::SpringNetwork(const Model& model, const State& start, const Refer
   }
   if (settings_.linear_solver == ReferenceSettings::Linear::Klu && !has_analytic_jacobian())
     throw InvalidArgument("linear_solver 'klu' needs an analytic Jacobian, but the model has compliant bending "
-                          "constraints: use 'gmres' or 'auto'");
+                          "constraints or balloons: use 'gmres' or 'auto'");
   if (with_jacobian) build_structure();
 }
 
@@ -160,6 +215,10 @@ void SpringNetwork::build_structure() {
   for (const auto& q : anchors_)
     for (bool velocity : {false, true})
       if (!velocity || damped) block(q.slot, q.slot, velocity);
+  for (const auto& e : volumes_)
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j)
+        if (e.slot[i] >= 0 && e.slot[j] >= 0) block(e.slot[i], e.slot[j], false);
   Csc pattern(std::move(entries), N);
   col_start_ = pattern.col_start;
   row_index_ = pattern.row_index;
@@ -185,6 +244,10 @@ void SpringNetwork::build_structure() {
     positions(anchors_[k].slot, anchors_[k].slot, false, anchor_blocks_[k].x[0]);
     positions(anchors_[k].slot, anchors_[k].slot, true, anchor_blocks_[k].v[0]);
   }
+  volume_blocks_.resize(volumes_.size());
+  for (std::size_t k = 0; k < volumes_.size(); ++k)
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) positions(volumes_[k].slot[i], volumes_[k].slot[j], false, volume_blocks_[k].x[4 * i + j]);
   identity_.resize(3 * n);
   for (std::int64_t r = 0; r < 3 * n; ++r) identity_[r] = find(r, 3 * n + r);
   drag_diagonal_.resize(3 * n);
@@ -244,6 +307,28 @@ void SpringNetwork::rhs(const Real* y, Real* ydot) const {
     const Real C = wrap_angle(theta - e.rest);
     for (int k = 0; k < 4; ++k) add(e.slot[k], -e.k * C * grad[k]);
   }
+  // Volumes and balloons: F_i = -k C grad_i V (no dashpot: `damping` acts along distance
+  // constraints and attachments only).
+  for (const auto& e : volumes_) {
+    Vec3 p[4], grad[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(y, e.slot[k], e.fixed[k]);
+    const Real C = tet_volume_gradient(p[0], p[1], p[2], p[3], grad) - e.rest;
+    for (int k = 0; k < 4; ++k) add(e.slot[k], -e.k * C * grad[k]);
+  }
+  for (const auto& b : balloons_) {
+    const Index m = static_cast<Index>(b.slot.size());
+    Positions x(3, m);
+    std::vector<Index> local(m);
+    for (Index k = 0; k < m; ++k) {
+      x.col(k) = position(y, b.slot[k], b.fixed[k]);
+      local[k] = k;
+    }
+    std::vector<Vec3> grad(m);
+    const Real C = enclosed_volume_gradient(x.data(), local.data(), m, b.triangles.data(),
+                                            static_cast<Index>(b.triangles.size()), grad.data()) -
+                   b.target;
+    for (Index k = 0; k < m; ++k) add(b.slot[k], -b.k * C * grad[k]);
+  }
   for (const auto& q : anchors_) add(q.slot, -q.k * (position(y, q.slot, q.target) - q.target) - c * vel(q.slot));
   for (Index s = 0; s < n; ++s)
     for (int k = 0; k < 3; ++k)
@@ -299,6 +384,23 @@ void SpringNetwork::jacobian(const Real* y, Real* values) const {
     const Real im = 1 / mass_[anchors_[k].slot];
     put(anchor_blocks_[k].x[0], anchors_[k].k * I, -im);
     if (c > 0) put(anchor_blocks_[k].v[0], c * I, -im);
+  }
+  // F_i = -k C g_i  =>  ∂F_i/∂x_j = -k (g_i g_jᵀ + C H_ij), H the Hessian of V.
+  for (std::size_t k = 0; k < volumes_.size(); ++k) {
+    const auto& e = volumes_[k];
+    Vec3 p[4], g[4];
+    for (int q = 0; q < 4; ++q) p[q] = position(y, e.slot[q], e.fixed[q]);
+    const Real C = tet_volume_gradient(p[0], p[1], p[2], p[3], g) - e.rest;
+    Mat3r H[4][4];
+    tet_volume_hessian(p[0], p[1], p[2], p[3], H);
+    for (int i = 0; i < 4; ++i) {
+      if (e.slot[i] < 0) continue;
+      const Real im = 1 / mass_[e.slot[i]];
+      for (int j = 0; j < 4; ++j) {
+        const Mat3r K = e.k * (g[i] * g[j].transpose() + C * H[i][j]);
+        put(volume_blocks_[k].x[4 * i + j], K, -im);
+      }
+    }
   }
 }
 

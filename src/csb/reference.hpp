@@ -12,10 +12,12 @@
 // along a spring does not damp a pendulum's swing; the drag does, and brings a hanging chain to
 // rest.) Only the constraint types present in the model are evaluated.
 //
-// CVODE integrates it with BDF and Newton iterations. For springs and attachments the Jacobian
-// is analytic and sparse and the Newton systems are solved by KLU; a model with compliant
-// bending constraints (whose Hessian csb does not write out) uses GMRES with CVODE's
-// difference-quotient Jacobian-vector products, preconditioned by KLU on the spring part.
+// CVODE integrates it with BDF and Newton iterations. For springs, attachments and tetrahedral
+// volume constraints the Jacobian is analytic and sparse and the Newton systems are solved by
+// KLU; a model with compliant bending constraints (whose Hessian csb does not write out) or with
+// balloons (one constraint coupling every particle of a surface: its Jacobian C/α ∇²V + ∇V ∇Vᵀ/α
+// is dense over the surface) uses GMRES with CVODE's difference-quotient Jacobian-vector
+// products, preconditioned by KLU on the spring, attachment and volume part.
 #pragma once
 
 #include "csb/model.hpp"
@@ -79,8 +81,9 @@ class SpringNetwork {
 
   Index num_dynamic() const { return static_cast<Index>(dynamic_.size()); }
   std::size_t size() const { return 6 * dynamic_.size(); }  // length of y
-  // True when every force has an analytic Jacobian (no compliant bending constraints).
-  bool has_analytic_jacobian() const { return bending_.empty(); }
+  // True when every force has an analytic sparse Jacobian (no compliant bending constraints, no
+  // balloons).
+  bool has_analytic_jacobian() const { return bending_.empty() && balloons_.empty(); }
 
   const std::vector<Index>& dynamic_particles() const { return dynamic_; }
   void pack(const State& state, Real* y) const;             // y = [x_dyn; v_dyn]
@@ -88,8 +91,8 @@ class SpringNetwork {
   void rhs(const Real* y, Real* ydot) const;
 
   // Compressed sparse column structure of ∂f/∂y (size() x size()), every diagonal entry
-  // present; values filled by jacobian(). Without bending: the whole Jacobian; with bending:
-  // the part of the springs and attachments only (the preconditioner's).
+  // present; values filled by jacobian(). Without bending and balloons: the whole Jacobian;
+  // with them: the part of the springs, attachments and volumes only (the preconditioner's).
   const std::vector<std::int64_t>& jacobian_column_starts() const { return col_start_; }
   const std::vector<std::int64_t>& jacobian_row_indices() const { return row_index_; }
   void jacobian(const Real* y, Real* values) const;
@@ -105,6 +108,17 @@ class SpringNetwork {
     Index slot[4];
     Vec3 fixed[4];
     Real k, rest;
+  };
+  struct Volume {     // a tet: C = V - V0, potential C²/(2α), k = 1/α (J/m⁶)
+    Index slot[4];
+    Vec3 fixed[4];
+    Real k, rest;
+  };
+  struct Balloon {    // C = V_enclosed - pressure V0 over the surface's particles
+    std::vector<Index> slot;
+    std::vector<Vec3> fixed;
+    std::vector<Triangle> triangles;  // indices into slot
+    Real k, target;
   };
   struct Anchor {
     Index slot;
@@ -123,6 +137,8 @@ class SpringNetwork {
   Positions pinned_x_;           // all particles' start positions (used for the pinned ones)
   std::vector<Spring> springs_;
   std::vector<Bend> bending_;
+  std::vector<Volume> volumes_;
+  std::vector<Balloon> balloons_;
   std::vector<Anchor> anchors_;
   std::vector<std::int64_t> col_start_, row_index_;
   // For each spring: value positions of the 3x3 blocks (aa, ab, ba, bb) in the x- and the
@@ -133,6 +149,11 @@ class SpringNetwork {
   };
   std::vector<Blocks> spring_blocks_;
   std::vector<Blocks> anchor_blocks_;
+  // For each tet: value positions of its 16 blocks (i, j) = ∂(force on i)/∂x_j at 4 i + j.
+  struct VolumeBlocks {
+    std::int64_t x[16][9];
+  };
+  std::vector<VolumeBlocks> volume_blocks_;
   std::vector<std::int64_t> identity_;       // positions of the ∂ẋ/∂v = I entries
   std::vector<std::int64_t> drag_diagonal_;  // positions of the ∂v̇/∂v diagonal
 };

@@ -5,6 +5,7 @@
 #include "csb/constraints/attachment.hpp"
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
+#include "csb/constraints/volume.hpp"
 
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
@@ -288,6 +289,45 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("length"), py::arg("angle"), py::arg("anchor") = std::vector<double>{0, 0, 0},
         "Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.");
 
+  // ---------------------------------------------------------------- tet meshes
+  py::class_<TetMesh>(m, "TetMesh", "A tetrahedral volume mesh before it enters the particle pool; metres.",
+                      py::dynamic_attr())
+      .def(py::init([](py::handle points, py::handle tets, const std::string& name) {
+             TetMesh mesh;
+             mesh.name = name;
+             mesh.points = to_positions(points, name + ": points");
+             mesh.tets = to_index_rows<4>(tets, name + ": tets");
+             validate(mesh);
+             return mesh;
+           }),
+           py::arg("points"), py::arg("tets"), py::arg("name") = "tet mesh",
+           "points: (N, 3) float, m. tets: (M, 4) int point indices. Raises MeshError naming the mesh and the "
+           "element for non-finite points, out-of-range or repeated indices, or no tets.")
+      .def_readonly("name", &TetMesh::name)
+      .def_property_readonly("num_points", &TetMesh::num_points)
+      .def_property_readonly("num_tets", &TetMesh::num_tets)
+      .def_property_readonly("points", [](const TetMesh& s) {
+        py::array_t<double> a({static_cast<py::ssize_t>(s.num_points()), py::ssize_t(3)});
+        if (s.num_points()) std::memcpy(a.mutable_data(), s.points.data(), sizeof(double) * 3 * s.num_points());
+        return a;
+      }, "(N, 3) point positions, m (a copy)")
+      .def_property_readonly("tets", [](const TetMesh& s) { return index_rows(s.tets); }, "(M, 4) point indices (a copy)")
+      .def("volumes", [](const TetMesh& s) {
+        const std::vector<Real> v = tet_volumes(s);
+        return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+      }, "(M,) signed volume of every tet, m³ (positive: (p1 - p0) x (p2 - p0) points towards p3)")
+      .def("surface", [](const TetMesh& s) { return index_rows(tet_surface(s)); },
+           "(T, 3) the faces used by one tet, wound outwards for positively oriented tets")
+      .def("__repr__", [](const TetMesh& s) {
+        return "<csb.TetMesh '" + s.name + "': " + std::to_string(s.num_points()) + " points, " +
+               std::to_string(s.num_tets()) + " tets>";
+      });
+  m.def("tet_box", [](py::handle size, std::array<Index, 3> divisions, py::handle center) {
+    return tet_box(to_vec3(size, "size"), divisions[0], divisions[1], divisions[2], to_vec3(center, "center"));
+  }, py::arg("size"), py::arg("divisions"), py::arg("center") = std::vector<double>{0, 0, 0},
+        "A box of size (3 lengths, m) centred on `center` (m) with divisions (nx, ny, nz) cells of 6 positively "
+        "oriented tets each (Kuhn split, conforming).");
+
   // ---------------------------------------------------------------- model
   py::class_<State, std::shared_ptr<State>>(m, "State", "Positions (m), velocities (m/s) and time (s) of every particle.")
       .def_property("x", [](py::object self) {
@@ -355,6 +395,35 @@ PYBIND11_MODULE(_core, m) {
         d["compliance"] = view(b.compliance.data(), {c}, self, false);
         return d;
       }, "bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness, compliance (1/(N m))")
+      .def_property_readonly("volume", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        const auto& b = s.volume;
+        const py::ssize_t c = b.size();
+        py::dict d;
+        d["particles"] = view(reinterpret_cast<const Index*>(b.particles.data()), {c, 4}, self, false);
+        d["rest_volume"] = view(b.rest_volume.data(), {c}, self, false);
+        d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["compliance"] = view(b.compliance.data(), {c}, self, false);
+        return d;
+      }, "volume batch: particles (M, 4) of each tet, rest_volume (m³), stiffness, compliance (m⁶/J)")
+      .def_property_readonly("balloons", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        const auto& b = s.balloons;
+        const py::ssize_t c = b.size();
+        py::dict d;
+        d["particle_offsets"] = view(b.particle_offsets.data(), {c + 1}, self, false);
+        d["particles"] = view(b.particles.data(), {static_cast<py::ssize_t>(b.particles.size())}, self, false);
+        d["triangle_offsets"] = view(b.triangle_offsets.data(), {c + 1}, self, false);
+        d["triangles"] = view(reinterpret_cast<const Index*>(b.triangles.data()),
+                              {static_cast<py::ssize_t>(b.triangles.size()), 3}, self, false);
+        d["rest_volume"] = view(b.rest_volume.data(), {c}, self, false);
+        d["pressure"] = view(b.pressure.data(), {c}, self, false);
+        d["stiffness"] = view(b.stiffness.data(), {c}, self, false);
+        d["compliance"] = view(b.compliance.data(), {c}, self, false);
+        return d;
+      }, "balloon batch: balloon b moves particles[particle_offsets[b]:particle_offsets[b+1]] and has "
+         "triangles[triangle_offsets[b]:triangle_offsets[b+1]] (indices into its own particle list); rest_volume "
+         "(m³), pressure (k_pressure: target volume pressure x rest_volume), stiffness, compliance (m⁶/J)")
       .def_property_readonly("attachments", [](py::object self) {
         const Model& s = self.cast<const Model&>();
         const auto& b = s.attachments;
@@ -370,7 +439,8 @@ PYBIND11_MODULE(_core, m) {
            "A new State at the rest positions with zero velocities and t = 0.")
       .def("__repr__", [](const Model& s) {
         return "<csb.Model " + std::to_string(s.num_particles()) + " particles, " + std::to_string(s.distance.size()) +
-               " distance, " + std::to_string(s.bending.size()) + " bending, " + std::to_string(s.attachments.size()) +
+               " distance, " + std::to_string(s.bending.size()) + " bending, " + std::to_string(s.volume.size()) +
+               " volume, " + std::to_string(s.balloons.size()) + " balloon, " + std::to_string(s.attachments.size()) +
                " attachment constraints>";
       });
 
@@ -403,6 +473,7 @@ PYBIND11_MODULE(_core, m) {
         d["group"] = inst.group;
         d["num_distance"] = inst.num_distance;
         d["num_bending"] = inst.num_bending;
+        d["triangles"] = index_rows(inst.triangles);
         d["report"] = report_dict(inst.report);
         return d;
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
@@ -420,6 +491,46 @@ PYBIND11_MODULE(_core, m) {
            py::arg("stiffness"), py::arg("rest_angle") = py::none(), py::arg("compliance") = 0.0,
            "Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad "
            "(default the current angle), compliance in 1/(N m) (0: hard).")
+      .def("_add_tet_mesh", [](ModelBuilder& b, const TetMesh& mesh, Index group, py::object mass, py::object density,
+                               py::object particle_mass, std::optional<double> stretch_stiffness,
+                               double stretch_compliance, std::optional<double> volume_stiffness,
+                               double volume_compliance) {
+        TetMeshOptions o;
+        o.group = group;
+        const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
+        if (given != 1)
+          throw InvalidArgument(mesh.name + ": give exactly one of mass (kg), density (kg/m^3) or particle_mass (kg)");
+        if (!mass.is_none()) o.mass = {MassSpec::Kind::Total, mass.cast<double>()};
+        if (!density.is_none()) o.mass = {MassSpec::Kind::Density, density.cast<double>()};
+        if (!particle_mass.is_none()) o.mass = {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
+        o.stretch_stiffness = stretch_stiffness;
+        o.stretch_compliance = stretch_compliance;
+        o.volume_stiffness = volume_stiffness;
+        o.volume_compliance = volume_compliance;
+        const MeshInstance inst = b.add_tet_mesh(mesh, o);
+        py::dict d;
+        d["first_particle"] = inst.first_particle;
+        d["num_particles"] = inst.num_particles;
+        d["group"] = inst.group;
+        d["num_distance"] = inst.num_distance;
+        d["num_bending"] = inst.num_bending;
+        d["num_volume"] = inst.num_volume;
+        d["flipped_tets"] = inst.flipped_tets;
+        d["triangles"] = index_rows(inst.triangles);
+        d["report"] = report_dict(inst.report);
+        return d;
+      }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
+         py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0, py::arg("stretch_compliance") = 0.0,
+         py::arg("volume_stiffness") = 1.0, py::arg("volume_compliance") = 0.0)
+      .def("add_tetrahedron", &ModelBuilder::add_tetrahedron, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
+           py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0, py::arg("rest_volume") = py::none(),
+           "Tetrahedral volume constraint C = V - V0: PBD stiffness in [0, 1], compliance in m⁶/J (0: hard), "
+           "rest_volume in m³ (default the current signed volume, which must be > 0: d on the side of "
+           "(b - a) x (c - a)). Returns its index.")
+      .def("_add_balloon", [](ModelBuilder& b, py::handle triangles, double pressure, double stiffness,
+                              double compliance) {
+        return b.add_balloon(to_index_rows<3>(triangles, "balloon triangles"), pressure, stiffness, compliance);
+      }, py::arg("triangles"), py::arg("pressure") = 1.0, py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0)
       .def("pin", &ModelBuilder::pin, py::arg("i"), "Fixes particle i (inverse mass 0).")
       .def("attach", [](ModelBuilder& b, Index i, py::handle target, double stiffness, double compliance) {
         return b.attach(i, to_vec3(target, "target"), stiffness, compliance);
@@ -518,9 +629,12 @@ PYBIND11_MODULE(_core, m) {
         d["distance"] = py::array_t<Real>(static_cast<py::ssize_t>(l.distance.size()), l.distance.data());
         d["bending"] = py::array_t<Real>(static_cast<py::ssize_t>(l.bending.size()), l.bending.data());
         d["attachment"] = py::array_t<Real>(static_cast<py::ssize_t>(l.attachment.size()), l.attachment.data());
+        d["volume"] = py::array_t<Real>(static_cast<py::ssize_t>(l.volume.size()), l.volume.data());
+        d["balloon"] = py::array_t<Real>(static_cast<py::ssize_t>(l.balloon.size()), l.balloon.data());
         return d;
       }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); "
-         "the constraint force is λ/h² along ∇C (N for distance constraints).")
+         "the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a "
+         "pressure, Pa).")
       .def("grab", [](PbdStepper& s, const Model& model, const State& state, Index particle, py::handle target,
                       double compliance) {
         return s.grab(model, state, particle, to_vec3(target, "target"), compliance);
@@ -720,6 +834,8 @@ PYBIND11_MODULE(_core, m) {
     d["distance"] = violation_dict(r.distance);
     d["bending"] = violation_dict(r.bending);
     d["attachment"] = violation_dict(r.attachment);
+    d["volume"] = violation_dict(r.volume);
+    d["balloon"] = violation_dict(r.balloon);
     d["max_strain"] = r.max_strain;
     d["rms_strain"] = r.rms_strain;
     return d;
@@ -734,6 +850,14 @@ PYBIND11_MODULE(_core, m) {
     std::vector<Real> v = bending_violations(model, state);
     return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
   }, py::arg("model"), py::arg("state"), "Violation θ - θ0 of every bending constraint, rad.");
+  m.def("volume_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = volume_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation V - V0 of every tetrahedral volume constraint, m³.");
+  m.def("balloon_volumes", [](const Model& model, const State& state) {
+    std::vector<Real> v = balloon_volumes(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Volume enclosed by every balloon's surface, m³.");
 
   // ---------------------------------------------------------------- kernels, one constraint at a time
   py::module_ k = m.def_submodule("kernels", "The constraint kernels on single constraints (for tests and teaching).");
@@ -758,6 +882,68 @@ PYBIND11_MODULE(_core, m) {
     const Real v = project_attachment(x.data(), w, t.data(), stiffness);
     return py::make_tuple(vec3_array(x), v);
   }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("stiffness") = 1.0);
+  k.def("tet_volume", [](py::handle a, py::handle b, py::handle c, py::handle d) {
+    return tet_volume(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"));
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed volume (1/6)(b - a) x (c - a)·(d - a), m³.");
+  k.def("tet_volume_gradient", [](py::handle a, py::handle b, py::handle c, py::handle d) {
+    Vec3 g[4];
+    tet_volume_gradient(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"), g);
+    py::array_t<double> out({4, 3});
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 3; ++j) out.mutable_at(i, j) = g[i][j];
+    return out;
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "(4, 3) gradient of the signed volume, m².");
+  k.def("project_volume", [](py::handle a, py::handle b, py::handle c, py::handle d, std::array<double, 4> w,
+                             double rest_volume, double stiffness) {
+    Vec3 p[4] = {to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d")};
+    const Real v = project_volume(p[0].data(), p[1].data(), p[2].data(), p[3].data(), w[0], w[1], w[2], w[3],
+                                  rest_volume, stiffness);
+    return py::make_tuple(vec3_array(p[0]), vec3_array(p[1]), vec3_array(p[2]), vec3_array(p[3]), v);
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), py::arg("inv_mass"), py::arg("rest_volume"),
+     py::arg("stiffness") = 1.0, "PBD: returns (a', b', c', d', violation V - V0 before projection, m³).");
+  k.def("project_volume_xpbd", [](py::handle a, py::handle b, py::handle c, py::handle d, std::array<double, 4> w,
+                                  double rest_volume, double alpha_tilde, double lambda) {
+    Vec3 p[4] = {to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d")};
+    const Real v = project_volume_xpbd(p[0].data(), p[1].data(), p[2].data(), p[3].data(), p[0].data(), p[1].data(),
+                                       p[2].data(), p[3].data(), w[0], w[1], w[2], w[3], rest_volume, alpha_tilde, 0,
+                                       lambda);
+    return py::make_tuple(vec3_array(p[0]), vec3_array(p[1]), vec3_array(p[2]), vec3_array(p[3]), v, lambda);
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), py::arg("inv_mass"), py::arg("rest_volume"),
+     py::arg("alpha_tilde"), py::arg("lambda_") = 0.0,
+     "XPBD (no damping), α̃ = α/h² in m⁴/kg (α in m⁶/J): returns (a', b', c', d', violation, λ + Δλ).");
+  k.def("enclosed_volume", [](py::handle points, py::handle triangles) {
+    const Positions x = to_positions(points, "points");
+    const auto tris = to_index_rows<3>(triangles, "triangles");
+    std::vector<Index> ids(x.cols());
+    for (Index i = 0; i < x.cols(); ++i) ids[i] = i;
+    for (const auto& t : tris)
+      for (Index i : t)
+        if (i < 0 || i >= x.cols()) throw InvalidArgument("triangles: index " + std::to_string(i) + " out of range");
+    return enclosed_volume(x.data(), ids.data(), tris.data(), static_cast<Index>(tris.size()));
+  }, py::arg("points"), py::arg("triangles"), "(1/6) Σ (p_a x p_b)·p_c over the triangles, m³.");
+  k.def("project_balloon", [](py::handle points, py::handle triangles, py::handle inv_mass, double target_volume,
+                              double stiffness) {
+    Positions x = to_positions(points, "points");
+    const auto tris = to_index_rows<3>(triangles, "triangles");
+    const auto wa = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(inv_mass);
+    if (!wa || wa.ndim() != 1 || wa.shape(0) != x.cols())
+      throw InvalidArgument("inv_mass must have shape (" + std::to_string(x.cols()) + ",), one entry (1/kg) per point");
+    std::vector<Real> w(wa.data(), wa.data() + x.cols());
+    std::vector<Index> ids(x.cols());
+    for (Index i = 0; i < x.cols(); ++i) ids[i] = i;
+    for (const auto& t : tris)
+      for (Index i : t)
+        if (i < 0 || i >= x.cols()) throw InvalidArgument("triangles: index " + std::to_string(i) + " out of range");
+    std::vector<Vec3> grad(x.cols());
+    const Index n = static_cast<Index>(x.cols());
+    const Real v = project_balloon(x.data(), x.data(), nullptr, w.data(), ids.data(), n, tris.data(),
+                                   static_cast<Index>(tris.size()), target_volume, stiffness, nullptr, 0, 0, nullptr,
+                                   grad.data());
+    py::array_t<double> out({static_cast<py::ssize_t>(n), py::ssize_t(3)});
+    if (n) std::memcpy(out.mutable_data(), x.data(), sizeof(double) * 3 * n);
+    return py::make_tuple(out, v);
+  }, py::arg("points"), py::arg("triangles"), py::arg("inv_mass"), py::arg("target_volume"), py::arg("stiffness") = 1.0,
+     "PBD balloon projection of a closed surface: returns (points', violation V - target before projection, m³).");
   k.def("dihedral_angle", [](py::handle a, py::handle b, py::handle c, py::handle d) {
     return dihedral_angle(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"));
   }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed dihedral angle across edge (a, b), rad.");

@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'topology']
+__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -42,6 +42,43 @@ class Mesh:
     def vertices(self) -> numpy.typing.NDArray[numpy.float64]:
         """
         (N, 3) vertex positions, m (a copy)
+        """
+class TetMesh:
+    """
+    A tetrahedral volume mesh before it enters the particle pool; metres.
+    """
+    def __init__(self, points: typing.Any, tets: typing.Any, name: str = 'tet mesh') -> None:
+        """
+        points: (N, 3) float, m. tets: (M, 4) int point indices. Raises MeshError naming the mesh and the element for non-finite points, out-of-range or repeated indices, or no tets.
+        """
+    def __repr__(self) -> str:
+        ...
+    def surface(self) -> numpy.typing.NDArray[numpy.int32]:
+        """
+        (T, 3) the faces used by one tet, wound outwards for positively oriented tets
+        """
+    def volumes(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        (M,) signed volume of every tet, m³ (positive: (p1 - p0) x (p2 - p0) points towards p3)
+        """
+    @property
+    def name(self) -> str:
+        ...
+    @property
+    def num_points(self) -> int:
+        ...
+    @property
+    def num_tets(self) -> int:
+        ...
+    @property
+    def points(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        (N, 3) point positions, m (a copy)
+        """
+    @property
+    def tets(self) -> numpy.typing.NDArray[numpy.int32]:
+        """
+        (M, 4) point indices (a copy)
         """
 class State:
     """
@@ -104,6 +141,11 @@ class Model:
         attachment batch: particle (M,), target (M, 3) m, stiffness, compliance (m/N)
         """
     @property
+    def balloons(self) -> dict:
+        """
+        balloon batch: balloon b moves particles[particle_offsets[b]:particle_offsets[b+1]] and has triangles[triangle_offsets[b]:triangle_offsets[b+1]] (indices into its own particle list); rest_volume (m³), pressure (k_pressure: target volume pressure x rest_volume), stiffness, compliance (m⁶/J)
+        """
+    @property
     def bending(self) -> dict:
         """
         bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness, compliance (1/(N m))
@@ -147,13 +189,22 @@ class Model:
         """
         (T, 3) surface triangles (particle indices)
         """
+    @property
+    def volume(self) -> dict:
+        """
+        volume batch: particles (M, 4) of each tet, rest_volume (m³), stiffness, compliance (m⁶/J)
+        """
 class ModelBuilder:
     """
     Collects particles and constraints; build() returns the immutable Model.
     """
     def __init__(self) -> None:
         ...
+    def _add_balloon(self, triangles: typing.Any, pressure: typing.SupportsFloat | typing.SupportsIndex = 1.0, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+        ...
     def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
+        ...
+    def _add_tet_mesh(self, mesh: TetMesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, volume_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, volume_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
     def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
@@ -170,6 +221,10 @@ class ModelBuilder:
     def add_particle(self, x: typing.Any, mass: typing.SupportsFloat | typing.SupportsIndex, group: typing.SupportsInt | typing.SupportsIndex) -> int:
         """
         One particle at x (m) of mass (kg) in a group; returns its index.
+        """
+    def add_tetrahedron(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, rest_volume: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
+        """
+        Tetrahedral volume constraint C = V - V0: PBD stiffness in [0, 1], compliance in m⁶/J (0: hard), rest_volume in m³ (default the current signed volume, which must be > 0: d on the side of (b - a) x (c - a)). Returns its index.
         """
     def attach(self, i: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
@@ -256,7 +311,7 @@ class PbdStepper:
         """
     def multipliers(self) -> dict:
         """
-        XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints).
+        XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a pressure, Pa).
         """
     def projections_per_step(self, model: Model) -> int:
         ...
@@ -337,6 +392,10 @@ def _integrate_reference(model: Model, start: State, times: collections.abc.Sequ
     ...
 def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, timeout: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> tuple[Mesh, dict]:
     ...
+def balloon_volumes(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Volume enclosed by every balloon's surface, m³.
+    """
 def benchmark_dispatch(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> dict:
     """
     Gauss-Seidel sweeps through the batched kernels and through one virtual Constraint object per constraint: ns per projection of each repeat, and whether the results agree bit for bit.
@@ -395,7 +454,15 @@ def save_mesh(mesh: Mesh, path: str) -> None:
     """
     Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).
     """
+def tet_box(size: typing.Any, divisions: typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(3)"], center: typing.Any = [0.0, 0.0, 0.0]) -> TetMesh:
+    """
+    A box of size (3 lengths, m) centred on `center` (m) with divisions (nx, ny, nz) cells of 6 positively oriented tets each (Kuhn split, conforming).
+    """
 def topology(mesh: Mesh) -> dict:
     """
     Unique edges, bending quads (a, b, c, d), boundary and non-manifold edge counts.
+    """
+def volume_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    Violation V - V0 of every tetrahedral volume constraint, m³.
     """

@@ -4,8 +4,9 @@ The constraint kernels on single constraints (for tests and teaching).
 from __future__ import annotations
 import collections.abc
 import numpy
+import numpy.typing
 import typing
-__all__: list[str] = ['dihedral_angle', 'dihedral_angle_gradient', 'project_attachment', 'project_bending', 'project_distance']
+__all__: list[str] = ['dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'project_attachment', 'project_balloon', 'project_bending', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
 def dihedral_angle(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any) -> float:
     """
     Signed dihedral angle across edge (a, b), rad.
@@ -14,8 +15,16 @@ def dihedral_angle_gradient(a: typing.Any, b: typing.Any, c: typing.Any, d: typi
     """
     (4, 3) gradient, rad/m; None if degenerate.
     """
+def enclosed_volume(points: typing.Any, triangles: typing.Any) -> float:
+    """
+    (1/6) Σ (p_a x p_b)·p_c over the triangles, m³.
+    """
 def project_attachment(p: typing.Any, w: typing.SupportsFloat | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, float]:
     ...
+def project_balloon(points: typing.Any, triangles: typing.Any, inv_mass: typing.Any, target_volume: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.typing.NDArray[numpy.float64], float]:
+    """
+    PBD balloon projection of a closed surface: returns (points', violation V - target before projection, m³).
+    """
 def project_bending(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, inv_mass: typing.Annotated[collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], "FixedSize(4)"], rest_angle: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray, float]:
     """
     Returns (a', b', c', d', violation before projection).
@@ -23,4 +32,20 @@ def project_bending(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, 
 def project_distance(p1: typing.Any, p2: typing.Any, w1: typing.SupportsFloat | typing.SupportsIndex, w2: typing.SupportsFloat | typing.SupportsIndex, rest_length: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, sense: str = '==') -> tuple[numpy.ndarray, numpy.ndarray, float]:
     """
     Returns (p1', p2', violation before projection).
+    """
+def project_volume(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, inv_mass: typing.Annotated[collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], "FixedSize(4)"], rest_volume: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray, float]:
+    """
+    PBD: returns (a', b', c', d', violation V - V0 before projection, m³).
+    """
+def project_volume_xpbd(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, inv_mass: typing.Annotated[collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], "FixedSize(4)"], rest_volume: typing.SupportsFloat | typing.SupportsIndex, alpha_tilde: typing.SupportsFloat | typing.SupportsIndex, lambda_: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray, float, float]:
+    """
+    XPBD (no damping), α̃ = α/h² in m⁴/kg (α in m⁶/J): returns (a', b', c', d', violation, λ + Δλ).
+    """
+def tet_volume(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any) -> float:
+    """
+    Signed volume (1/6)(b - a) x (c - a)·(d - a), m³.
+    """
+def tet_volume_gradient(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    (4, 3) gradient of the signed volume, m².
     """

@@ -1,0 +1,98 @@
+"""Soft-body scenes shared by the tests and validation/soft_bodies.py: a tet cube held by one
+corner, a tet cantilever, and an icosphere balloon."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from .mesh import Mesh
+from .model import ModelBuilder
+from .tetmesh import tet_box
+
+__all__ = ["icosphere", "hanging_tet_cube", "tet_cantilever", "hanging_balloon", "total_volume"]
+
+
+def icosphere(radius: float = 0.5, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> Mesh:
+    """A closed triangle sphere of ``radius`` (m): an icosahedron whose faces are split in four
+    ``subdivisions`` times, vertices pushed onto the sphere, every triangle wound outwards."""
+    if not radius > 0 or subdivisions < 0:
+        raise _core.ParameterError(f"icosphere: radius must be > 0 m and subdivisions >= 0, got {radius}, {subdivisions}")
+    t = (1 + 5**0.5) / 2
+    v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11],
+         [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    verts = [np.array(p, dtype=float) / np.linalg.norm(p) for p in v]
+    for _ in range(subdivisions):
+        midpoint: dict[tuple[int, int], int] = {}
+
+        def mid(a: int, b: int) -> int:
+            key = (min(a, b), max(a, b))
+            if key not in midpoint:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                midpoint[key] = len(verts) - 1
+            return midpoint[key]
+
+        f = [g for a, b, c in f for g in ([a, mid(a, b), mid(c, a)], [b, mid(b, c), mid(a, b)],
+                                          [c, mid(c, a), mid(b, c)], [mid(a, b), mid(b, c), mid(c, a)])]
+    x = np.array(verts) * radius + np.asarray(center, dtype=float)
+    tris = np.array(f, dtype=np.int32)
+    if _core.kernels.enclosed_volume(x, tris) < 0:
+        tris = tris[:, ::-1].copy()
+    return Mesh(x, tris, name="icosphere")
+
+
+def hanging_tet_cube(*, size: float = 0.2, cells: int = 3, density: float = 500.0, stretch_compliance: float = 1e-4,
+                     volume_compliance: float | None = None, bulk_modulus: float = 1e5, stretch_stiffness: float = 1.0,
+                     volume_stiffness: float | None = 1.0):
+    """A soft tet cube (``size`` m, ``cells``³ cells of 6 tets, ``density`` kg/m³) whose corner
+    (-size/2, size/2, -size/2) is pinned at the origin's side: released at rest, it falls and swings
+    from that corner. Volume compliance V0/K per tet from ``bulk_modulus`` K (Pa) unless given
+    (m⁶/J). Returns (model, instance)."""
+    mesh = tet_box([size] * 3, [cells] * 3)
+    if volume_compliance is None:
+        volume_compliance = float(mesh.volumes()[0]) / bulk_modulus
+    b = ModelBuilder()
+    inst = b.add_tet_mesh(mesh, density=density, stretch_stiffness=stretch_stiffness,
+                          stretch_compliance=stretch_compliance, volume_stiffness=volume_stiffness,
+                          volume_compliance=volume_compliance)
+    b.pin(inst.nearest([-size / 2, size / 2, -size / 2]))
+    return b.build(), inst
+
+
+def tet_cantilever(*, length: float = 0.4, width: float = 0.1, cells=(8, 2, 2), density: float = 1000.0,
+                   stretch_compliance: float = 1e-4, bulk_modulus: float = 1e6):
+    """A beam of tets along +x from x = 0 (``length`` x ``width`` x ``width`` m, ``cells`` cells of 6
+    tets), its x = 0 face pinned, compliant stretch (m/N) on every edge and volume compliance
+    V0/K (m⁶/J) from ``bulk_modulus`` K (Pa) on every tet. Returns (model, tip particle indices)."""
+    mesh = tet_box([length, width, width], list(cells), center=[length / 2, 0, 0])
+    b = ModelBuilder()
+    inst = b.add_tet_mesh(mesh, density=density, stretch_compliance=stretch_compliance,
+                          volume_compliance=float(mesh.volumes()[0]) / bulk_modulus)
+    x = inst.vertices
+    for i in np.where(x[:, 0] < 1e-9 * length)[0]:
+        b.pin(inst.first_particle + int(i))
+    tip = inst.first_particle + np.where(np.abs(x[:, 0] - length) < 1e-9 * length)[0]
+    return b.build(), tip
+
+
+def hanging_balloon(*, pressure: float = 1.0, radius: float = 0.2, subdivisions: int = 2, mass: float = 0.1,
+                    stretch_stiffness: float = 1.0, stretch_compliance: float = 0.0, balloon_stiffness: float = 1.0,
+                    balloon_compliance: float = 0.0, pin_top: bool = True):
+    """An icosphere cloth (``mass`` kg, stretch on every edge) with an overpressure constraint of
+    ``pressure`` times its initial volume, hanging from its top vertex. Returns (model, instance)."""
+    b = ModelBuilder()
+    inst = b.add_mesh(icosphere(radius, subdivisions), mass=mass, stretch_stiffness=stretch_stiffness,
+                      stretch_compliance=stretch_compliance)
+    b.add_balloon(inst, pressure=pressure, stiffness=balloon_stiffness, compliance=balloon_compliance)
+    if pin_top:
+        b.pin(inst.nearest([0, radius, 0]))
+    return b.build(), inst
+
+
+def total_volume(model: _core.Model, state: _core.State) -> float:
+    """Σ of the signed volumes of the model's volume constraints (m³)."""
+    return float(np.sum(_core.volume_violations(model, state) + np.asarray(model.volume["rest_volume"])))
