@@ -91,14 +91,17 @@ def _rotation(angles: Sequence[float]) -> np.ndarray:
 
 
 def transformed(
-    mesh: Mesh,
+    mesh: Mesh | _core.TetMesh,
     *,
     scale: float | Sequence[float] = 1.0,
     rotate: Sequence[float] = (0.0, 0.0, 0.0),
     translate: Sequence[float] = (0.0, 0.0, 0.0),
-) -> Mesh:
-    """A copy of ``mesh`` scaled (dimensionless, per axis or uniform), then rotated (XYZ Euler
-    angles, rad), then translated (m). The topology and vertex numbering are unchanged."""
+) -> Mesh | _core.TetMesh:
+    """A copy of ``mesh`` (a surface :class:`Mesh` or a :class:`csb.TetMesh`) scaled
+    (dimensionless, per axis or uniform), then rotated (XYZ Euler angles, rad), then translated
+    (m). The vertex numbering is unchanged. A mirroring scale (an odd number of negative factors)
+    turns every triangle and tet inside out; their orientation is restored (two indices swapped)
+    so that outward stays outward."""
     s = np.broadcast_to(np.asarray(scale, dtype=float), (3,))
     if not np.all(np.isfinite(s)) or np.any(s == 0):
         raise _core.ParameterError(f"{mesh.name}: scale must be finite and non-zero, got {scale!r}")
@@ -108,7 +111,15 @@ def transformed(
         raise _core.ParameterError(f"{mesh.name}: rotate must be 3 finite angles in rad, got {rotate!r}")
     if t.shape != (3,) or not np.all(np.isfinite(t)):
         raise _core.ParameterError(f"{mesh.name}: translate must be 3 finite numbers in m, got {translate!r}")
+    mirror = bool(np.prod(np.sign(s)) < 0)
+    if isinstance(mesh, _core.TetMesh):
+        tets = np.array(mesh.tets)
+        if mirror:
+            tets[:, [2, 3]] = tets[:, [3, 2]]
+        return _core.TetMesh((mesh.points * s) @ _rotation(r).T + t, tets, mesh.name)
     v = (mesh.vertices * s) @ _rotation(r).T + t
     tris = mesh.triangles if len(mesh.triangles) else None
+    if tris is not None and mirror:
+        tris = np.array(tris)[:, [0, 2, 1]]
     lines = mesh.lines if len(mesh.lines) else None
     return Mesh(v, tris, lines, name=mesh.name)

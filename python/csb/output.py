@@ -12,23 +12,28 @@ import numpy as np
 
 from . import _core
 
-__all__ = ["FrameWriter", "METRIC_COLUMNS", "metrics_row", "write_csv", "plot_summary"]
+__all__ = ["FrameWriter", "METRIC_COLUMNS", "metrics_row", "volume_errors", "write_csv", "plot_summary"]
 
 
 def _cells(model: _core.Model) -> list[tuple[str, np.ndarray]]:
-    """Triangles, plus a line cell for every distance constraint that is not a triangle edge
-    (chains, pendulums, springs), so that everything the model holds is visible."""
+    """Tetrahedra, triangles, plus a line cell for every distance constraint that is not an edge
+    of either (chains, pendulums, springs), so that everything the model holds is visible."""
     cells: list[tuple[str, np.ndarray]] = []
+    tets = np.asarray(model.volume["particles"], dtype=np.int64).reshape(-1, 4)
+    if len(tets):
+        cells.append(("tetra", tets))
     tris = np.asarray(model.triangles, dtype=np.int64)
     if len(tris):
         cells.append(("triangle", tris))
     pairs = np.sort(np.asarray(model.distance["particles"], dtype=np.int64), axis=1)
     if len(pairs):
-        if len(tris):
-            tri_edges = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
+        covered = [tris[:, [a, b]] for a, b in ((0, 1), (1, 2), (2, 0))] if len(tris) else []
+        covered += [tets[:, [a, b]] for a, b in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))] if len(tets) else []
+        if covered:
+            edges = np.sort(np.concatenate(covered), axis=1)
             n = model.num_particles
-            on_tri = np.isin(pairs[:, 0] * n + pairs[:, 1], tri_edges[:, 0] * n + tri_edges[:, 1])
-            pairs = pairs[~on_tri]
+            on_cell = np.isin(pairs[:, 0] * n + pairs[:, 1], edges[:, 0] * n + edges[:, 1])
+            pairs = pairs[~on_cell]
         if len(pairs):
             cells.append(("line", pairs))
     if not cells:
@@ -83,7 +88,11 @@ class FrameWriter:
             path = directory / f"{name}.xdmf"
             self._xdmf = _xdmf_writer(path)
             self._xdmf.__enter__()
-            self._xdmf.write_points_cells(np.asarray(model.rest_positions), self.cells)
+            # meshio's XDMF writer cannot mix line cells with others (it reshapes them in place and
+            # fails), so the XDMF series leaves lines out when there are triangles or tets; the
+            # VTU series has every cell.
+            xdmf_cells = [c for c in self.cells if c[0] != "line"] or self.cells
+            self._xdmf.write_points_cells(np.asarray(model.rest_positions), xdmf_cells)
             self.files += [path, path.with_suffix(".h5")]
 
     def write(self, state: _core.State) -> None:
@@ -130,11 +139,32 @@ METRIC_COLUMNS = (
     "max_strain", "rms_strain", "distance_max", "distance_rms", "bending_max", "bending_rms",
     "attachment_max", "momentum_x", "momentum_y", "momentum_z",
     "angular_momentum_x", "angular_momentum_y", "angular_momentum_z",
+    "volume_error", "balloon_volume_error",
 )
 
 
-def metrics_row(m: dict[str, Any], step: int) -> dict[str, float]:
+def volume_errors(model: _core.Model, state: _core.State) -> dict[str, float]:
+    """Relative volume errors: of the total signed volume of all tets against its rest value, and
+    the largest of every balloon's enclosed volume against its target pressure x V0 (0 without)."""
+    out = {"volume_error": 0.0, "balloon_volume_error": 0.0}
+    tets = np.asarray(model.volume["particles"]).reshape(-1, 4)
+    if len(tets):
+        x = np.asarray(state.x)
+        a, b, c, d = (x[tets[:, k]] for k in range(4))
+        v = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a) / 6
+        rest = float(np.sum(model.volume["rest_volume"]))
+        out["volume_error"] = float(np.sum(v)) / rest - 1
+    bal = model.balloons
+    if len(bal["rest_volume"]):
+        target = np.asarray(bal["pressure"]) * np.asarray(bal["rest_volume"])
+        err = _core.balloon_volumes(model, state) / target - 1
+        out["balloon_volume_error"] = float(err[np.argmax(np.abs(err))])
+    return out
+
+
+def metrics_row(m: dict[str, Any], step: int, volumes: dict[str, float] | None = None) -> dict[str, float]:
     p, L = m["linear_momentum"], m["angular_momentum"]
+    volumes = volumes or {"volume_error": 0.0, "balloon_volume_error": 0.0}
     return {
         "t": m["t"], "step": step,
         "kinetic_energy": m["kinetic_energy"], "gravitational_energy": m["gravitational_energy"],
@@ -145,6 +175,7 @@ def metrics_row(m: dict[str, Any], step: int) -> dict[str, float]:
         "attachment_max": m["attachment"]["max"],
         "momentum_x": p[0], "momentum_y": p[1], "momentum_z": p[2],
         "angular_momentum_x": L[0], "angular_momentum_y": L[1], "angular_momentum_z": L[2],
+        "volume_error": volumes["volume_error"], "balloon_volume_error": volumes["balloon_volume_error"],
     }
 
 

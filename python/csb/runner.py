@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 
-from .output import FrameWriter, metrics_row, plot_summary, write_csv
+from .output import FrameWriter, metrics_row, plot_summary, volume_errors, write_csv
 
 if TYPE_CHECKING:
     from .scene import Scene, Simulation
@@ -39,6 +39,9 @@ class RunResult:
             f"constraints, {self.wall_time:.3f} s wall ({self.steps / max(self.wall_time, 1e-12):.0f} steps/s); "
             f"t = {f['t']:.3f} s, kinetic + gravitational energy {f['mechanical_energy']:.6g} J, "
             f"max strain {100 * f['max_strain']:.3g} %"
+            + (f", volume error {100 * f['volume_error']:+.3g} %" if sim.model.volume["rest_volume"].size else "")
+            + (f", balloon volume error {100 * f['balloon_volume_error']:+.3g} %"
+               if sim.model.balloons["rest_volume"].size else "")
         )
 
 
@@ -54,7 +57,7 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
     result = RunResult(sim, steps, 0.0)
 
     def record() -> None:
-        result.rows.append(metrics_row(sim.measure(), sim.state.step))
+        result.rows.append(metrics_row(sim.measure(), sim.state.step, volume_errors(sim.model, sim.state)))
         if writer is not None:
             writer.write(sim.state)
 

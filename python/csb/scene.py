@@ -23,6 +23,7 @@ import numpy as np
 from . import _core
 from .mesh import Mesh, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
+from .tetmesh import load_tet_mesh
 
 if TYPE_CHECKING:
     from .runner import RunResult
@@ -256,8 +257,18 @@ class AttachSpec:
 
 
 @dataclass(frozen=True)
+class BalloonSpec:
+    """Müller 2007 §4.5 overpressure over the mesh's closed surface."""
+
+    pressure: float = 1.0       # k_pressure: the target volume is pressure x the rest volume
+    stiffness: float = 1.0      # PBD, in [0, 1]
+    compliance: float = 0.0     # m⁶/J
+
+
+@dataclass(frozen=True)
 class MeshSpec:
     name: str
+    kind: str = "surface"             # "surface" (Assimp, shapes) or "volume" (tetrahedra: meshio, tet_box)
     file: Path | None = None
     shape: str | None = None
     shape_args: dict[str, Any] = field(default_factory=dict)
@@ -273,6 +284,9 @@ class MeshSpec:
     stretch_compliance: float = 0.0   # m/N
     bending: float | None = None      # PBD stiffness of the bending pairs, None: no bending constraints
     bending_compliance: float = 0.0   # 1/(N m)
+    volume: float | None = None       # PBD stiffness of the tet volume constraints (volume meshes)
+    volume_compliance: float = 0.0    # m⁶/J
+    balloon: BalloonSpec | None = None
     pin: Selection | None = None
     attach: AttachSpec | None = None
 
@@ -304,7 +318,9 @@ class Simulation:
         return _core.measure(self.model, self.state, self.gravity)
 
 
-_SHAPES = ("cloth", "chain", "pendulum")
+_SHAPES = ("cloth", "chain", "pendulum", "sphere", "tet_box")
+# Files read as tetrahedral meshes (meshio) unless the mesh says kind = "surface".
+_VOLUME_SUFFIXES = (".msh", ".mesh", ".inp", ".vtu", ".vtk", ".xdmf", ".med")
 
 
 @dataclass(frozen=True)
@@ -336,12 +352,25 @@ class Scene:
             group_name = spec.group or spec.name
             if group_name not in groups:
                 groups[group_name] = builder.add_group(group_name)
-            inst = builder.add_mesh(
-                mesh, group=groups[group_name], stretch_stiffness=spec.stretch,
-                bending_stiffness=spec.bending, stretch_compliance=spec.stretch_compliance,
-                bending_compliance=spec.bending_compliance, **{spec.mass_kind: spec.mass_value},
-            )
+            if spec.kind == "volume":
+                inst = builder.add_tet_mesh(
+                    mesh, group=groups[group_name], stretch_stiffness=spec.stretch,
+                    stretch_compliance=spec.stretch_compliance, volume_stiffness=spec.volume,
+                    volume_compliance=spec.volume_compliance, **{spec.mass_kind: spec.mass_value},
+                )
+            else:
+                inst = builder.add_mesh(
+                    mesh, group=groups[group_name], stretch_stiffness=spec.stretch,
+                    bending_stiffness=spec.bending, stretch_compliance=spec.stretch_compliance,
+                    bending_compliance=spec.bending_compliance, **{spec.mass_kind: spec.mass_value},
+                )
             instances[spec.name] = inst
+            if spec.balloon is not None:
+                try:
+                    builder.add_balloon(inst, pressure=spec.balloon.pressure, stiffness=spec.balloon.stiffness,
+                                        compliance=spec.balloon.compliance)
+                except _core.ParameterError as e:
+                    raise SceneError(f"{self.path}: mesh '{spec.name}' balloon: {e}") from None
             if spec.pin is not None:
                 for i in _select(self, spec, spec.pin, inst, "pin"):
                     builder.pin(i)
@@ -365,12 +394,21 @@ class Scene:
         return run_scene(self, out_dir, progress=progress)
 
 
-def _make_mesh(spec: MeshSpec) -> Mesh:
+def _make_mesh(spec: MeshSpec) -> Mesh | _core.TetMesh:
     if spec.file is not None:
-        mesh = load_mesh(spec.file, weld=spec.weld, weld_tolerance=spec.weld_tolerance)
+        if spec.kind == "volume":
+            mesh = load_tet_mesh(spec.file)
+        else:
+            mesh = load_mesh(spec.file, weld=spec.weld, weld_tolerance=spec.weld_tolerance)
     else:
         a = spec.shape_args
-        if spec.shape == "cloth":
+        if spec.shape == "tet_box":
+            mesh = _core.tet_box(a["size"], a["divisions"])
+        elif spec.shape == "sphere":
+            from .soft_bodies import icosphere
+
+            mesh = icosphere(a["radius"], a["subdivisions"])
+        elif spec.shape == "cloth":
             mesh = _core.cloth_grid(a["size"][0], a["size"][1], a["resolution"][0], a["resolution"][1],
                                     plane=a["plane"])
         elif spec.shape == "chain":
@@ -428,7 +466,12 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
     file = t.string("file", None)
     shape = t.string("shape", None, choices=_SHAPES)
     if (file is None) == (shape is None):
-        raise t.error(None, "give exactly one of 'file' (a mesh file) or 'shape' (cloth, chain, pendulum)")
+        raise t.error(None, "give exactly one of 'file' (a mesh file) or 'shape' (" + ", ".join(_SHAPES) + ")")
+    guessed = "volume" if shape == "tet_box" or (file is not None and Path(file).suffix.lower() in _VOLUME_SUFFIXES) \
+        else "surface"
+    kind = t.string("kind", guessed, choices=("surface", "volume"))
+    if shape is not None and kind != guessed:
+        raise t.error("kind", f"shape '{shape}' is a {guessed} mesh")
     shape_args: dict[str, Any] = {}
     path: Path | None = None
     if file is not None:
@@ -446,6 +489,17 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         shape_args["links"] = t.integer("links", minimum=1)
         shape_args["link_length"] = t.number("link_length", check=lambda x: x > 0, expect="a length > 0 m")
         shape_args["direction"] = t.vector("direction", (1.0, 0.0, 0.0))
+    elif shape == "tet_box":
+        shape_args["size"] = t.vector("size")
+        if min(shape_args["size"]) <= 0:
+            raise t.error("size", f"must be three lengths > 0 m, got {list(shape_args['size'])}")
+        div = t.integers("divisions")
+        if len(div) != 3 or min(div) < 1:
+            raise t.error("divisions", f"must be [nx, ny, nz] cells, at least 1 each, got {list(div)}")
+        shape_args["divisions"] = div
+    elif shape == "sphere":
+        shape_args["radius"] = t.number("radius", check=lambda x: x > 0, expect="a radius > 0 m")
+        shape_args["subdivisions"] = t.integer("subdivisions", 2, minimum=0)
     else:
         shape_args["length"] = t.number("length", check=lambda x: x > 0, expect="a length > 0 m")
         shape_args["angle"] = t.number("angle", 0.0, expect="an angle in rad")
@@ -455,7 +509,7 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         raise t.error(None, "give exactly one of 'mass' (kg), 'density' (kg/m²) or 'particle_mass' (kg)")
     mass_kind = masses[0]
     mass_value = t.number(mass_kind, check=lambda x: x > 0, expect="> 0 (" + {
-        "mass": "kg", "density": "kg/m²", "particle_mass": "kg"}[mass_kind] + ")")
+        "mass": "kg", "density": "kg/m³" if kind == "volume" else "kg/m²", "particle_mass": "kg"}[mass_kind] + ")")
 
     scale_raw = t.raw("scale", 1.0)
     if isinstance(scale_raw, list):
@@ -490,14 +544,34 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         attach = AttachSpec(sel, targets, stiffness, compliance)
 
     stretch, stretch_compliance = material("stretch", "m/N")
-    bending, bending_compliance = material("bending", "1/(N m)")
+    bending, bending_compliance = (None, 0.0)
+    volume, volume_compliance = (None, 0.0)
+    if kind == "volume":
+        volume, volume_compliance = material("volume", "m⁶/J")
+        if t.has("bending"):
+            raise t.error("bending", "a volume mesh has no dihedral bending; its tets hold its shape (use 'volume')")
+    else:
+        bending, bending_compliance = material("bending", "1/(N m)")
+        if t.has("volume"):
+            raise t.error("volume", "tet volume constraints need a volume mesh (a tet file or shape = 'tet_box'); "
+                                    "a closed surface can be a 'balloon'")
+    balloon = None
+    bal_t = t.table("balloon")
+    if bal_t is not None:
+        balloon = BalloonSpec(
+            pressure=bal_t.number("pressure", 1.0, check=lambda x: x >= 0, expect="a pressure factor >= 0"),
+            stiffness=bal_t.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]"),
+            compliance=bal_t.number("compliance", 0.0, check=lambda x: x >= 0, expect="a compliance >= 0 (m⁶/J)"),
+        )
+        bal_t.finish()
     spec = MeshSpec(
-        name=name, file=path, shape=shape, shape_args=shape_args, group=t.string("group", None),
+        name=name, kind=kind, file=path, shape=shape, shape_args=shape_args, group=t.string("group", None),
         mass_kind=mass_kind, mass_value=mass_value, weld=t.boolean("weld", True),
         weld_tolerance=t.number("weld_tolerance", 1e-6, check=lambda x: x >= 0, expect="a relative tolerance >= 0"),
         scale=scale, rotate=t.vector("rotate", (0.0, 0.0, 0.0)), translate=t.vector("translate", (0.0, 0.0, 0.0)),
         stretch=stretch, stretch_compliance=stretch_compliance, bending=bending,
-        bending_compliance=bending_compliance, pin=pin, attach=attach,
+        bending_compliance=bending_compliance, volume=volume, volume_compliance=volume_compliance, balloon=balloon,
+        pin=pin, attach=attach,
     )
     t.finish()
     return spec
