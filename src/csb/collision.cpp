@@ -321,7 +321,8 @@ bool generate_contact(const Collider& c, Index collider_index, Index i, const Ve
   k.collider = collider_index;
   k.thickness = r;
   if (c.kind == ColliderKind::Mesh) {
-    if (!mesh_contact(*c.mesh, x, p, r, stamps, stamp, k.point, k.normal)) return false;
+    k.thickness = std::max(r, c.mesh->skin);
+    if (!mesh_contact(*c.mesh, x, p, k.thickness, stamps, stamp, k.point, k.normal)) return false;
   } else {
     const Real d0 = signed_distance(c, x);
     // The segment cannot come within r of the surface: f is 1-Lipschitz in the point.

@@ -53,6 +53,10 @@ struct ColliderMesh {
   Positions vertices;               // m, 3 x V
   std::vector<Triangle> triangles;
   std::vector<Vec3> normals;        // unit face normals, from the winding
+  // m: the least clearance a contact keeps from the sheet, 1e-9 of the mesh's size (at least
+  // 1 nm). A particle left exactly on a two-sided sheet would have no side; round-off (1e-16
+  // of the size) cannot cross this.
+  Real skin = 1e-9;
   TriangleGrid grid;
 };
 

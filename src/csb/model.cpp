@@ -312,6 +312,7 @@ Index ModelBuilder::add_collider_mesh(const Mesh& input, const ContactMaterial& 
     m->normals.push_back((b - a).cross(c - a).normalized());
   }
   m->grid = build_triangle_grid(m->vertices, m->triangles);
+  m->skin = 1e-9 * std::max(Real(1), bounding_box_diagonal(m->vertices));
   Collider c;
   c.kind = ColliderKind::Mesh;
   c.name = label;
