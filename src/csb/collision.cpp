@@ -248,10 +248,10 @@ bool segment_triangle(const Vec3& x, const Vec3& d, const Vec3& a, const Vec3& b
   return t >= -tol && t <= 1 + tol;
 }
 
-bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, std::vector<std::uint32_t>& stamps,
-                  std::uint32_t& stamp, Vec3& q, Vec3& n) {
+bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, Real reach,
+                  std::vector<std::uint32_t>& stamps, std::uint32_t& stamp, Vec3& q, Vec3& n) {
   const TriangleGrid& g = m.grid;
-  const Vec3 lo = x.cwiseMin(p).array() - r, hi = x.cwiseMax(p).array() + r;
+  const Vec3 lo = x.cwiseMin(p).array() - reach, hi = x.cwiseMax(p).array() + reach;
   std::array<Index, 3> c0, c1;
   for (int k = 0; k < 3; ++k) {
     const Real a = std::floor((lo[k] - g.origin[k]) / g.cell), b = std::floor((hi[k] - g.origin[k]) / g.cell);
@@ -298,7 +298,7 @@ bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, s
     n = side > 0 ? nf : side < 0 ? Vec3(-nf) : (d.dot(nf) > 0 ? Vec3(-nf) : nf);
     return true;
   }
-  if (near >= 0 && best_dist < r) {
+  if (near >= 0 && best_dist < reach) {
     q = near_point;
     const Vec3& nf = m.normals[near];
     if (best_dist > 1e-12 * g.cell) {
@@ -314,20 +314,22 @@ bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, s
 
 }  // namespace
 
-bool generate_contact(const Collider& c, Index collider_index, Index i, const Vec3& x, const Vec3& p, Real r, Real h,
-                      std::vector<Contact>& out, std::vector<std::uint32_t>& stamps, std::uint32_t& stamp) {
+bool generate_contact(const Collider& c, Index collider_index, Index i, const Vec3& x, const Vec3& p, Real r,
+                      Real margin, Real h, std::vector<Contact>& out, std::vector<std::uint32_t>& stamps,
+                      std::uint32_t& stamp) {
   Contact k;
   k.particle = i;
   k.collider = collider_index;
   k.thickness = r;
   if (c.kind == ColliderKind::Mesh) {
     k.thickness = std::max(r, c.mesh->skin);
-    if (!mesh_contact(*c.mesh, x, p, k.thickness, stamps, stamp, k.point, k.normal)) return false;
+    if (!mesh_contact(*c.mesh, x, p, k.thickness, k.thickness + margin, stamps, stamp, k.point, k.normal))
+      return false;
   } else {
     const Real d0 = signed_distance(c, x);
-    // The segment cannot come within r of the surface: f is 1-Lipschitz in the point.
+    // The segment cannot come within r + margin of the surface: f is 1-Lipschitz in the point.
     const Real travel = (p - x).norm();
-    if (d0 - travel >= r) return false;
+    if (d0 - travel >= r + margin) return false;
     const Real d1 = signed_distance(c, p);
     bool entered = false;
     if (d0 >= 0) {
@@ -344,8 +346,9 @@ bool generate_contact(const Collider& c, Index collider_index, Index i, const Ve
       }
     }
     if (!entered) {
-      // x inside (the static fallback), or p within the thickness: the surface point nearest p.
-      if (!(d1 < r)) return false;
+      // x inside (the static fallback), or p within the thickness and margin: the surface point
+      // nearest p.
+      if (!(d1 < r + margin)) return false;
       const SurfacePoint s = closest_surface_point(c, p);
       k.point = s.point;
       k.normal = s.normal;

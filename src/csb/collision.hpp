@@ -9,7 +9,11 @@
 //     ("continuous collision handling", §4.3);
 //   - x is already inside (continuous handling failed at some earlier point, or the user put the
 //     particle there): the surface point q closest to p and its normal ("static" fallback, §4.3);
-//   - neither, but p ends closer than the particle's thickness r to the surface: q closest to p.
+//   - neither, but p ends closer than r + margin to the surface, r the particle's thickness:
+//     q closest to p. The margin (the largest distance a particle of the group moves in the
+//     prediction) makes the contact speculative: it does nothing while satisfied, but catches a
+//     particle whose prediction was outside and whom its neighbours' constraints drag inside
+//     during the iterations (a cloth draped on a sphere, the rim of the contact patch).
 //
 // Each contact is the inequality constraint, with stiffness 1 (§4.3),
 //
@@ -108,11 +112,11 @@ struct Contact {
   Real normal_correction = 0;       // m, what the contact pushed the particle along n this sub-step
 };
 
-// Appends the contact of particle i (at x, predicted at p, thickness r) with collider c if there
-// is one; `scratch` holds candidate triangle marks for mesh colliders (sized by the caller).
-// `h` (s) only serves approach_speed. Returns whether a contact was added.
+// Appends the contact of particle i (at x, predicted at p, thickness r, speculative margin in m)
+// with collider c if there is one; `stamps` holds candidate triangle marks for mesh colliders
+// (sized by the caller). `h` (s) only serves approach_speed. Returns whether a contact was added.
 bool generate_contact(const Collider& c, Index collider_index, Index i, const Vec3& x, const Vec3& p, Real r,
-                      Real h, std::vector<Contact>& out, std::vector<std::uint32_t>& stamps,
+                      Real margin, Real h, std::vector<Contact>& out, std::vector<std::uint32_t>& stamps,
                       std::uint32_t& stamp);
 
 // Builds the grid of a mesh collider: cell edge about the mean triangle bounding-box size, at

@@ -366,11 +366,17 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
   contact_summary_ = {};
   const Real* w = model.inv_mass.data();
   if (!model.colliders.empty()) {
+    // Speculative margin per group: the farthest any of its particles moves in the prediction,
+    // about as far as the group's constraints can drag a neighbour during the iterations.
+    margin_.assign(model.num_groups(), 0);
+    for (Index i = 0; i < model.num_particles(); ++i)
+      if (w[i] > 0) margin_[model.group[i]] = std::max(margin_[model.group[i]], (p_.col(i) - x.col(i)).norm());
     for (Index i = 0; i < model.num_particles(); ++i) {
       if (w[i] <= 0) continue;
       const Vec3 xi = x.col(i), pi = p_.col(i);
       for (Index c = 0; c < static_cast<Index>(model.colliders.size()); ++c)
-        generate_contact(model.colliders[c], c, i, xi, pi, model.thickness[i], h, contacts_, stamps_, stamp_);
+        generate_contact(model.colliders[c], c, i, xi, pi, model.thickness[i], margin_[model.group[i]], h, contacts_,
+                         stamps_, stamp_);
     }
   }
   for (const Contact& k : contacts_)
@@ -552,8 +558,11 @@ void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
   }
   // What is left of the contacts at the end of the sub-step.
   Real worst = 0;
-  for (const Contact& k : contacts_)
+  contact_summary_.active = 0;
+  for (const Contact& k : contacts_) {
     worst = std::max(worst, k.thickness - (state.x.col(k.particle) - k.point).dot(k.normal));
+    contact_summary_.active += k.normal_correction > 0;
+  }
   for (const SelfContact& k : self_contacts_) {
     const auto& t = k.triangle;
     const Vec3 a = state.x.col(t[0]);

@@ -81,7 +81,8 @@ struct SelfContact {
 
 // What the collision detection of the last sub-step found.
 struct ContactSummary {
-  Index count = 0;            // particle-collider contacts
+  Index count = 0;            // particle-collider contacts, speculative ones included
+  Index active = 0;           // those that pushed their particle this sub-step
   Index self_count = 0;       // point-triangle self-contacts
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
@@ -145,6 +146,7 @@ class PbdStepper {
   ContactSummary contact_summary_;
   SpatialHash hash_;
   std::vector<Vec3> box_lo_, box_hi_;
+  std::vector<Real> margin_;  // m, per group
   std::vector<std::uint32_t> stamps_;
   std::uint32_t stamp_ = 0;
 };

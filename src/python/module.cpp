@@ -653,6 +653,7 @@ PYBIND11_MODULE(_core, m) {
         }
         py::dict d;
         d["count"] = sum.count;
+        d["active"] = sum.active;
         d["self_count"] = sum.self_count;
         d["max_depth"] = sum.max_depth;
         d["max_penetration"] = sum.max_penetration;
@@ -663,7 +664,8 @@ PYBIND11_MODULE(_core, m) {
         d["normal_correction"] = correction;
         d["lambda"] = lambda;
         return d;
-      }, "The contacts of the last sub-step: count (particle-collider), self_count (point-triangle), max_depth "
+      }, "The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those "
+         "that pushed their particle), self_count (point-triangle), max_depth "
          "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
          "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).");
