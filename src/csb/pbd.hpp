@@ -12,7 +12,8 @@
 //          constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
 //          the positions at the start of the sweep, corrections averaged or summed)
 //   (12-15) v <- (p - x)/h, x <- p      (Verlet: x* <- x, x <- p)
-//   (16) velocityUpdate: friction and restitution of the particles in contact (respond_to_contacts)
+//   (16) velocityUpdate: friction (apply_friction, on p before (12)) and restitution
+//        (apply_restitution) of the particles in contact
 //
 // The projection is the method's: PBD scales each correction by the stiffness k ∈ [0, 1] (with
 // Müller's iteration correction if asked); XPBD solves for a multiplier per constraint with the
