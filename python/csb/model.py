@@ -65,6 +65,7 @@ class ModelBuilder(_core.ModelBuilder):
         bending_stiffness: float | None = None,
         stretch_compliance: float = 0.0,
         bending_compliance: float = 0.0,
+        thickness: float = 0.0,
     ) -> MeshInstance:
         """Add every vertex of ``mesh`` as a particle (numbering kept) with its constraints.
 
@@ -75,7 +76,8 @@ class ModelBuilder(_core.ModelBuilder):
         (None: none). Stiffness is what PBD projects with; ``stretch_compliance`` (m/N) and
         ``bending_compliance`` (1/(N m)) are the material's inverse stiffness, which the reference
         integrator (and XPBD) use; 0 is hard. ``group`` is an existing group or -1 for a new one
-        named after the mesh.
+        named after the mesh. ``thickness`` (m, >= 0) is the particles' collision radius against
+        the colliders.
         Degenerate triangles are dropped with a :class:`csb.MeshWarning`.
         """
         d = self._add_mesh(
@@ -88,6 +90,7 @@ class ModelBuilder(_core.ModelBuilder):
             bending_stiffness=bending_stiffness,
             stretch_compliance=stretch_compliance,
             bending_compliance=bending_compliance,
+            thickness=thickness,
         )
         report = MeshReport._from_core(d.pop("report"))
         report._emit()

@@ -48,6 +48,7 @@ void ModelBuilder::require_compliance(Real alpha, const std::string& what) const
 
 Index ModelBuilder::add_group(const std::string& name) {
   group_names_.push_back(name);
+  self_collision_.push_back(0);
   return static_cast<Index>(group_names_.size() - 1);
 }
 
@@ -61,6 +62,7 @@ Index ModelBuilder::add_particle(const Vec3& x, Real mass, Index group) {
   mass_.push_back(mass);
   pinned_.push_back(0);
   group_.push_back(group);
+  thickness_.push_back(0);
   return num_particles() - 1;
 }
 
@@ -70,6 +72,8 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   if (options.bending_stiffness) require_stiffness(*options.bending_stiffness, name + " bending");
   require_compliance(options.stretch_compliance, name + " stretch");
   require_compliance(options.bending_compliance, name + " bending");
+  if (!(options.thickness >= 0) || !std::isfinite(options.thickness))
+    throw InvalidArgument(name + ": thickness must be a finite collision radius >= 0 m, got " + str(options.thickness));
   if (!(options.mass.value > 0) || !std::isfinite(options.mass.value))
     throw InvalidArgument(name + ": " +
                           (options.mass.kind == MassSpec::Kind::Total     ? "mass must be > 0 kg"
@@ -105,6 +109,7 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   inst.first_particle = num_particles();
   inst.num_particles = n;
   for (Index i = 0; i < n; ++i) add_particle(mesh.vertices.col(i), mass[i], inst.group);
+  std::fill(thickness_.begin() + inst.first_particle, thickness_.end(), options.thickness);
 
   const Index f = inst.first_particle;
   for (const auto& t : mesh.triangles) triangles_.push_back({f + t[0], f + t[1], f + t[2]});
@@ -380,8 +385,176 @@ Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness, Real com
   return static_cast<Index>(attached_.size() - 1);
 }
 
+// ------------------------------------------------------------------------------------ collisions
+
+std::string ModelBuilder::collider_what(ColliderKind kind, const std::string& name) const {
+  return "collider " + std::to_string(colliders_.size()) + " (" + kind_name(kind) + (name.empty() ? "" : " '" + name + "'") +
+         ")";
+}
+
+Index ModelBuilder::push_collider(Collider c, const std::string& what) {
+  const ContactMaterial& m = c.material;
+  for (const auto& [value, label] : {std::pair{m.friction_static, "friction_static"},
+                                     std::pair{m.friction_kinetic, "friction_kinetic"},
+                                     std::pair{m.restitution, "restitution"}})
+    if (!std::isfinite(value)) throw InvalidArgument(what + ": " + label + " must be finite, got " + str(value));
+  if (!(m.friction_kinetic >= 0))
+    throw InvalidArgument(what + ": friction_kinetic must be >= 0, got " + str(m.friction_kinetic));
+  if (!(m.friction_static >= m.friction_kinetic))
+    throw InvalidArgument(what + ": friction_static (" + str(m.friction_static) +
+                          ") must be >= friction_kinetic (" + str(m.friction_kinetic) + ")");
+  if (!(m.restitution >= 0 && m.restitution <= 1))
+    throw InvalidArgument(what + ": restitution must be in [0, 1], got " + str(m.restitution));
+  if (c.name.empty()) c.name = std::string(kind_name(c.kind)) + " " + std::to_string(colliders_.size());
+  colliders_.push_back(std::move(c));
+  return static_cast<Index>(colliders_.size() - 1);
+}
+
+namespace {
+
+void require_point(const Vec3& x, const std::string& what, const char* label) {
+  if (!x.allFinite()) throw InvalidArgument(what + ": " + label + " must be finite (m), got " + str(x));
+}
+
+void require_size(Real r, const std::string& what, const char* label) {
+  if (!(r > 0) || !std::isfinite(r)) throw InvalidArgument(what + ": " + label + " must be a finite length > 0 m, got " + str(r));
+}
+
+}  // namespace
+
+Index ModelBuilder::add_plane(const Vec3& point, const Vec3& normal, const ContactMaterial& material,
+                              const std::string& name) {
+  const std::string what = collider_what(ColliderKind::Plane, name);
+  require_point(point, what, "point");
+  if (!normal.allFinite()) throw InvalidArgument(what + ": normal must be finite, got " + str(normal));
+  if (!(normal.norm() > 0)) throw InvalidArgument(what + ": normal must be a non-zero vector, got " + str(normal));
+  Collider c;
+  c.kind = ColliderKind::Plane;
+  c.name = name;
+  c.material = material;
+  c.point = point;
+  c.normal = normal.normalized();
+  return push_collider(std::move(c), what);
+}
+
+Index ModelBuilder::add_sphere(const Vec3& center, Real radius, const ContactMaterial& material,
+                               const std::string& name) {
+  const std::string what = collider_what(ColliderKind::Sphere, name);
+  require_point(center, what, "center");
+  require_size(radius, what, "radius");
+  Collider c;
+  c.kind = ColliderKind::Sphere;
+  c.name = name;
+  c.material = material;
+  c.center = center;
+  c.radius = radius;
+  return push_collider(std::move(c), what);
+}
+
+Index ModelBuilder::add_capsule(const Vec3& a, const Vec3& b, Real radius, const ContactMaterial& material,
+                                const std::string& name) {
+  const std::string what = collider_what(ColliderKind::Capsule, name);
+  require_point(a, what, "a");
+  require_point(b, what, "b");
+  require_size(radius, what, "radius");
+  if (!((b - a).norm() > 0))
+    throw InvalidArgument(what + ": the ends a and b coincide (axis length 0 m); use add_sphere for a ball");
+  Collider c;
+  c.kind = ColliderKind::Capsule;
+  c.name = name;
+  c.material = material;
+  c.a = a;
+  c.b = b;
+  c.radius = radius;
+  return push_collider(std::move(c), what);
+}
+
+Index ModelBuilder::add_box(const Vec3& center, const Vec3& half_extents, const Mat3& rotation,
+                            const ContactMaterial& material, const std::string& name) {
+  const std::string what = collider_what(ColliderKind::Box, name);
+  require_point(center, what, "center");
+  static const char* axes[3] = {"half_extents[0]", "half_extents[1]", "half_extents[2]"};
+  for (int k = 0; k < 3; ++k) require_size(half_extents[k], what, axes[k]);
+  if (!rotation.allFinite()) throw InvalidArgument(what + ": rotation must be finite");
+  // A rotation up to round-off: orthonormal columns and no reflection.
+  if ((rotation.transpose() * rotation - Mat3::Identity()).cwiseAbs().maxCoeff() > 1e-9 || !(rotation.determinant() > 0))
+    throw InvalidArgument(what + ": rotation must be a rotation matrix (orthonormal columns, determinant +1)");
+  Collider c;
+  c.kind = ColliderKind::Box;
+  c.name = name;
+  c.material = material;
+  c.center = center;
+  c.half_extents = half_extents;
+  c.rotation = rotation;
+  return push_collider(std::move(c), what);
+}
+
+Index ModelBuilder::add_collider_mesh(const Mesh& input, const ContactMaterial& material, const std::string& name) {
+  const std::string label = name.empty() ? input.name : name;
+  const std::string what = collider_what(ColliderKind::Mesh, label);
+  Mesh mesh;
+  try {
+    mesh = clean(input, CleanOptions{});
+  } catch (const MeshError& e) {
+    throw InvalidArgument(what + ": " + e.what());
+  }
+  if (mesh.triangles.empty())
+    throw InvalidArgument(what + ": the mesh has no (non-degenerate) triangles to collide with");
+  auto m = std::make_shared<ColliderMesh>();
+  m->vertices = mesh.vertices;
+  m->triangles = mesh.triangles;
+  for (const auto& t : m->triangles) {
+    const Vec3 a = m->vertices.col(t[0]), b = m->vertices.col(t[1]), c = m->vertices.col(t[2]);
+    m->normals.push_back((b - a).cross(c - a).normalized());
+  }
+  m->grid = build_triangle_grid(m->vertices, m->triangles);
+  m->skin = 1e-9 * std::max(Real(1), bounding_box_diagonal(m->vertices));
+  Collider c;
+  c.kind = ColliderKind::Mesh;
+  c.name = label;
+  c.material = material;
+  c.mesh = std::move(m);
+  return push_collider(std::move(c), what);
+}
+
+void ModelBuilder::set_thickness(Index group, Real thickness) {
+  if (group < 0 || group >= static_cast<Index>(group_names_.size()))
+    throw InvalidArgument("set_thickness: group " + std::to_string(group) + " does not exist");
+  if (!(thickness >= 0) || !std::isfinite(thickness))
+    throw InvalidArgument("set_thickness: group " + std::to_string(group) + " ('" + group_names_[group] +
+                          "'): thickness must be a finite collision radius >= 0 m, got " + str(thickness));
+  for (Index i = 0; i < num_particles(); ++i)
+    if (group_[i] == group) thickness_[i] = thickness;
+}
+
+void ModelBuilder::enable_self_collision(Index group, Real thickness) {
+  if (group < 0 || group >= static_cast<Index>(group_names_.size()))
+    throw InvalidArgument("enable_self_collision: group " + std::to_string(group) + " does not exist");
+  const std::string what = "enable_self_collision: group " + std::to_string(group) + " ('" + group_names_[group] + "')";
+  if (!(thickness > 0) || !std::isfinite(thickness))
+    throw InvalidArgument(what + ": thickness must be a finite distance > 0 m, got " + str(thickness));
+  bool any = false;
+  for (const auto& t : triangles_) any = any || group_[t[0]] == group;
+  if (!any) throw InvalidArgument(what + ": the group has no triangles (add its mesh first)");
+  self_collision_[group] = thickness;
+}
+
 std::shared_ptr<const Model> ModelBuilder::build() const {
   if (num_particles() == 0) throw InvalidArgument("the model has no particles");
+  // A particle that can move may not start inside a solid collider: the first step would have
+  // to throw it out (a mesh sheet has no inside; starting closer than the thickness is allowed
+  // and corrected by the first step's contacts).
+  for (std::size_t c = 0; c < colliders_.size(); ++c) {
+    if (colliders_[c].kind == ColliderKind::Mesh) continue;
+    for (Index i = 0; i < num_particles(); ++i) {
+      if (pinned_[i]) continue;
+      const Real d = signed_distance(colliders_[c], points_[i]);
+      if (d < 0)
+        throw InvalidArgument("particle " + std::to_string(i) + " starts inside collider " + std::to_string(c) + " (" +
+                              kind_name(colliders_[c].kind) + " '" + colliders_[c].name + "'), " + str(-d) +
+                              " m below its surface; move it out or pin it");
+    }
+  }
   auto model = std::make_shared<Model>();
   const Index n = num_particles();
   model->id = next_model_id();
@@ -405,6 +578,9 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
   model->bending = bending_;
   model->volume = volume_;
   model->balloons = balloons_;
+  model->colliders = colliders_;
+  model->thickness = thickness_;
+  model->self_collision_thickness = self_collision_;
   model->attachments.particle = attached_;
   model->attachments.stiffness = attachment_stiffness_;
   model->attachments.compliance = attachment_compliance_;

@@ -5,6 +5,7 @@
 // except its group index, so that groups can differ in mass and be damped separately.
 #pragma once
 
+#include "csb/collision.hpp"
 #include "csb/mesh.hpp"
 #include "csb/tetmesh.hpp"
 #include "csb/types.hpp"
@@ -112,6 +113,11 @@ class Model {
   VolumeBatch volume;
   BalloonBatch balloons;
   AttachmentBatch attachments;
+  // Collisions (collision.hpp): static colliders, each particle's collision radius, and per group
+  // the self-collision thickness h of its cloth (0: the group does not collide with itself).
+  std::vector<Collider> colliders;
+  std::vector<Real> thickness;                 // m, >= 0, per particle
+  std::vector<Real> self_collision_thickness;  // m, per group
 };
 
 // How a mesh's particles get their mass.
@@ -133,6 +139,8 @@ struct MeshOptions {
   // Stiffness in [0, 1] of the bending constraint on every interior edge; none: no bending.
   std::optional<Real> bending_stiffness;
   Real bending_compliance = 0;   // 1/(N m)
+  // Collision radius of the mesh's particles against colliders, m (>= 0).
+  Real thickness = 0;
 };
 
 // How add_tet_mesh turns a tet mesh into particles and constraints.
@@ -203,6 +211,31 @@ class ModelBuilder {
   // Holds particle i at a world point (m) with stiffness in [0, 1] and compliance in m/N.
   Index attach(Index i, const Vec3& target, Real stiffness = 1, Real compliance = 0);
 
+  // Static colliders (collision.hpp), each with its ContactMaterial (μs >= μk >= 0, e in [0, 1]);
+  // `name` labels it in messages (default: its kind and index). Each returns the collider's
+  // index. Throws InvalidArgument naming the collider and the parameter on bad input.
+  // The half-space (point - x)·normal <= 0 is solid; point in m, normal any non-zero vector
+  // (normalised), pointing to the free side.
+  Index add_plane(const Vec3& point, const Vec3& normal, const ContactMaterial& material = {},
+                  const std::string& name = "");
+  // center in m, radius > 0 m.
+  Index add_sphere(const Vec3& center, Real radius, const ContactMaterial& material = {}, const std::string& name = "");
+  // The points within radius (> 0 m) of the segment a-b (m, a != b).
+  Index add_capsule(const Vec3& a, const Vec3& b, Real radius, const ContactMaterial& material = {},
+                    const std::string& name = "");
+  // center in m, half_extents > 0 m along the box's axes, which are the columns of the rotation
+  // (orthonormal, determinant +1).
+  Index add_box(const Vec3& center, const Vec3& half_extents, const Mat3& rotation = Mat3::Identity(),
+                const ContactMaterial& material = {}, const std::string& name = "");
+  // A static triangle mesh (any file load_mesh reads), treated as a two-sided sheet: a particle
+  // keeps the side it is on. Degenerate triangles are dropped; none left is an error.
+  Index add_collider_mesh(const Mesh& mesh, const ContactMaterial& material = {}, const std::string& name = "");
+  // Collision radius (m, >= 0) of every particle of a group against the colliders.
+  void set_thickness(Index group, Real thickness);
+  // Point-triangle self-collision of a group's cloth with thickness h > 0 m (Müller 2007 §4.4).
+  void enable_self_collision(Index group, Real thickness);
+  Index num_colliders() const { return static_cast<Index>(colliders_.size()); }
+
   Index num_particles() const { return static_cast<Index>(mass_.size()); }
   const Vec3& position(Index i) const { return points_.at(i); }
 
@@ -228,6 +261,12 @@ class ModelBuilder {
   std::vector<Vec3> attachment_targets_;
   std::vector<Real> attachment_stiffness_;
   std::vector<Real> attachment_compliance_;
+  // collisions
+  std::string collider_what(ColliderKind kind, const std::string& name) const;
+  Index push_collider(Collider c, const std::string& what);
+  std::vector<Collider> colliders_;
+  std::vector<Real> thickness_;
+  std::vector<Real> self_collision_;
 };
 
 }  // namespace csb

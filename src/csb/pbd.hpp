@@ -6,10 +6,14 @@
 //   (6)  dampVelocities(v)           §3.5, per group, leaves rigid motion untouched
 //   (7)  p <- x + h v                explicit Euler prediction
 //        or p <- x + (1 - d)(x - x*) + h² g                                    [Verlet front end]
+//   (8)  generate collision constraints: contacts with the colliders along x -> p (§4.3) and,
+//        per self-colliding group, point-triangle contacts of its cloth (§4.4); see below
 //   (9-11) `iterations` sweeps of projectConstraints over every distance, bending, volume, balloon
 //          and attachment constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
 //          the positions at the start of the sweep, corrections averaged or summed)
 //   (12-15) v <- (p - x)/h, x <- p      (Verlet: x* <- x, x <- p)
+//   (16) velocityUpdate: friction (apply_friction, on p before (12)) and restitution
+//        (apply_restitution) of the particles in contact
 //
 // The projection is the method's: PBD scales each correction by the stiffness k ∈ [0, 1] (with
 // Müller's iteration correction if asked); XPBD solves for a multiplier per constraint with the
@@ -19,6 +23,7 @@
 #pragma once
 
 #include "csb/model.hpp"
+#include "csb/spatial_hash.hpp"
 
 #include <cstdint>
 
@@ -85,6 +90,26 @@ struct Grab {
   bool pinned = false;         // the model pins the particle: released, it stops where it is
 };
 
+// A point-triangle self-contact of a cloth (Müller 2007 §4.4): particle q against triangle
+// (p1, p2, p3) of its own group, kept on the side `side` (±1 along the triangle's normal) it was on
+// at the start of the sub-step, at least `thickness` away: C = side (q - p1)·n - h >= 0.
+struct SelfContact {
+  Index particle = 0;
+  Triangle triangle{};
+  Vec3 barycentric = Vec3::Zero();  // of q's nearest point on the triangle at generation
+  Real side = 1;
+  Real thickness = 0;               // h, m
+};
+
+// What the collision detection of the last sub-step found.
+struct ContactSummary {
+  Index count = 0;            // particle-collider contacts, speculative ones included
+  Index active = 0;           // those that pushed their particle this sub-step
+  Index self_count = 0;       // point-triangle self-contacts
+  Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
+  Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
+};
+
 class PbdStepper {
  public:
   explicit PbdStepper(const PbdSettings& settings);
@@ -112,12 +137,22 @@ class PbdStepper {
   // Lets go; unknown handles are an error.
   void release(int handle);
   const std::vector<Grab>& grabs() const { return grabs_; }
+  // The contacts of the last sub-step (with their XPBD multipliers, normal corrections) and
+  // a summary of them.
+  const std::vector<Contact>& contacts() const { return contacts_; }
+  const std::vector<SelfContact>& self_contacts() const { return self_contacts_; }
+  const ContactSummary& contact_summary() const { return contact_summary_; }
 
  private:
   void prepare(const Model& model);
   void predict(const Model& model, State& state, Real h);
   void project(const Model& model, const Positions& x_start);
   void damp_velocities(const Model& model, State& state) const;
+  void generate_contacts(const Model& model, const Positions& x, Real h);
+  void generate_self_contacts(const Model& model, const Positions& x);
+  void project_contacts(const Model& model, bool jacobi);
+  void apply_friction(const Model& model, const Positions& x);
+  void apply_restitution(const Model& model, State& state, Real h);
 
   PbdSettings settings_;
   // Per-model workspace, rebuilt when the model changes.
@@ -143,6 +178,22 @@ class PbdStepper {
   void apply_grab_targets(Real fraction);
   void project_grabs(const Positions& x_start);
   Grab& find_grab(int handle);
+  // Collisions: per-sub-step contacts, and per self-colliding group its triangles and hash cell.
+  struct SelfGroup {
+    Index group = 0;
+    Real thickness = 0;                  // h, m
+    Real cell = 1;                       // m, hash cell edge
+    std::vector<Index> triangles;        // into model.triangles
+  };
+  std::vector<SelfGroup> self_groups_;
+  std::vector<Contact> contacts_;
+  std::vector<SelfContact> self_contacts_;
+  ContactSummary contact_summary_;
+  SpatialHash hash_;
+  std::vector<Vec3> box_lo_, box_hi_;
+  std::vector<Real> margin_;  // m, per group
+  std::vector<std::uint32_t> stamps_;
+  std::uint32_t stamp_ = 0;
 };
 
 // The stiffness used in each of n iterations so that n of them act like one of stiffness k:

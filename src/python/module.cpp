@@ -120,6 +120,27 @@ Vec3 to_vec3(const py::handle& obj, const std::string& what) {
   return Vec3(a.at(0), a.at(1), a.at(2));
 }
 
+ContactMaterial material(double friction_static, double friction_kinetic, double restitution) {
+  ContactMaterial m;
+  m.friction_static = friction_static;
+  m.friction_kinetic = friction_kinetic;
+  m.restitution = restitution;
+  return m;
+}
+
+Mat3 to_mat3(const py::handle& obj, const std::string& what) {
+  py::array_t<double, py::array::forcecast | py::array::c_style> a;
+  try {
+    a = py::array_t<double, py::array::forcecast | py::array::c_style>::ensure(obj);
+  } catch (const py::error_already_set&) {
+  }
+  if (!a || a.ndim() != 2 || a.shape(0) != 3 || a.shape(1) != 3) throw InvalidArgument(what + " must be a 3 x 3 matrix");
+  Mat3 r;
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) r(i, j) = a.at(i, j);
+  return r;
+}
+
 py::dict report_dict(const MeshReport& r) {
   py::dict d;
   d["input_vertices"] = r.input_vertices;
@@ -435,6 +456,58 @@ PYBIND11_MODULE(_core, m) {
         d["compliance"] = view(b.compliance.data(), {c}, self, false);
         return d;
       }, "attachment batch: particle (M,), target (M, 3) m, stiffness, compliance (m/N)")
+      .def_property_readonly("thickness", particle_array(&Model::thickness),
+                             "(N,) collision radius of each particle against the colliders, m")
+      .def_property_readonly("self_collision_thickness", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.self_collision_thickness.data(), {s.num_groups()}, self, false);
+      }, "(G,) self-collision thickness h of each group, m (0: off)")
+      .def_property_readonly("colliders", [](const Model& s) {
+        py::list out;
+        for (const Collider& c : s.colliders) {
+          py::dict d;
+          d["kind"] = kind_name(c.kind);
+          d["name"] = c.name;
+          d["friction_static"] = c.material.friction_static;
+          d["friction_kinetic"] = c.material.friction_kinetic;
+          d["restitution"] = c.material.restitution;
+          switch (c.kind) {
+            case ColliderKind::Plane:
+              d["point"] = vec3_array(c.point);
+              d["normal"] = vec3_array(c.normal);
+              break;
+            case ColliderKind::Sphere:
+              d["center"] = vec3_array(c.center);
+              d["radius"] = c.radius;
+              break;
+            case ColliderKind::Capsule:
+              d["a"] = vec3_array(c.a);
+              d["b"] = vec3_array(c.b);
+              d["radius"] = c.radius;
+              break;
+            case ColliderKind::Box: {
+              d["center"] = vec3_array(c.center);
+              d["half_extents"] = vec3_array(c.half_extents);
+              py::array_t<double> r({3, 3});
+              for (int i = 0; i < 3; ++i)
+                for (int j = 0; j < 3; ++j) r.mutable_at(i, j) = c.rotation(i, j);
+              d["rotation"] = r;
+              break;
+            }
+            case ColliderKind::Mesh: {
+              const auto& m = *c.mesh;
+              py::array_t<double> v({static_cast<py::ssize_t>(m.vertices.cols()), py::ssize_t(3)});
+              if (m.vertices.cols()) std::memcpy(v.mutable_data(), m.vertices.data(), sizeof(double) * m.vertices.size());
+              d["vertices"] = v;
+              d["triangles"] = index_rows(m.triangles);
+              break;
+            }
+          }
+          out.append(d);
+        }
+        return out;
+      }, "The static colliders, one dict each (copies): kind, name, material (friction_static, friction_kinetic, "
+         "restitution) and the geometry of its kind, in m.")
       .def("initial_state", [](const Model& s) { return std::make_shared<State>(s.initial_state()); },
            "A new State at the rest positions with zero velocities and t = 0.")
       .def("__repr__", [](const Model& s) {
@@ -453,8 +526,9 @@ PYBIND11_MODULE(_core, m) {
       .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, Index group, py::object mass, py::object density,
                            py::object particle_mass, std::optional<double> stretch_stiffness,
                            std::optional<double> bending_stiffness, double stretch_compliance,
-                           double bending_compliance) {
+                           double bending_compliance, double thickness) {
         MeshOptions o;
+        o.thickness = thickness;
         o.group = group;
         const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
         if (given != 1)
@@ -479,7 +553,7 @@ PYBIND11_MODULE(_core, m) {
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0,
          py::arg("bending_stiffness") = py::none(), py::arg("stretch_compliance") = 0.0,
-         py::arg("bending_compliance") = 0.0)
+         py::arg("bending_compliance") = 0.0, py::arg("thickness") = 0.0)
       .def("add_distance", [](ModelBuilder& b, Index i, Index j, double stiffness, std::optional<double> rest_length,
                               const std::string& sense, double compliance) {
         return b.add_distance(i, j, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense), compliance);
@@ -540,6 +614,49 @@ PYBIND11_MODULE(_core, m) {
         if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");
         return vec3_array(b.position(i));
       }, py::arg("i"))
+      .def("add_plane", [](ModelBuilder& b, py::handle point, py::handle normal, double mus, double muk, double e,
+                           const std::string& name) {
+        return b.add_plane(to_vec3(point, "point"), to_vec3(normal, "normal"), material(mus, muk, e), name);
+      }, py::kw_only(), py::arg("point") = std::vector<double>{0, 0, 0}, py::arg("normal") = std::vector<double>{0, 1, 0},
+         py::arg("friction_static") = 0.0, py::arg("friction_kinetic") = 0.0, py::arg("restitution") = 0.0,
+         py::arg("name") = "",
+         "Static half-space collider: solid where (x - point)·normal < 0. point in m; normal any non-zero vector "
+         "towards the free side. friction_static μs >= friction_kinetic μk >= 0 (Coulomb), restitution e in [0, 1]. "
+         "Returns the collider's index.")
+      .def("add_sphere", [](ModelBuilder& b, py::handle center, double radius, double mus, double muk, double e,
+                            const std::string& name) {
+        return b.add_sphere(to_vec3(center, "center"), radius, material(mus, muk, e), name);
+      }, py::kw_only(), py::arg("center"), py::arg("radius"), py::arg("friction_static") = 0.0,
+         py::arg("friction_kinetic") = 0.0, py::arg("restitution") = 0.0, py::arg("name") = "",
+         "Static sphere collider: center in m, radius > 0 m; material as add_plane.")
+      .def("add_capsule", [](ModelBuilder& b, py::handle a, py::handle end, double radius, double mus, double muk,
+                             double e, const std::string& name) {
+        return b.add_capsule(to_vec3(a, "a"), to_vec3(end, "b"), radius, material(mus, muk, e), name);
+      }, py::kw_only(), py::arg("a"), py::arg("b"), py::arg("radius"), py::arg("friction_static") = 0.0,
+         py::arg("friction_kinetic") = 0.0, py::arg("restitution") = 0.0, py::arg("name") = "",
+         "Static capsule collider: the points within radius (> 0 m) of the segment a-b (m); material as add_plane.")
+      .def("add_box", [](ModelBuilder& b, py::handle center, py::handle half_extents, py::handle rotation, double mus,
+                         double muk, double e, const std::string& name) {
+        const Mat3 r = rotation.is_none() ? Mat3::Identity() : to_mat3(rotation, "rotation");
+        return b.add_box(to_vec3(center, "center"), to_vec3(half_extents, "half_extents"), r, material(mus, muk, e), name);
+      }, py::kw_only(), py::arg("center"), py::arg("half_extents"), py::arg("rotation") = py::none(),
+         py::arg("friction_static") = 0.0, py::arg("friction_kinetic") = 0.0, py::arg("restitution") = 0.0,
+         py::arg("name") = "",
+         "Static oriented box collider: center in m, half_extents > 0 m along the box's axes, rotation a 3 x 3 "
+         "rotation matrix whose columns are those axes in the world (default identity); material as add_plane.")
+      .def("add_collider_mesh", [](ModelBuilder& b, const Mesh& mesh, double mus, double muk, double e,
+                                   const std::string& name) {
+        return b.add_collider_mesh(mesh, material(mus, muk, e), name);
+      }, py::arg("mesh"), py::kw_only(), py::arg("friction_static") = 0.0, py::arg("friction_kinetic") = 0.0,
+         py::arg("restitution") = 0.0, py::arg("name") = "",
+         "Static triangle-mesh collider (any mesh csb.load_mesh reads), a two-sided sheet: a particle keeps the side "
+         "it is on. Material as add_plane.")
+      .def("set_thickness", &ModelBuilder::set_thickness, py::arg("group"), py::arg("thickness"),
+           "Collision radius (m, >= 0) of every particle of a group against the colliders.")
+      .def("enable_self_collision", &ModelBuilder::enable_self_collision, py::arg("group"), py::arg("thickness"),
+           "Point-triangle self-collision of a group's cloth (Müller 2007 §4.4) with thickness h > 0 m; keep h "
+           "below the cloth's edge length.")
+      .def_property_readonly("num_colliders", &ModelBuilder::num_colliders)
       .def_property_readonly("num_particles", &ModelBuilder::num_particles)
       .def("build", [](const ModelBuilder& b) { return std::const_pointer_cast<Model>(b.build()); });
 
@@ -635,6 +752,37 @@ PYBIND11_MODULE(_core, m) {
       }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); "
          "the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a "
          "pressure, Pa).")
+      .def("contacts", [](const PbdStepper& s) {
+        const ContactSummary& sum = s.contact_summary();
+        const auto& c = s.contacts();
+        const py::ssize_t m = static_cast<py::ssize_t>(c.size());
+        py::array_t<Index> particle(m), collider(m);
+        py::array_t<double> point({m, py::ssize_t(3)}), normal({m, py::ssize_t(3)}), correction(m), lambda(m);
+        for (py::ssize_t k = 0; k < m; ++k) {
+          particle.mutable_at(k) = c[k].particle;
+          collider.mutable_at(k) = c[k].collider;
+          for (int j = 0; j < 3; ++j) point.mutable_at(k, j) = c[k].point[j], normal.mutable_at(k, j) = c[k].normal[j];
+          correction.mutable_at(k) = c[k].normal_correction;
+          lambda.mutable_at(k) = c[k].lambda;
+        }
+        py::dict d;
+        d["count"] = sum.count;
+        d["active"] = sum.active;
+        d["self_count"] = sum.self_count;
+        d["max_depth"] = sum.max_depth;
+        d["max_penetration"] = sum.max_penetration;
+        d["particle"] = particle;
+        d["collider"] = collider;
+        d["point"] = point;
+        d["normal"] = normal;
+        d["normal_correction"] = correction;
+        d["lambda"] = lambda;
+        return d;
+      }, "The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those "
+         "that pushed their particle), self_count (point-triangle), max_depth "
+         "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
+         "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
+         "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")
       .def("grab", [](PbdStepper& s, const Model& model, const State& state, Index particle, py::handle target,
                       double compliance) {
         return s.grab(model, state, particle, to_vec3(target, "target"), compliance);

@@ -151,6 +151,11 @@ class Model:
         bending batch: particles (M, 4) = edge (a, b) and wings (c, d), rest_angle (rad), stiffness, compliance (1/(N m))
         """
     @property
+    def colliders(self) -> list:
+        """
+        The static colliders, one dict each (copies): kind, name, material (friction_static, friction_kinetic, restitution) and the geometry of its kind, in m.
+        """
+    @property
     def distance(self) -> dict:
         """
         distance batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N), sense (0: ==, +1: >=, -1: <=)
@@ -185,6 +190,16 @@ class Model:
         (N, 3) rest positions, m
         """
     @property
+    def self_collision_thickness(self) -> numpy.ndarray:
+        """
+        (G,) self-collision thickness h of each group, m (0: off)
+        """
+    @property
+    def thickness(self) -> numpy.ndarray:
+        """
+        (N,) collision radius of each particle against the colliders, m
+        """
+    @property
     def triangles(self) -> numpy.ndarray:
         """
         (T, 3) surface triangles (particle indices)
@@ -202,13 +217,25 @@ class ModelBuilder:
         ...
     def _add_balloon(self, triangles: typing.Any, pressure: typing.SupportsFloat | typing.SupportsIndex = 1.0, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         ...
-    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
+    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, thickness: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
     def _add_tet_mesh(self, mesh: TetMesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, volume_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, volume_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
     def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad (default the current angle), compliance in 1/(N m) (0: hard).
+        """
+    def add_box(self, *, center: typing.Any, half_extents: typing.Any, rotation: typing.Any = None, friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
+        """
+        Static oriented box collider: center in m, half_extents > 0 m along the box's axes, rotation a 3 x 3 rotation matrix whose columns are those axes in the world (default identity); material as add_plane.
+        """
+    def add_capsule(self, *, a: typing.Any, b: typing.Any, radius: typing.SupportsFloat | typing.SupportsIndex, friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
+        """
+        Static capsule collider: the points within radius (> 0 m) of the segment a-b (m); material as add_plane.
+        """
+    def add_collider_mesh(self, mesh: Mesh, *, friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
+        """
+        Static triangle-mesh collider (any mesh csb.load_mesh reads), a two-sided sheet: a particle keeps the side it is on. Material as add_plane.
         """
     def add_distance(self, i: typing.SupportsInt | typing.SupportsIndex, j: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==', compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
@@ -222,6 +249,14 @@ class ModelBuilder:
         """
         One particle at x (m) of mass (kg) in a group; returns its index.
         """
+    def add_plane(self, *, point: typing.Any = [0.0, 0.0, 0.0], normal: typing.Any = [0.0, 1.0, 0.0], friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
+        """
+        Static half-space collider: solid where (x - point)·normal < 0. point in m; normal any non-zero vector towards the free side. friction_static μs >= friction_kinetic μk >= 0 (Coulomb), restitution e in [0, 1]. Returns the collider's index.
+        """
+    def add_sphere(self, *, center: typing.Any, radius: typing.SupportsFloat | typing.SupportsIndex, friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
+        """
+        Static sphere collider: center in m, radius > 0 m; material as add_plane.
+        """
     def add_tetrahedron(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, rest_volume: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
         """
         Tetrahedral volume constraint C = V - V0: PBD stiffness in [0, 1], compliance in m⁶/J (0: hard), rest_volume in m³ (default the current signed volume, which must be > 0: d on the side of (b - a) x (c - a)). Returns its index.
@@ -232,11 +267,22 @@ class ModelBuilder:
         """
     def build(self) -> Model:
         ...
+    def enable_self_collision(self, group: typing.SupportsInt | typing.SupportsIndex, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        """
+        Point-triangle self-collision of a group's cloth (Müller 2007 §4.4) with thickness h > 0 m; keep h below the cloth's edge length.
+        """
     def pin(self, i: typing.SupportsInt | typing.SupportsIndex) -> None:
         """
         Fixes particle i (inverse mass 0).
         """
     def position(self, i: typing.SupportsInt | typing.SupportsIndex) -> numpy.ndarray:
+        ...
+    def set_thickness(self, group: typing.SupportsInt | typing.SupportsIndex, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        """
+        Collision radius (m, >= 0) of every particle of a group against the colliders.
+        """
+    @property
+    def num_colliders(self) -> int:
         ...
     @property
     def num_particles(self) -> int:
@@ -300,6 +346,10 @@ class PbdStepper:
     def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False) -> None:
         """
         method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots.
+        """
+    def contacts(self) -> dict:
+        """
+        The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (point-triangle), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
         """
     def grab(self, model: Model, state: State, particle: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, *, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """

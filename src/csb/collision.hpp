@@ -1,0 +1,130 @@
+// csb — static colliders and the contacts the PBD stepper generates against them (Müller,
+// Heidelberger, Hennix, Ratcliff 2007, "Position Based Dynamics", §3.4 and §4.3).
+//
+// A collider is immutable and part of the Model: a half-space, a sphere, a capsule, an oriented
+// box, or a triangle mesh treated as a two-sided sheet. Once per sub-step, after the prediction
+// p = x + h v (Algorithm 1, line 8), every particle that can move is tested along the ray x -> p:
+//
+//   - the ray enters the collider: a contact at the entry point q with the surface normal n there
+//     ("continuous collision handling", §4.3);
+//   - x is already inside (continuous handling failed at some earlier point, or the user put the
+//     particle there): the surface point q closest to p and its normal ("static" fallback, §4.3);
+//   - neither, but p ends closer than r + margin to the surface, r the particle's thickness:
+//     q closest to p. The margin (the largest distance a particle of the group moves in the
+//     prediction) makes the contact speculative: it does nothing while satisfied, but catches a
+//     particle whose prediction was outside and whom its neighbours' constraints drag inside
+//     during the iterations (a cloth draped on a sphere, the rim of the contact patch).
+//
+// Each contact is the inequality constraint, with stiffness 1 (§4.3),
+//
+//   C(p) = (p - q)·n - r >= 0,     ∇C = n,     Δp = -C n  when C < 0,
+//
+// i.e. the tangent plane at q, pushed out by the thickness r. For a convex collider the
+// half-space beyond a tangent plane lies outside the collider, so a satisfied contact keeps the
+// particle out (and at least r away). A mesh sheet has no inside: a particle keeps the side it
+// is on, and the normal of a contact is turned towards that side.
+#pragma once
+
+#include "csb/mesh.hpp"
+#include "csb/types.hpp"
+
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace csb {
+
+// Coulomb friction and restitution of a collider's surface (dimensionless).
+struct ContactMaterial {
+  Real friction_static = 0;   // μs >= μk
+  Real friction_kinetic = 0;  // μk >= 0
+  Real restitution = 0;       // e in [0, 1]: the normal speed after an impact over the one before
+};
+
+enum class ColliderKind { Plane, Sphere, Capsule, Box, Mesh };
+
+// A uniform grid over the triangles of a mesh collider: each cell lists (CSR) the triangles
+// whose bounding box overlaps it, so that a query touches the triangles near a segment only.
+struct TriangleGrid {
+  Vec3 origin = Vec3::Zero();       // m, corner of cell (0, 0, 0)
+  Real cell = 1;                    // m, edge of a cubic cell
+  std::array<Index, 3> dims{1, 1, 1};
+  std::vector<Index> cell_start;    // size cells + 1
+  std::vector<Index> items;         // triangle indices, ascending within a cell
+};
+
+struct ColliderMesh {
+  Positions vertices;               // m, 3 x V
+  std::vector<Triangle> triangles;
+  std::vector<Vec3> normals;        // unit face normals, from the winding
+  // m: the least clearance a contact keeps from the sheet, 1e-9 of the mesh's size (at least
+  // 1 nm). A particle left exactly on a two-sided sheet would have no side; round-off (1e-16
+  // of the size) cannot cross this.
+  Real skin = 1e-9;
+  TriangleGrid grid;
+};
+
+// One static collider. Only the fields of its kind are used:
+//   Plane    point (m), normal (unit, outward: the free side)
+//   Sphere   center (m), radius (m)
+//   Capsule  a, b (m): the ends of its axis; radius (m)
+//   Box      center (m), half_extents (m), rotation: columns are the box's axes in the world
+//   Mesh     mesh
+struct Collider {
+  ColliderKind kind = ColliderKind::Plane;
+  std::string name;                 // used in every message about this collider
+  ContactMaterial material;
+  Vec3 point = Vec3::Zero();
+  Vec3 normal = Vec3::UnitY();
+  Vec3 center = Vec3::Zero();
+  Real radius = 0;
+  Vec3 a = Vec3::Zero(), b = Vec3::Zero();
+  Vec3 half_extents = Vec3::Zero();
+  Mat3 rotation = Mat3::Identity();
+  std::shared_ptr<const ColliderMesh> mesh;
+};
+
+const char* kind_name(ColliderKind kind);
+
+// The surface point nearest to x, for the analytic (convex) colliders.
+struct SurfacePoint {
+  Real distance = 0;                // m, signed: < 0 inside
+  Vec3 point = Vec3::Zero();        // m, on the surface
+  Vec3 normal = Vec3::UnitY();      // unit, outward
+};
+SurfacePoint closest_surface_point(const Collider& c, const Vec3& x);
+
+// Signed distance of x to an analytic collider (m, < 0 inside); +infinity for a mesh sheet,
+// which has no inside.
+Real signed_distance(const Collider& c, const Vec3& x);
+
+// A contact between a particle and a collider, generated once per sub-step and projected in every
+// iteration; afterwards it carries what the velocity update needs (friction, restitution).
+struct Contact {
+  Index particle = 0;
+  Index collider = 0;
+  Vec3 point = Vec3::Zero();        // q, m
+  Vec3 normal = Vec3::UnitY();      // n, unit
+  Real thickness = 0;               // r, m
+  Real approach_speed = 0;          // (p - x)/h · n at generation, m/s (< 0: approaching)
+  bool started_inside = false;      // x was inside: the static fallback
+  Real lambda = 0;                  // XPBD multiplier, kg m (the contact force is λ/h² along n)
+  Real normal_correction = 0;       // m, what the contact pushed the particle along n this sub-step
+};
+
+// Appends the contact of particle i (at x, predicted at p, thickness r, speculative margin in m)
+// with collider c if there is one; `stamps` holds candidate triangle marks for mesh colliders
+// (sized by the caller). `h` (s) only serves approach_speed. Returns whether a contact was added.
+bool generate_contact(const Collider& c, Index collider_index, Index i, const Vec3& x, const Vec3& p, Real r,
+                      Real margin, Real h, std::vector<Contact>& out, std::vector<std::uint32_t>& stamps,
+                      std::uint32_t& stamp);
+
+// Builds the grid of a mesh collider: cell edge about the mean triangle bounding-box size, at
+// most a few cells per triangle in total.
+TriangleGrid build_triangle_grid(const Positions& vertices, const std::vector<Triangle>& triangles);
+
+// Closest point on triangle (a, b, c) to x (Ericson 2005, "Real-Time Collision Detection",
+// §5.1.5), with its barycentric coordinates.
+Vec3 closest_point_on_triangle(const Vec3& x, const Vec3& a, const Vec3& b, const Vec3& c, Vec3* barycentric);
+
+}  // namespace csb
