@@ -12,7 +12,8 @@ import numpy as np
 
 from . import _core
 
-__all__ = ["FrameWriter", "METRIC_COLUMNS", "metrics_row", "volume_errors", "write_csv", "plot_summary"]
+__all__ = ["FrameWriter", "METRIC_COLUMNS", "metrics_row", "volume_errors", "write_csv", "plot_summary",
+           "plot_snapshot"]
 
 
 def _cells(model: _core.Model) -> list[tuple[str, np.ndarray]]:
@@ -212,5 +213,80 @@ def plot_summary(path: Path, rows: Sequence[dict[str, float]], title: str) -> Pa
     ax2.legend(loc="best", fontsize="small")
     ax2.grid(alpha=0.3)
     fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _collider_triangles(c: dict[str, Any], extent: float) -> np.ndarray:
+    """A collider as (T, 3, 3) triangles for drawing: planes as a square of side ``extent`` (m),
+    spheres and capsules as coarse lat-long meshes, boxes as their 12 faces, meshes as they are."""
+    kind = c["kind"]
+    if kind == "mesh":
+        return np.asarray(c["vertices"])[np.asarray(c["triangles"])]
+    if kind == "box":
+        e, R, o = np.asarray(c["half_extents"]), np.asarray(c["rotation"]), np.asarray(c["center"])
+        corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * e @ R.T + o
+        faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+        return np.array([corners[[a, b, d]] for a, b, c_, d in faces] + [corners[[b, c_, d]] for a, b, c_, d in faces])
+    if kind == "plane":
+        n, p = np.asarray(c["normal"]), np.asarray(c["point"])
+        u = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+        u /= np.linalg.norm(u)
+        v = np.cross(n, u)
+        q = [p + extent * (a * u + b * v) for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))]
+        return np.array([[q[0], q[1], q[2]], [q[0], q[2], q[3]]])
+    # Sphere or capsule: a lat-long sphere, stretched along the capsule's axis.
+    th, ph = np.meshgrid(np.linspace(0, np.pi, 9), np.linspace(0, 2 * np.pi, 17), indexing="ij")
+    unit = np.stack([np.sin(th) * np.cos(ph), np.cos(th), np.sin(th) * np.sin(ph)], axis=-1)
+    pts = c["radius"] * unit
+    if kind == "sphere":
+        pts = pts + np.asarray(c["center"])
+    else:
+        a, b = np.asarray(c["a"]), np.asarray(c["b"])
+        axis = (b - a) / np.linalg.norm(b - a)
+        pts = pts + np.where((pts @ axis)[..., None] >= 0, b, a)
+    quads = [(pts[i, j], pts[i + 1, j], pts[i + 1, j + 1], pts[i, j + 1]) for i in range(8) for j in range(16)]
+    return np.array([t for a, b, c_, d in quads for t in ((a, b, c_), (a, c_, d))])
+
+
+def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str) -> Path:
+    """The model's surface (triangles, or its particles and line cells) at ``state``, with its
+    colliders in grey: a picture of where the simulation ended, y up."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    x = np.asarray(state.x)
+    # Matplotlib's 3D axes have z up: draw (x, y, z) as (x, -z, y).
+    to_plot = lambda p: p[..., [0, 2, 1]] * np.array([1, -1, 1])  # noqa: E731
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    extent = max(float(np.max(hi - lo)), 1e-3)
+    fig = plt.figure(figsize=(6.5, 6), constrained_layout=True)
+    ax = fig.add_subplot(projection="3d")
+    centre = (lo + hi) / 2
+    for c in model.colliders:
+        tris = _collider_triangles(c, extent)
+        # Planes and large meshes are drawn only near the bodies.
+        ax.add_collection3d(Poly3DCollection(to_plot(tris), facecolor=(0.6, 0.6, 0.6, 0.25),
+                                             edgecolor=(0.4, 0.4, 0.4, 0.3), linewidth=0.3))
+    tris = np.asarray(model.triangles)
+    if len(tris):
+        ax.add_collection3d(Poly3DCollection(to_plot(x[tris]), facecolor=(0.2, 0.45, 0.8, 0.85),
+                                             edgecolor=(0.1, 0.2, 0.4, 0.5), linewidth=0.2))
+    else:
+        ax.scatter(*to_plot(x).T, s=4)
+    half = 0.65 * extent
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(-centre[2] - half, -centre[2] + half)
+    ax.set_zlim(centre[1] - half, centre[1] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("-z (m)")
+    ax.set_zlabel("y (m)")
+    ax.view_init(elev=22, azim=-60)
+    ax.set_title(title, fontsize="medium")
+    fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 
-from .output import FrameWriter, metrics_row, plot_summary, volume_errors, write_csv
+from .output import FrameWriter, metrics_row, plot_snapshot, plot_summary, volume_errors, write_csv
 
 if TYPE_CHECKING:
     from .scene import Scene, Simulation
@@ -92,4 +92,6 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             title = (f"{scene.name}: {sim.model.num_particles} particles, PBD dt = {1e3 * s.dt:.3g} ms, "
                      f"{s.substeps} substeps x {s.iterations} iterations")
             result.files.append(plot_summary(out / "summary.png", result.rows, title))
+            result.files.append(plot_snapshot(out / "snapshot.png", sim.model, sim.state,
+                                              f"{scene.name} at t = {sim.state.t:.2f} s"))
     return result

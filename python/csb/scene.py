@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any, Callable, Sequence
 import numpy as np
 
 from . import _core
-from .mesh import Mesh, load_mesh, transformed
+from .mesh import Mesh, _rotation, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
 from .tetmesh import load_tet_mesh
 
@@ -287,8 +287,25 @@ class MeshSpec:
     volume: float | None = None       # PBD stiffness of the tet volume constraints (volume meshes)
     volume_compliance: float = 0.0    # m⁶/J
     balloon: BalloonSpec | None = None
+    thickness: float = 0.0            # m, collision radius of its particles against the colliders
+    self_collision: float | None = None  # m, point-triangle thickness h; None: off
     pin: Selection | None = None
     attach: AttachSpec | None = None
+
+
+@dataclass(frozen=True)
+class ColliderSpec:
+    """A static collider (Müller 2007 §4.3): its shape's parameters (m) and its material."""
+
+    name: str
+    type: str                         # "plane", "sphere", "capsule", "box", "mesh"
+    params: dict[str, Any]
+    friction_static: float = 0.0      # Coulomb μs
+    friction_kinetic: float = 0.0     # Coulomb μk <= μs
+    restitution: float = 0.0          # e in [0, 1]
+
+
+_COLLIDERS = ("plane", "sphere", "capsule", "box", "mesh")
 
 
 @dataclass(frozen=True)
@@ -332,6 +349,7 @@ class Scene:
     meshes: tuple[MeshSpec, ...]
     output: OutputSpec
     description: str = ""
+    colliders: tuple[ColliderSpec, ...] = ()
 
     @property
     def steps(self) -> int:
@@ -371,6 +389,10 @@ class Scene:
                                         compliance=spec.balloon.compliance)
                 except _core.ParameterError as e:
                     raise SceneError(f"{self.path}: mesh '{spec.name}' balloon: {e}") from None
+            if spec.thickness > 0:
+                builder.set_thickness(inst.group, spec.thickness)
+            if spec.self_collision is not None:
+                builder.enable_self_collision(inst.group, spec.self_collision)
             if spec.pin is not None:
                 for i in _select(self, spec, spec.pin, inst, "pin"):
                     builder.pin(i)
@@ -384,7 +406,12 @@ class Scene:
                 for k, i in enumerate(chosen):
                     target = targets[k] if targets is not None else inst.vertices[i - inst.first_particle]
                     builder.attach(i, target, stiffness=spec.attach.stiffness, compliance=spec.attach.compliance)
-        model = builder.build()
+        for c in self.colliders:
+            _add_collider(self, builder, c)
+        try:
+            model = builder.build()
+        except _core.ParameterError as e:  # e.g. a particle that starts inside a collider
+            raise SceneError(f"{self.path}: {e}") from None
         return Simulation(self, model, model.initial_state(), self.solver.stepper(), instances)
 
     def run(self, out_dir: str | os.PathLike[str] | None = None, *, progress: bool = False) -> "RunResult":
@@ -392,6 +419,27 @@ class Scene:
         from .runner import run_scene
 
         return run_scene(self, out_dir, progress=progress)
+
+
+def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> None:
+    material = dict(friction_static=c.friction_static, friction_kinetic=c.friction_kinetic,
+                    restitution=c.restitution, name=c.name)
+    a = c.params
+    try:
+        if c.type == "plane":
+            builder.add_plane(point=a["point"], normal=a["normal"], **material)
+        elif c.type == "sphere":
+            builder.add_sphere(center=a["center"], radius=a["radius"], **material)
+        elif c.type == "capsule":
+            builder.add_capsule(a=a["a"], b=a["b"], radius=a["radius"], **material)
+        elif c.type == "box":
+            builder.add_box(center=a["center"], half_extents=a["half_extents"], rotation=_rotation(a["rotate"]),
+                            **material)
+        else:
+            mesh = transformed(load_mesh(a["file"]), scale=a["scale"], rotate=a["rotate"], translate=a["translate"])
+            builder.add_collider_mesh(mesh, **material)
+    except _core.ParameterError as e:
+        raise SceneError(f"{scene.path}: collider '{c.name}': {e}") from None
 
 
 def _make_mesh(spec: MeshSpec) -> Mesh | _core.TetMesh:
@@ -555,6 +603,14 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         if t.has("volume"):
             raise t.error("volume", "tet volume constraints need a volume mesh (a tet file or shape = 'tet_box'); "
                                     "a closed surface can be a 'balloon'")
+    thickness = t.number("thickness", 0.0, check=lambda x: x >= 0, expect="a collision radius >= 0 m")
+    self_collision = None
+    sc_t = t.table("self_collision")
+    if sc_t is not None:
+        if kind != "surface":
+            raise t.error("self_collision", "self-collision is point-triangle contact of a cloth (a surface mesh)")
+        self_collision = sc_t.number("thickness", check=lambda x: x > 0, expect="a thickness > 0 m")
+        sc_t.finish()
     balloon = None
     bal_t = t.table("balloon")
     if bal_t is not None:
@@ -571,10 +627,52 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         scale=scale, rotate=t.vector("rotate", (0.0, 0.0, 0.0)), translate=t.vector("translate", (0.0, 0.0, 0.0)),
         stretch=stretch, stretch_compliance=stretch_compliance, bending=bending,
         bending_compliance=bending_compliance, volume=volume, volume_compliance=volume_compliance, balloon=balloon,
-        pin=pin, attach=attach,
+        thickness=thickness, self_collision=self_collision, pin=pin, attach=attach,
     )
     t.finish()
     return spec
+
+
+def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSpec:
+    if not isinstance(data, dict):
+        raise SceneError(f"{source.path}: collider[{k}] must be a table")
+    t = _Table(source, data, ("collider", k), f"collider[{k}]")
+    kind = t.string("type", choices=_COLLIDERS)
+    name = t.string("name", f"{kind}{k}")
+    t.label = f"collider[{k}] ({name})"
+    length = dict(check=lambda x: x > 0, expect="a length > 0 m")
+    params: dict[str, Any] = {}
+    if kind == "plane":
+        params["point"] = t.vector("point", (0.0, 0.0, 0.0))
+        params["normal"] = t.vector("normal", (0.0, 1.0, 0.0))
+    elif kind == "sphere":
+        params["center"] = t.vector("center")
+        params["radius"] = t.number("radius", **length)
+    elif kind == "capsule":
+        params["a"] = t.vector("a")
+        params["b"] = t.vector("b")
+        params["radius"] = t.number("radius", **length)
+    elif kind == "box":
+        params["center"] = t.vector("center")
+        params["half_extents"] = t.vector("half_extents")
+        if min(params["half_extents"]) <= 0:
+            raise t.error("half_extents", f"must be three lengths > 0 m, got {list(params['half_extents'])}")
+        params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
+    else:
+        file = t.string("file")
+        params["file"] = (base / file) if not os.path.isabs(file) else Path(file)
+        scale_raw = t.raw("scale", 1.0)
+        params["scale"] = t.vector("scale") if isinstance(scale_raw, list) else \
+            (t.number("scale", 1.0, check=lambda x: x != 0, expect="a non-zero factor"),) * 3
+        params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
+        params["translate"] = t.vector("translate", (0.0, 0.0, 0.0))
+    mus = t.number("friction_static", 0.0, check=lambda x: x >= 0, expect="a friction coefficient >= 0")
+    muk = t.number("friction_kinetic", mus, check=lambda x: x >= 0, expect="a friction coefficient >= 0")
+    if muk > mus:
+        raise t.error("friction_kinetic", f"must not exceed friction_static ({mus}), got {muk}")
+    e = t.number("restitution", 0.0, check=lambda x: 0 <= x <= 1, expect="a restitution in [0, 1]")
+    t.finish()
+    return ColliderSpec(name, kind, params, mus, muk, e)
 
 
 def load_scene(path: str | os.PathLike[str]) -> Scene:
@@ -633,6 +731,11 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         if names.count(n) > 1:
             raise SceneError(f"{p}: two meshes are named '{n}'; mesh names must be unique")
 
+    raw_colliders = top.raw("collider", [])
+    if not isinstance(raw_colliders, list):
+        raise top.error("collider", "declare colliders as [[collider]] tables")
+    colliders = tuple(_read_collider(source, c, k, p.parent) for k, c in enumerate(raw_colliders))
+
     out = top.table("output", "output")
     output = OutputSpec()
     if out is not None:
@@ -643,7 +746,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         )
         out.finish()
     top.finish()
-    return Scene(p, name, duration, solver, meshes, output, description)
+    return Scene(p, name, duration, solver, meshes, output, description, colliders)
 
 
 def bundled_scenes() -> dict[str, Path]:
