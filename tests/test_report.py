@@ -29,6 +29,9 @@ def test_report_gathers_outputs_and_flags_failures(tmp_path):
         raise SystemExit("beta: no reference available")
     ''')
     out = tmp_path / "out"
+    (out / "drape").mkdir(parents=True)
+    (out / "drape" / "run.txt").write_text("drape: 10 steps, max strain 1 %\n")
+    (out / "drape" / "snapshot.png").write_bytes(b"\x89PNG")
     code = main(["--studies", str(studies), "--out", str(out), "--no-bench"])
     assert code == 1  # beta failed, so the main job fails
     report = (out / "report.md").read_text()
@@ -38,6 +41,10 @@ def test_report_gathers_outputs_and_flags_failures(tmp_path):
     assert "[`alpha.csv`](validation/alpha.csv)" in report
     assert "**Failed:** beta" in report and "beta: no reference available" in report
     assert (out / "validation" / "alpha.txt").read_text() == "alpha: measured 42\n"
+    # Scenes run by ./dev run come first, with their summary and picture.
+    assert "## Scene drape" in report and "drape: 10 steps, max strain 1 %" in report
+    assert "![drape: the last frame](drape/snapshot.png)" in report
+    assert report.index("## Scene drape") < report.index("## alpha")
 
 
 def test_report_runs_as_module(tmp_path):

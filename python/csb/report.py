@@ -6,8 +6,9 @@ and wrote, and gathers it all into one Markdown page, ``<out>/report.md``.
 Every study is a script that takes ``--out DIR`` and writes CSV and PNG files there; its printed
 findings are kept beside them as ``<study>.txt``. The page has, per study, the first paragraph of
 its docstring, what it printed, its charts and the list of its tables; then the benchmark tables
-(``benchmarks.txt``); and, when present, the bundled scene run by ``./dev run``
-(``<out>/cloth_drop/``). Nothing in the page is typed by hand: it is what the run measured.
+(``benchmarks.txt``); and first, every scene run into ``<out>/<scene>/`` by ``./dev run``
+(its printed summary ``run.txt``, a picture of its last frame and its energy/strain chart).
+Nothing in the page is typed by hand: it is what the run measured.
 """
 
 from __future__ import annotations
@@ -78,21 +79,21 @@ def write_report(out: Path, sections: list[Section], bench: str | None, bench_co
     if failed:
         lines += [f"**Failed:** {', '.join(failed)} (their output below says why).", ""]
     lines += ["## Contents", ""]
-    scene = out / "cloth_drop"
-    if scene.is_dir():
-        lines.append("- [The bundled scene cloth_drop](#the-bundled-scene-cloth_drop)")
+    scenes = sorted(d for d in out.iterdir() if d.is_dir() and (d / "run.txt").exists())
+    for d in scenes:
+        lines.append(f"- [Scene {d.name}](#scene-{d.name})")
     for s in sections:
         lines.append(f"- [{s.name}](#{s.name}) ({s.seconds:.0f} s)")
     if bench is not None:
         lines.append("- [Benchmarks](#benchmarks)")
     lines.append("")
-    if scene.is_dir():
-        lines += ["## The bundled scene cloth_drop", ""]
-        run_txt = scene / "run.txt"
-        if run_txt.exists():
-            lines += [_block(run_txt.read_text(encoding="utf-8")), ""]
-        if (scene / "summary.png").exists():
-            lines += ["![cloth_drop: energy and strain against time](cloth_drop/summary.png)", ""]
+    for d in scenes:
+        lines += [f"## Scene {d.name}", "", f"`csb run {d.name}`; outputs in `{d.name}/` (open the `.pvd` in ParaView).",
+                  "", _block((d / "run.txt").read_text(encoding="utf-8")), ""]
+        if (d / "snapshot.png").exists():
+            lines += [f"![{d.name}: the last frame]({d.name}/snapshot.png)", ""]
+        if (d / "summary.png").exists():
+            lines += [f"![{d.name}: energy and strain against time]({d.name}/summary.png)", ""]
     for s in sections:
         lines += [f"## {s.name}", "", s.summary, "",
                   f"`validation/{s.name}.py`, {s.seconds:.0f} s, exit status {s.returncode}.", "", _block(s.output)]
