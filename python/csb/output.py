@@ -116,6 +116,16 @@ class FrameWriter:
             meshio.write(str(self.directory / rel), meshio.Mesh(np.array(state.x), self.cells, point_data=point_data))
             self._pvd.append((state.t, rel))
 
+    def set_model(self, model: _core.Model) -> None:
+        """A torn model (more particles, new cells) for the frames that follow; VTU frames only,
+        since an XDMF series keeps the points of its first frame."""
+        if self._xdmf is not None:
+            raise _core.ParameterError("an XDMF series cannot change its number of points (tearing); write VTU")
+        self.model = model
+        self.cells = _cells(model)
+        self.group = np.asarray(model.group, dtype=np.int32)
+        self.pinned = (np.asarray(model.inv_mass) == 0).astype(np.int32)
+
     def close(self) -> list[Path]:
         if self._xdmf is not None:
             self._xdmf.__exit__(None, None, None)

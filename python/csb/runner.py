@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-
+from . import _core
 from .output import FrameWriter, metrics_row, plot_snapshot, plot_summary, volume_errors, write_csv
 
 if TYPE_CHECKING:
@@ -24,6 +24,7 @@ class RunResult:
     wall_time: float                     # s, stepping only (outputs excluded)
     rows: list[dict[str, float]] = field(default_factory=list)   # metrics per frame
     files: list[Path] = field(default_factory=list)
+    tears: int = 0                       # vertices split by tearing
 
     @property
     def final(self) -> dict[str, float]:
@@ -42,6 +43,7 @@ class RunResult:
             + (f", volume error {100 * f['volume_error']:+.3g} %" if sim.model.volume["rest_volume"].size else "")
             + (f", balloon volume error {100 * f['balloon_volume_error']:+.3g} %"
                if sim.model.balloons["rest_volume"].size else "")
+            + (f", {self.tears} vertices torn" if sim.scene.tearing is not None else "")
         )
 
 
@@ -72,7 +74,18 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         while done < steps:
             n = min(steps_per_frame, steps - done)
             t0 = time.perf_counter()
-            sim.stepper.step(sim.model, sim.state, n)
+            if scene.tearing is None:
+                sim.stepper.step(sim.model, sim.state, n)
+            else:
+                for _ in range(n):
+                    sim.stepper.step(sim.model, sim.state)
+                    torn = _core.tear(sim.model, sim.state, max_strain=scene.tearing.max_strain,
+                                      max_tears=scene.tearing.max_per_step)
+                    if torn["torn"]:
+                        sim.model, sim.state = torn["model"], torn["state"]
+                        result.tears += torn["torn"]
+                        if writer is not None:
+                            writer.set_model(sim.model)
             result.wall_time += time.perf_counter() - t0
             done += n
             record()

@@ -309,6 +309,14 @@ _COLLIDERS = ("plane", "sphere", "capsule", "box", "mesh")
 
 
 @dataclass(frozen=True)
+class TearingSpec:
+    """Müller 2007 §4.6: after every step, split vertices of edges strained past max_strain."""
+
+    max_strain: float              # |l - l0|/l0
+    max_per_step: int = 10         # vertices split per step at most
+
+
+@dataclass(frozen=True)
 class OutputSpec:
     fps: float = 30.0     # frames per simulated second
     xdmf: bool = True
@@ -350,6 +358,7 @@ class Scene:
     output: OutputSpec
     description: str = ""
     colliders: tuple[ColliderSpec, ...] = ()
+    tearing: TearingSpec | None = None
 
     @property
     def steps(self) -> int:
@@ -736,17 +745,30 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         raise top.error("collider", "declare colliders as [[collider]] tables")
     colliders = tuple(_read_collider(source, c, k, p.parent) for k, c in enumerate(raw_colliders))
 
+    tearing = None
+    te = top.table("tearing", "tearing")
+    if te is not None:
+        tearing = TearingSpec(
+            max_strain=te.number("max_strain", check=lambda x: x > 0, expect="a strain > 0"),
+            max_per_step=te.integer("max_per_step", 10, minimum=1),
+        )
+        te.finish()
+
     out = top.table("output", "output")
-    output = OutputSpec()
+    # A torn model gains particles, which an XDMF series cannot follow: VTU only by default.
+    output = OutputSpec(xdmf=tearing is None)
     if out is not None:
         output = OutputSpec(
             fps=out.number("fps", 30.0, check=lambda x: x > 0, expect="frames per second > 0"),
-            xdmf=out.boolean("xdmf", True), vtu=out.boolean("vtu", True),
+            xdmf=out.boolean("xdmf", tearing is None), vtu=out.boolean("vtu", True),
             csv=out.boolean("csv", True), plot=out.boolean("plot", True),
         )
+        if tearing is not None and output.xdmf:
+            raise out.error("xdmf", "an XDMF series cannot follow a model that tears (its particle count grows); "
+                                    "use the VTU series")
         out.finish()
     top.finish()
-    return Scene(p, name, duration, solver, meshes, output, description, colliders)
+    return Scene(p, name, duration, solver, meshes, output, description, colliders, tearing)
 
 
 def bundled_scenes() -> dict[str, Path]:

@@ -10,6 +10,7 @@
 #include "csb/reference.hpp"
 #include "csb/force.hpp"
 #include "csb/interaction.hpp"
+#include "csb/tearing.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/shapes.hpp"
 #include "csb/tetmesh.hpp"

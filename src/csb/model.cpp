@@ -13,15 +13,10 @@ namespace csb {
 
 using detail::str;
 
-namespace {
-
-
 std::uint64_t next_model_id() {
   static std::atomic<std::uint64_t> counter{0};
   return ++counter;
 }
-
-}  // namespace
 
 State Model::initial_state() const {
   State s;

@@ -120,6 +120,9 @@ class Model {
   std::vector<Real> self_collision_thickness;  // m, per group
 };
 
+// A fresh Model::id, for every model built or derived (e.g. by tearing).
+std::uint64_t next_model_id();
+
 // How a mesh's particles get their mass.
 struct MassSpec {
   enum class Kind { Total, Density, PerParticle };

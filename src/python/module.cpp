@@ -808,6 +808,26 @@ PYBIND11_MODULE(_core, m) {
         return out;
       }, "The grabs held now: handle, particle, target (m), compliance (m/N).");
 
+  m.def("tear", [](py::object model_obj, py::object state_obj, double max_strain, Index max_tears) {
+    const Model& model = model_obj.cast<const Model&>();
+    // The given state is left as it is (numpy views of it stay valid); a torn one is a copy.
+    auto torn_state = std::make_shared<State>(state_obj.cast<const State&>());
+    TearResult r;
+    {
+      py::gil_scoped_release release;
+      r = tear(model, *torn_state, max_strain, max_tears);
+    }
+    py::dict d;
+    d["torn"] = r.torn;
+    d["split"] = py::array_t<Index>(static_cast<py::ssize_t>(r.split.size()), r.split.data());
+    d["model"] = r.torn ? py::cast(std::const_pointer_cast<Model>(r.model)) : model_obj;
+    d["state"] = r.torn ? py::cast(torn_state) : state_obj;
+    return d;
+  }, py::arg("model"), py::arg("state"), py::kw_only(), py::arg("max_strain"), py::arg("max_tears") = 1,
+     "Tearing (Müller 2007 §4.6): splits up to max_tears vertices of distance constraints strained past max_strain "
+     "(|l - l0|/l0 > 0), most strained first. Returns a dict: torn (how many), split (the particles split), model "
+     "and state — new ones if anything tore (the new particles are appended), else the ones given.");
+
   py::class_<Pick>(m, "Pick", "What a ray cast found: the particle (-1: none), the distance along the ray (m) and "
                                "the surface triangle hit (-1: found by proximity to the ray).")
       .def_readonly("particle", &Pick::particle)

@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -503,6 +503,10 @@ def readable_extensions() -> list[str]:
 def save_mesh(mesh: Mesh, path: str) -> None:
     """
     Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).
+    """
+def tear(model: typing.Any, state: typing.Any, *, max_strain: typing.SupportsFloat | typing.SupportsIndex, max_tears: typing.SupportsInt | typing.SupportsIndex = 1) -> dict:
+    """
+    Tearing (Müller 2007 §4.6): splits up to max_tears vertices of distance constraints strained past max_strain (|l - l0|/l0 > 0), most strained first. Returns a dict: torn (how many), split (the particles split), model and state — new ones if anything tore (the new particles are appended), else the ones given.
     """
 def tet_box(size: typing.Any, divisions: typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(3)"], center: typing.Any = [0.0, 0.0, 0.0]) -> TetMesh:
     """
