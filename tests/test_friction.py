@@ -113,3 +113,23 @@ def test_a_cloth_at_rest_on_the_ground_stays_at_rest(method):
     r = cs.rest_jitter(method)
     assert r["max_speed"] < 1e-3 and r["max_drift"] < 1e-4
     assert r["max_below_thickness"] <= 1e-12
+
+
+@pytest.mark.xfail(strict=True, reason="known bug (issue 5): the cloth on the bundled box table gains energy; "
+                   "root cause not fixed yet, see the commit message")
+def test_a_cloth_dropped_on_a_box_table_does_not_gain_energy():
+    """The bundled cloth_table scene: the cloth starts at rest and only gravity does work on it, so
+    kinetic + gravitational energy can only fall (contacts and friction dissipate, the stretch and
+    bending constraints store E >= 0 and start unstrained). It measured 4.33 J at the start and
+    146 J within 30 frames. Over a sphere or a capsule table there is no gain, and on a box wider
+    than the cloth (nothing hangs over an edge) the maximum over 3 s is the initial value to 1 mJ.
+    1 % of E0 (43 mJ) leaves room for the integrator and stays far below the bug's gain."""
+    sim = csb.load_scene("cloth_table").build()
+    m = sim.measure()
+    e0 = m["kinetic_energy"] + m["gravitational_energy"]
+    energy = []
+    for _ in range(180):  # 3 s
+        sim.stepper.step(sim.model, sim.state)
+        m = sim.measure()
+        energy.append(m["kinetic_energy"] + m["gravitational_energy"])
+    assert max(energy) <= 1.01 * e0, f"max {max(energy):.3f} J against {e0:.3f} J at the start"
