@@ -4,6 +4,8 @@ an exact edge-triangle crossing test over every pair (csb.collision_studies.self
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -88,3 +90,47 @@ def test_bad_self_collision_input():
     b.add_particle([0, 1, 0], 1.0, g)
     with pytest.raises(csb.ParameterError, match="no triangles"):
         b.enable_self_collision(g, 0.01)
+
+
+
+@pytest.fixture(scope="module")
+def drape(tmp_path_factory) -> tuple[list[float], int]:
+    """The bundled cloth_sphere scene (30 x 30 XPBD cloth, 30 sub-steps of one iteration) with the
+    soft bending of a drapier cloth, compliance 1000 1/(N m): its kinetic + gravitational energy per
+    frame over the first 0.75 s (falling, hitting the sphere, the hem folding at frames 16-30), and
+    the edge-triangle crossings at the end."""
+    text = csb.bundled_scenes()["cloth_sphere"].read_text()
+    text = re.sub(r"bending = \{ compliance = [0-9.e+-]+ \}", "bending = { compliance = 1000.0 }", text)
+    path = tmp_path_factory.mktemp("drape") / "soft_sphere.toml"
+    path.write_text(text)
+    sim = csb.load_scene(path).build()
+    energy = []
+    for _ in range(45):
+        sim.stepper.step(sim.model, sim.state)
+        m = sim.measure()
+        energy.append(m["kinetic_energy"] + m["gravitational_energy"])
+        if energy[-1] > 50 * energy[0]:
+            break  # exploded: stop before the cloth fills the hash cells
+    triangles = np.asarray(sim.model.triangles)
+    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
+    return energy, cs.self_intersections(sim.state.x, edges, triangles)
+
+
+def test_a_soft_cloth_draping_over_a_sphere_does_not_explode(drape):
+    """Self-contacts only take away approach. Before, a particle that started a sub-step closer
+    than h to a triangle (around the hem's sharp creases) was pushed out to h within the sub-step,
+    at up to h/Δt = 18 m/s, and a sliver whose normal flipped pushed it through by up to 2h: the
+    energy went from 1.41 J to 1800 J by frame 32. Tolerance: the same drape without
+    self-collision already peaks at 3.1 E0 (frame 29, the hem whipping off the sphere at 46 %
+    strain under the collider contacts and one iteration of hard stretch, not a self-contact
+    matter); with self-collision it peaks at 4.4 E0, so 6 E0 bounds it with some margin while an
+    explosion passes 50 E0. By 0.75 s the cloth has settled below its starting energy."""
+    energy, _ = drape
+    assert len(energy) == 45 and max(energy) < 6 * energy[0] and energy[-1] < energy[0]
+
+
+@pytest.mark.xfail(strict=True, reason="open: during the hem's whip (frames 27-29, 60 % strain) about 50 edges "
+                   "pass through triangles, and the side rule then keeps them through (34 at frame 45)")
+def test_a_soft_cloth_draping_over_a_sphere_does_not_pass_through_itself(drape):
+    _, crossings = drape
+    assert crossings == 0

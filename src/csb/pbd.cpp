@@ -529,6 +529,17 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
 // by h) in a spatial hash, rebuilt every sub-step, queried with each particle's swept box.
 // Narrow phase: a contact when, at the prediction, q is less than 2h from the triangle's plane on
 // its side (or beyond it) and within h of the triangle sideways.
+//
+// Two rules keep the contacts from adding energy. The projection moves q by a distance d in one
+// sub-step, and the velocity update (12) turns that into a speed d/Δt (Δt = 1/1800 s in
+// cloth_sphere: 1 cm is 18 m/s), so a contact may only take away approach, never push apart:
+// - q that starts the sub-step closer than h to the triangle (at a distance d0 in [0, h): it slid
+//   in sideways, typically around a sharp crease, or the last sub-step's single Gauss-Seidel pass
+//   left it there) is held at d0, C = s (q - p1)·n - d0, not pushed out to h; the same rule as a
+//   collider's static fallback (started_inside), which keeps q from leaving faster than it came.
+// - a triangle whose normal turns by more than 90° within the sub-step is a sliver passing
+//   through degeneracy (no real triangle turns over in 0.5 ms), its normal is meaningless and the
+//   side carried over would push q through it by up to 2h plus the depth: no contact.
 void PbdStepper::generate_self_contacts(const Model& model, const Positions& x) {
   self_contacts_.clear();
   const Real* w = model.inv_mass.data();
@@ -568,14 +579,15 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x) 
         if (!(l0 > 0) || !(lp > 0)) return;  // a collapsed triangle has no side
         n0 /= l0;
         np /= lp;
-        Real side = (xq - x1).dot(n0) >= 0 ? 1 : -1;
-        if (n0.dot(np) < 0) side = -side;  // the triangle turned over: keep q on the same face
+        if (!(n0.dot(np) > 0)) return;  // the triangle flipped: a sliver, no side
+        const Real d0 = (xq - x1).dot(n0);
+        const Real side = d0 >= 0 ? 1 : -1;
         if (side * (pq - p1).dot(np) >= 2 * hs) return;
         Vec3 b;
         const Vec3 c = closest_point_on_triangle(pq, p1, p_.col(tri[1]), p_.col(tri[2]), &b);
         const Vec3 off = pq - c;
         if ((off - off.dot(np) * np).norm() > hs) return;
-        self_contacts_.push_back({q, tri, b, side, hs});
+        self_contacts_.push_back({q, tri, b, side, std::min(hs, side * d0)});
       });
     }
   }
@@ -586,7 +598,7 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x) 
 // has the last word in Gauss-Seidel: self-contacts, then collider contacts. Each is hard
 // (stiffness 1, Müller 2007 §4.3; XPBD with α = 0).
 //
-// Self-contact (Müller 2007 §4.4): C = s (q - p1)·n - h, n the unit normal of the current
+// Self-contact (Müller 2007 §4.4): C = s (q - p1)·n - d, n the unit normal of the current
 // triangle; its gradient is taken with n fixed and the correction shared by the barycentric
 // weights b of q's nearest point (the distribution of Bridson, Fedkiw, Anderson 2002, §7.1):
 //   ∇_q C = s n,  ∇_pi C = -b_i s n,  Δ = -C / (w_q + Σ b_i² w_i).

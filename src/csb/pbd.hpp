@@ -92,13 +92,13 @@ struct Grab {
 
 // A point-triangle self-contact of a cloth (Müller 2007 §4.4): particle q against triangle
 // (p1, p2, p3) of its own group, kept on the side `side` (±1 along the triangle's normal) it was on
-// at the start of the sub-step, at least `thickness` away: C = side (q - p1)·n - h >= 0.
+// at the start of the sub-step, at least `thickness` away: C = side (q - p1)·n - d >= 0.
 struct SelfContact {
   Index particle = 0;
   Triangle triangle{};
   Vec3 barycentric = Vec3::Zero();  // of q's nearest point on the triangle at generation
   Real side = 1;
-  Real thickness = 0;               // h, m
+  Real thickness = 0;               // d, m: h, or q's distance at the start of the sub-step if less
 };
 
 // What the collision detection of the last sub-step found.
