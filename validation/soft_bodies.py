@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 import csb
-from csb.soft_bodies import hanging_balloon, hanging_tet_cube, tet_cantilever, total_volume
+from csb.soft_bodies import (hanging_balloon, hanging_tet_cube, tet_cantilever, total_volume,
+                             xpbd_error_against_reference)
 from csb.studies import write_csv
 
 
@@ -58,12 +59,7 @@ def cantilever_rows(substeps: list[int]) -> list[dict]:
     ref_tip = float(ref.x[-1, tip, 1].mean())
     rows = []
     for n in substeps:
-        state = model.initial_state()
-        stepper = csb.PbdStepper(method="xpbd", dt=1 / 60, substeps=n, iterations=1)
-        err = 0.0
-        for k, t in enumerate(times):
-            stepper.step(model, state, int(round((t - state.t) * 60)))
-            err = max(err, csb.position_error(state.x, ref.x[k])[1])
+        err, state = xpbd_error_against_reference(model, ref, times, n)
         rows.append({"substeps": n, "h": 1 / 60 / n, "max_error_m": err, "tip_y_m": float(state.x[tip, 1].mean()),
                      "reference_tip_y_m": ref_tip, "reference_steps": ref.stats["steps"],
                      "reference_solver": ref.stats["linear_solver"]})

@@ -10,7 +10,8 @@ from .mesh import Mesh
 from .model import ModelBuilder
 from .tetmesh import tet_box
 
-__all__ = ["icosphere", "hanging_tet_cube", "tet_cantilever", "hanging_balloon", "total_volume"]
+__all__ = ["icosphere", "hanging_tet_cube", "tet_cantilever", "hanging_balloon", "total_volume",
+           "xpbd_error_against_reference"]
 
 
 def icosphere(radius: float = 0.5, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> Mesh:
@@ -96,3 +97,17 @@ def hanging_balloon(*, pressure: float = 1.0, radius: float = 0.2, subdivisions:
 def total_volume(model: _core.Model, state: _core.State) -> float:
     """Σ of the signed volumes of the model's volume constraints (m³)."""
     return float(np.sum(_core.volume_violations(model, state) + np.asarray(model.volume["rest_volume"])))
+
+
+def xpbd_error_against_reference(model: _core.Model, reference, times, substeps: int,
+                                 frame: float = 1 / 60) -> tuple[float, _core.State]:
+    """Steps ``model`` from rest with XPBD, one iteration and ``substeps`` sub-steps per ``frame``
+    (s), and returns the largest distance (m) of any particle to the reference at ``times`` (the
+    reference's output times, multiples of ``frame``), with the final state."""
+    state = model.initial_state()
+    stepper = _core.PbdStepper(method="xpbd", dt=frame, substeps=substeps, iterations=1)
+    err = 0.0
+    for k, t in enumerate(times):
+        stepper.step(model, state, int(round((t - state.t) / frame)))
+        err = max(err, float(np.max(np.linalg.norm(np.asarray(state.x) - reference.x[k], axis=1))))
+    return err, state

@@ -18,6 +18,27 @@ std::uint64_t next_model_id() {
   return ++counter;
 }
 
+namespace {
+
+// Masses (kg) of the particles of a mesh from their lumped measure (m, m² or m³): the total
+// shared in proportion to it (MassSpec::Total), or the density times it (Density). A particle
+// with no measure gets no mass: an error naming it.
+std::vector<Real> lumped_masses(const MassSpec& spec, const std::vector<Real>& measure, const std::string& name,
+                                const char* element, const char* holder) {
+  Real total = 0;
+  for (Real m : measure) total += m;
+  std::vector<Real> mass(measure.size());
+  for (std::size_t i = 0; i < measure.size(); ++i) {
+    if (!(measure[i] > 0))
+      throw MeshError(name + ": " + element + " " + std::to_string(i) + " belongs to no " + holder +
+                      ", so mass and density give it no mass; give a per-particle mass or remove the " + element);
+    mass[i] = spec.kind == MassSpec::Kind::Total ? spec.value * measure[i] / total : spec.value * measure[i];
+  }
+  return mass;
+}
+
+}  // namespace
+
 State Model::initial_state() const {
   State s;
   s.x = rest_positions;
@@ -86,20 +107,10 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   const Index n = mesh.num_vertices();
 
   // Masses: lumped area (or length) for Total and Density.
-  std::vector<Real> mass(n, options.mass.value);
-  if (options.mass.kind != MassSpec::Kind::PerParticle) {
-    std::vector<Real> measure = lumped_measure(mesh);
-    Real total = 0;
-    for (Real m : measure) total += m;
-    for (Index i = 0; i < n; ++i) {
-      if (!(measure[i] > 0))
-        throw MeshError(name + ": vertex " + std::to_string(i) +
-                        " belongs to no triangle (or segment), so mass and density give it no mass; "
-                        "give a per-particle mass or remove the vertex");
-      mass[i] = options.mass.kind == MassSpec::Kind::Total ? options.mass.value * measure[i] / total
-                                                           : options.mass.value * measure[i];
-    }
-  }
+  const std::vector<Real> mass =
+      options.mass.kind == MassSpec::Kind::PerParticle
+          ? std::vector<Real>(n, options.mass.value)
+          : lumped_masses(options.mass, lumped_measure(mesh), name, "vertex", "triangle (or segment)");
   inst.group = options.group >= 0 ? options.group : add_group(name);
   inst.first_particle = num_particles();
   inst.num_particles = n;
@@ -242,20 +253,10 @@ MeshInstance ModelBuilder::add_tet_mesh(const TetMesh& input, const TetMeshOptio
 
   std::vector<Real> mass(n, options.mass.value);
   if (options.mass.kind != MassSpec::Kind::PerParticle) {
-    std::vector<Real> measure(n, 0.0);
-    Real total = 0;
-    for (Index t = 0; t < mesh.num_tets(); ++t) {
+    std::vector<Real> measure(n, 0.0);  // a quarter of each adjacent tet's volume
+    for (Index t = 0; t < mesh.num_tets(); ++t)
       for (Index p : mesh.tets[t]) measure[p] += vol[t] / 4;
-      total += vol[t];
-    }
-    for (Index i = 0; i < n; ++i) {
-      if (!(measure[i] > 0))
-        throw MeshError(name + ": point " + std::to_string(i) +
-                        " belongs to no tet, so mass and density give it no mass; give a per-particle mass or "
-                        "remove the point");
-      mass[i] = options.mass.kind == MassSpec::Kind::Total ? options.mass.value * measure[i] / total
-                                                           : options.mass.value * measure[i];
-    }
+    mass = lumped_masses(options.mass, measure, name, "point", "tet");
   }
   inst.group = options.group >= 0 ? options.group : add_group(name);
   inst.first_particle = num_particles();
