@@ -24,7 +24,9 @@
 namespace csb {
 
 struct TearResult {
-  std::shared_ptr<const Model> model;  // the torn model, or the one given if nothing tore
+  // The torn model (owned); if nothing tore, a non-owning pointer to the model given, valid as
+  // long as that model is.
+  std::shared_ptr<const Model> model;
   Index torn = 0;                      // vertices split in this call
   std::vector<Index> split;            // the particles that were split (new ones are appended)
 };
