@@ -195,6 +195,13 @@ class _Table:
             raise self.error(key, f"must be a list of integers, got {v!r}")
         return tuple(v)
 
+    def scale(self, key: str = "scale") -> tuple[float, float, float]:
+        """A uniform factor or one per axis, non-zero (default 1)."""
+        if isinstance(self.raw(key, 1.0), list):
+            return self.vector(key)
+        s = self.number(key, 1.0, check=lambda x: x != 0, expect="a non-zero factor")
+        return (s, s, s)
+
     def table(self, key: str, label: str | None = None) -> "_Table | None":
         v = self.raw(key, None)
         if v is None:
@@ -503,6 +510,11 @@ def _select(scene: Scene, spec: MeshSpec, sel: Selection, inst: MeshInstance, wh
 # Reading the TOML
 
 
+def _relative_to(base: Path, file: str) -> Path:
+    """A file named in a scene: relative to the scene's folder unless absolute."""
+    return Path(file) if os.path.isabs(file) else base / file
+
+
 def _read_selection(t: _Table) -> Selection:
     sel = Selection(
         indices=t.integers("indices", ()),
@@ -532,7 +544,7 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
     shape_args: dict[str, Any] = {}
     path: Path | None = None
     if file is not None:
-        path = (base / file) if not os.path.isabs(file) else Path(file)
+        path = _relative_to(base, file)
     elif shape == "cloth":
         shape_args["size"] = t.vector("size", size=2)
         if min(shape_args["size"]) <= 0:
@@ -568,12 +580,7 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
     mass_value = t.number(mass_kind, check=lambda x: x > 0, expect="> 0 (" + {
         "mass": "kg", "density": "kg/m³" if kind == "volume" else "kg/m²", "particle_mass": "kg"}[mass_kind] + ")")
 
-    scale_raw = t.raw("scale", 1.0)
-    if isinstance(scale_raw, list):
-        scale = t.vector("scale")
-    else:
-        s = t.number("scale", 1.0, check=lambda x: x != 0, expect="a non-zero factor")
-        scale = (s, s, s)
+    scale = t.scale()
 
     def material(key: str, unit: str) -> tuple[float | None, float]:
         """(PBD stiffness or None if the table is absent, compliance)."""
@@ -669,10 +676,8 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
         params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
     else:
         file = t.string("file")
-        params["file"] = (base / file) if not os.path.isabs(file) else Path(file)
-        scale_raw = t.raw("scale", 1.0)
-        params["scale"] = t.vector("scale") if isinstance(scale_raw, list) else \
-            (t.number("scale", 1.0, check=lambda x: x != 0, expect="a non-zero factor"),) * 3
+        params["file"] = _relative_to(base, file)
+        params["scale"] = t.scale()
         params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
         params["translate"] = t.vector("translate", (0.0, 0.0, 0.0))
     mus = t.number("friction_static", 0.0, check=lambda x: x >= 0, expect="a friction coefficient >= 0")

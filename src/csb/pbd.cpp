@@ -783,12 +783,16 @@ class DistanceObject final : public Constraint {
   int sense_;
 };
 
-class BendingObject final : public Constraint {
+// A four-particle constraint with one rest value (dihedral bending, tet volume) and its kernel.
+using FourParticleKernel = Real (*)(Real*, Real*, Real*, Real*, Real, Real, Real, Real, Real, Real);
+
+template <FourParticleKernel Kernel>
+class FourParticleObject final : public Constraint {
  public:
-  BendingObject(const std::array<Index, 4>& q, Real rest) : q_(q), rest_(rest) {}
+  FourParticleObject(const std::array<Index, 4>& q, Real rest) : q_(q), rest_(rest) {}
   Real project(bool, Real stiffness, const Real* w, Real* p) const override {
-    return project_bending(p + 3 * q_[0], p + 3 * q_[1], p + 3 * q_[2], p + 3 * q_[3], w[q_[0]], w[q_[1]], w[q_[2]],
-                           w[q_[3]], rest_, stiffness);
+    return Kernel(p + 3 * q_[0], p + 3 * q_[1], p + 3 * q_[2], p + 3 * q_[3], w[q_[0]], w[q_[1]], w[q_[2]], w[q_[3]],
+                  rest_, stiffness);
   }
 
  private:
@@ -796,18 +800,8 @@ class BendingObject final : public Constraint {
   Real rest_;
 };
 
-class VolumeObject final : public Constraint {
- public:
-  VolumeObject(const std::array<Index, 4>& q, Real rest) : q_(q), rest_(rest) {}
-  Real project(bool, Real stiffness, const Real* w, Real* p) const override {
-    return project_volume(p + 3 * q_[0], p + 3 * q_[1], p + 3 * q_[2], p + 3 * q_[3], w[q_[0]], w[q_[1]], w[q_[2]],
-                          w[q_[3]], rest_, stiffness);
-  }
-
- private:
-  std::array<Index, 4> q_;
-  Real rest_;
-};
+using BendingObject = FourParticleObject<project_bending>;
+using VolumeObject = FourParticleObject<project_volume>;
 
 // One balloon as an object: its own copies of the index lists and a gradient workspace (mutable:
 // scratch, not state).

@@ -157,6 +157,33 @@ py::dict report_dict(const MeshReport& r) {
   return d;
 }
 
+// Exactly one of mass (kg), density (per unit of `measure`) or particle_mass (kg), as a MassSpec.
+MassSpec mass_spec(const std::string& name, const py::object& mass, const py::object& density,
+                   const py::object& particle_mass, const char* density_unit) {
+  const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
+  if (given != 1)
+    throw InvalidArgument(name + ": give exactly one of mass (kg), density (" + density_unit +
+                          ") or particle_mass (kg)");
+  if (!mass.is_none()) return {MassSpec::Kind::Total, mass.cast<double>()};
+  if (!density.is_none()) return {MassSpec::Kind::Density, density.cast<double>()};
+  return {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
+}
+
+// Where a mesh landed, as the keyword arguments of Python's MeshInstance (without its vertices).
+py::dict instance_dict(const MeshInstance& inst) {
+  py::dict d;
+  d["first_particle"] = inst.first_particle;
+  d["num_particles"] = inst.num_particles;
+  d["group"] = inst.group;
+  d["num_distance"] = inst.num_distance;
+  d["num_bending"] = inst.num_bending;
+  d["num_volume"] = inst.num_volume;
+  d["flipped_tets"] = inst.flipped_tets;
+  d["triangles"] = index_rows(inst.triangles);
+  d["report"] = report_dict(inst.report);
+  return d;
+}
+
 py::dict violation_dict(const Violation& v) {
   py::dict d;
   d["count"] = v.count;
@@ -530,26 +557,12 @@ PYBIND11_MODULE(_core, m) {
         MeshOptions o;
         o.thickness = thickness;
         o.group = group;
-        const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
-        if (given != 1)
-          throw InvalidArgument(mesh.name + ": give exactly one of mass (kg), density (kg/m^2) or particle_mass (kg)");
-        if (!mass.is_none()) o.mass = {MassSpec::Kind::Total, mass.cast<double>()};
-        if (!density.is_none()) o.mass = {MassSpec::Kind::Density, density.cast<double>()};
-        if (!particle_mass.is_none()) o.mass = {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
+        o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^2");
         o.stretch_stiffness = stretch_stiffness;
         o.bending_stiffness = bending_stiffness;
         o.stretch_compliance = stretch_compliance;
         o.bending_compliance = bending_compliance;
-        const MeshInstance inst = b.add_mesh(mesh, o);
-        py::dict d;
-        d["first_particle"] = inst.first_particle;
-        d["num_particles"] = inst.num_particles;
-        d["group"] = inst.group;
-        d["num_distance"] = inst.num_distance;
-        d["num_bending"] = inst.num_bending;
-        d["triangles"] = index_rows(inst.triangles);
-        d["report"] = report_dict(inst.report);
-        return d;
+        return instance_dict(b.add_mesh(mesh, o));
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0,
          py::arg("bending_stiffness") = py::none(), py::arg("stretch_compliance") = 0.0,
@@ -571,28 +584,12 @@ PYBIND11_MODULE(_core, m) {
                                double volume_compliance) {
         TetMeshOptions o;
         o.group = group;
-        const int given = !mass.is_none() + !density.is_none() + !particle_mass.is_none();
-        if (given != 1)
-          throw InvalidArgument(mesh.name + ": give exactly one of mass (kg), density (kg/m^3) or particle_mass (kg)");
-        if (!mass.is_none()) o.mass = {MassSpec::Kind::Total, mass.cast<double>()};
-        if (!density.is_none()) o.mass = {MassSpec::Kind::Density, density.cast<double>()};
-        if (!particle_mass.is_none()) o.mass = {MassSpec::Kind::PerParticle, particle_mass.cast<double>()};
+        o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^3");
         o.stretch_stiffness = stretch_stiffness;
         o.stretch_compliance = stretch_compliance;
         o.volume_stiffness = volume_stiffness;
         o.volume_compliance = volume_compliance;
-        const MeshInstance inst = b.add_tet_mesh(mesh, o);
-        py::dict d;
-        d["first_particle"] = inst.first_particle;
-        d["num_particles"] = inst.num_particles;
-        d["group"] = inst.group;
-        d["num_distance"] = inst.num_distance;
-        d["num_bending"] = inst.num_bending;
-        d["num_volume"] = inst.num_volume;
-        d["flipped_tets"] = inst.flipped_tets;
-        d["triangles"] = index_rows(inst.triangles);
-        d["report"] = report_dict(inst.report);
-        return d;
+        return instance_dict(b.add_tet_mesh(mesh, o));
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0, py::arg("stretch_compliance") = 0.0,
          py::arg("volume_stiffness") = 1.0, py::arg("volume_compliance") = 0.0)
