@@ -56,6 +56,7 @@ from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
 from .runner import RunResult
 from .scene import Scene, SceneError, Simulation, bundled_scenes, find_scene, load_scene
+from .view import CameraPose, RenderResult, open_viewer, render, view, viewer_available, viewer_missing
 
 __version__ = build_info()["csb"]
 
@@ -69,5 +70,6 @@ __all__ = [
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
     "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",
     "Scene", "Simulation", "RunResult", "load_scene", "bundled_scenes", "find_scene",
+    "view", "render", "open_viewer", "viewer_available", "viewer_missing", "CameraPose", "RenderResult",
     "build_info", "__version__",
 ]

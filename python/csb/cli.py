@@ -30,6 +30,49 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, e.g. 1280x800, got '{text}'") from None
+    return w, h
+
+
+def _camera(args: argparse.Namespace):
+    from .view import CameraPose
+
+    return CameraPose(yaw=args.yaw, pitch=args.pitch, zoom=args.zoom)
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from .view import view
+
+    w, h = args.size
+    frames = view(args.scene, frames=args.frames, width=w, height=h, method=args.method, camera=_camera(args),
+                  paused=args.paused, wireframe=args.wireframe, particles=args.particles, overlay=not args.no_overlay)
+    print(f"{frames} frames")
+    return 0
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from .scene import load_scene
+    from .view import render
+
+    scene = load_scene(args.scene)
+    out = Path(args.out) if args.out else Path("out") / scene.name / "frames"
+    w, h = args.size
+    r = render(scene, out, frames=args.frames, every=args.every, width=w, height=h, video=not args.no_video,
+               method=args.method, camera=_camera(args), overlay=args.overlay, wireframe=args.wireframe,
+               particles=args.particles)
+    print(f"{scene.name}: {len(r.images)} frames of {w}x{h} in {out} "
+          f"({r.ms_per_frame:.1f} ms per frame: step, draw and read-back; {r.draw_ms_per_frame:.1f} ms to draw)")
+    if r.video is not None:
+        print(f"  wrote {r.video}")
+    elif r.video_note:
+        print(f"  {r.video_note}")
+    return 0
+
+
 def _cmd_scenes(args: argparse.Namespace) -> int:
     from .scene import bundled_scenes, load_scene
 
@@ -67,6 +110,33 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.set_defaults(func=_cmd_bench)
+
+    def view_options(p: argparse.ArgumentParser) -> None:
+        p.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene")
+        p.add_argument("--method", choices=["pbd", "xpbd", "jakobsen", "verlet"], help="override the scene's method")
+        p.add_argument("--wireframe", action="store_true", help="draw the distance constraints")
+        p.add_argument("--particles", action="store_true", help="draw every particle")
+        p.add_argument("--yaw", type=float, help="camera yaw, rad (0 looks along -z)")
+        p.add_argument("--pitch", type=float, help="camera pitch above the horizon, rad")
+        p.add_argument("--zoom", type=float, default=1.0, help="camera distance over the framing one (default 1)")
+
+    p = sub.add_parser("view", help="simulate a scene live in a window (needs a display)")
+    view_options(p)
+    p.add_argument("--size", type=_size, default=(1280, 800), help="window size WxH in pixels (default 1280x800)")
+    p.add_argument("--frames", type=int, default=0, help="close after this many frames (default: when closed)")
+    p.add_argument("--paused", action="store_true", help="start paused (space runs)")
+    p.add_argument("--no-overlay", action="store_true", help="hide the fps/energy overlay (o toggles it)")
+    p.set_defaults(func=_cmd_view)
+
+    p = sub.add_parser("render", help="draw frames of a scene offscreen into PNG files (and MP4 with ffmpeg)")
+    view_options(p)
+    p.add_argument("--out", help="output directory (default: out/<scene name>/frames)")
+    p.add_argument("--frames", type=int, default=60, help="frames to draw, each 1/60 s of simulated time (default 60)")
+    p.add_argument("--every", type=int, default=1, help="write every k-th frame (default 1)")
+    p.add_argument("--size", type=_size, default=(960, 600), help="image size WxH in pixels (default 960x600)")
+    p.add_argument("--overlay", action="store_true", help="draw the fps/energy overlay into the frames")
+    p.add_argument("--no-video", action="store_true", help="no MP4 even if ffmpeg is installed")
+    p.set_defaults(func=_cmd_render)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)
     sub.add_parser("info", help="versions and readable mesh formats").set_defaults(func=_cmd_info)

@@ -6,6 +6,9 @@
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
+#ifdef CSB_HAS_VIEWER
+#include "viewer.hpp"
+#endif
 
 #include <pybind11/eigen.h>
 #include <pybind11/numpy.h>
@@ -246,8 +249,16 @@ PYBIND11_MODULE(_core, m) {
     d["sundials"] = b.sundials_version;
     d["sundials_klu"] = b.sundials_klu;
     d["compiler"] = b.compiler;
+#ifdef CSB_HAS_VIEWER
+    d["viewer"] = "built";
+#else
+    d["viewer"] = std::string("not built: ") + CSB_VIEWER_MISSING;
+#endif
     return d;
-  }, "Versions of csb and of the libraries it was built against.");
+  }, "Versions of csb and of the libraries it was built against, and whether the viewer was built.");
+#ifdef CSB_HAS_VIEWER
+  bind_viewer(m);
+#endif
 
   // ---------------------------------------------------------------- meshes
   py::class_<Mesh>(m, "Mesh", "A triangle (and/or line) mesh before it enters the particle pool; metres.", py::dynamic_attr())

@@ -1,0 +1,123 @@
+"""The real-time viewer from Python: :func:`view` opens a window on a scene, :func:`render` draws
+frames of it offscreen into PNG files (and an MP4 when ffmpeg is installed).
+
+The viewer is C++ (GLFW, OpenGL 3.3 core, GLSL; ``src/viewer/``) and optional in the build: when
+its libraries were missing, :func:`viewer_available` is False and every function here raises
+:class:`csb.Error` naming what was missing.
+
+In the window: the left button on the mesh grabs the particle under the cursor and drags it in
+the plane facing the camera; elsewhere it orbits. Right or middle button (or shift + left) pans,
+the wheel zooms. Keys: space pause, ``.`` one step, ``r`` reset, ``w`` wireframe, ``p``
+particles, ``m`` next method (PBD, XPBD, Verlet), ``1``/``2``/``3`` a method, ``o`` overlay,
+``g`` grid, ``f`` frame the scene, ``c`` screenshot, ``q`` quit.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Union
+
+from . import _core
+from .scene import Scene, Simulation, load_scene
+
+SceneLike = Union[str, "os.PathLike[str]", Scene, Simulation]
+
+
+def viewer_available() -> bool:
+    """Whether this build of csb has the viewer."""
+    return hasattr(_core, "Viewer")
+
+
+def viewer_missing() -> str:
+    """Why the viewer is not available ('' when it is)."""
+    status = _core.build_info().get("viewer", "not built")
+    return "" if status == "built" else status.removeprefix("not built: ")
+
+
+def _require_viewer() -> None:
+    if not viewer_available():
+        raise _core.Error(
+            f"the viewer is not part of this build of csb: missing {viewer_missing()}. On Debian/Ubuntu: "
+            "apt-get install libglfw3-dev libepoxy-dev libegl-dev libimgui-dev libpng-dev, then rebuild (./dev setup)")
+
+
+def _simulation(scene: SceneLike) -> Simulation:
+    if isinstance(scene, Simulation):
+        return scene
+    if not isinstance(scene, Scene):
+        scene = load_scene(scene)
+    return scene.build()
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where the camera looks from (rad, and a factor on the distance that frames the scene)."""
+
+    yaw: float | None = None         # rad about +y, 0 looks along -z
+    pitch: float | None = None       # rad above the horizon
+    zoom: float = 1.0                # < 1 closer, > 1 farther than the framing distance
+
+
+def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280, height: int = 800,
+                method: str | None = None, camera: CameraPose | None = None, **options: Any) -> "_core.Viewer":
+    """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation),
+    not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`
+    ('pbd', 'xpbd', 'jakobsen'/'verlet') overrides the scene's; `options` go to
+    :class:`csb._core.Viewer` (overlay, wireframe, particles, paused, frame_time,
+    grab_compliance, samples, vsync, title, ...). A scene with tearing tears in the viewer too."""
+    _require_viewer()
+    sim = _simulation(scene)
+    tearing = sim.scene.tearing
+    if tearing is not None:
+        options.setdefault("tear_max_strain", tearing.max_strain)
+        options.setdefault("tear_max_per_step", tearing.max_per_step)
+    options.setdefault("title", f"csb - {sim.scene.name}")
+    v = _core.Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
+                     **options)
+    if method is not None:
+        v.method = method
+    if camera is not None:
+        if camera.yaw is not None:
+            v.camera.yaw = camera.yaw
+        if camera.pitch is not None:
+            v.camera.pitch = camera.pitch
+        if camera.zoom <= 0:
+            raise _core.ParameterError(f"camera zoom must be > 0, got {camera.zoom}")
+        v.camera.distance *= camera.zoom
+    return v
+
+
+def view(scene: SceneLike, *, frames: int = 0, **options: Any) -> int:
+    """Opens a window on a scene and runs it in real time until the window is closed (or
+    `frames` > 0 frames were drawn); returns the frames drawn. Needs a display (X11 or
+    Wayland/XWayland); without one use :func:`render`. Options as for :func:`open_viewer`."""
+    with open_viewer(scene, **options) as v:
+        return v.run(frames)
+
+
+@dataclass
+class RenderResult:
+    images: list[Path] = field(default_factory=list)
+    video: Path | None = None
+    video_note: str = ""
+    ms_per_frame: float = 0.0        # median wall time per frame: step, draw and read-back
+    draw_ms_per_frame: float = 0.0   # median wall time to draw and read back a frame
+    size: tuple[int, int] = (0, 0)   # width, height in pixels
+
+
+def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, every: int = 1,
+           width: int = 960, height: int = 600, video: bool = True, prefix: str = "frame",
+           overlay: bool = False, **options: Any) -> RenderResult:
+    """Draws `frames` frames of a scene offscreen (EGL: no window, no display needed), each
+    advancing the simulation by frame_time (default 1/60 s), and writes every `every`-th (and the
+    last) as ``<out>/<prefix>_NNNNN.png``, and ``<out>/<prefix>.mp4`` when ffmpeg is on the PATH
+    and `video` is set."""
+    if frames < 1:
+        raise _core.ParameterError(f"frames must be >= 1, got {frames}")
+    with open_viewer(scene, offscreen=True, width=width, height=height, overlay=overlay, **options) as v:
+        r = v.capture(frames=frames, directory=os.fspath(out), every=every, prefix=prefix, video=video)
+    return RenderResult(images=[Path(p) for p in r["images"]], video=Path(r["video"]) if r["video"] else None,
+                        video_note=r["video_note"], ms_per_frame=r["ms_per_frame"],
+                        draw_ms_per_frame=r["draw_ms_per_frame"], size=(width, height))

@@ -1,0 +1,191 @@
+// csb._core.Viewer — the OpenGL viewer from Python (built when the viewer's libraries were found;
+// see src/viewer/CMakeLists.txt).
+#include "viewer.hpp"
+
+#include "viewer/capture.hpp"
+#include "viewer/viewer.hpp"
+
+#include <pybind11/eigen.h>
+#include <pybind11/numpy.h>
+#include <pybind11/stl.h>
+
+#include <cstring>
+
+namespace py = pybind11;
+using namespace csb;
+using csb::viewer::Viewer;
+
+namespace {
+
+Method parse_method(const std::string& m) {
+  if (m == "pbd") return Method::Pbd;
+  if (m == "xpbd") return Method::Xpbd;
+  if (m == "jakobsen" || m == "verlet") return Method::Jakobsen;
+  throw InvalidArgument("method must be 'pbd', 'xpbd' or 'jakobsen' (alias 'verlet'), got '" + m + "'");
+}
+
+const char* method_str(Method m) {
+  return m == Method::Pbd ? "pbd" : m == Method::Xpbd ? "xpbd" : "jakobsen";
+}
+
+Vec3 vec3(const py::handle& obj, const char* what) {
+  const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(obj);
+  if (!a || a.ndim() != 1 || a.shape(0) != 3) throw InvalidArgument(std::string(what) + " must be 3 numbers");
+  return Vec3(a.at(0), a.at(1), a.at(2));
+}
+
+py::array_t<std::uint8_t> image_array(const csb::viewer::Image& image) {
+  py::array_t<std::uint8_t> a({static_cast<py::ssize_t>(image.height), static_cast<py::ssize_t>(image.width), py::ssize_t(3)});
+  if (!image.rgb.empty()) std::memcpy(a.mutable_data(), image.rgb.data(), image.rgb.size());
+  return a;
+}
+
+}  // namespace
+
+void bind_viewer(py::module_& m) {
+  using csb::viewer::Camera;
+  py::class_<Camera>(m, "Camera", "The viewer's orbit camera (m, rad; pixels from the top-left corner).")
+      .def_property("target", [](const Camera& c) { return Vec3(c.target); },
+                    [](Camera& c, py::handle t) { c.target = vec3(t, "target"); }, "m, the point looked at")
+      .def_readwrite("distance", &Camera::distance, "m, from the eye to the target")
+      .def_readwrite("yaw", &Camera::yaw, "rad about +y; 0 looks along -z")
+      .def_readwrite("pitch", &Camera::pitch, "rad above the horizon")
+      .def_readwrite("fov_y", &Camera::fov_y, "rad, vertical field of view")
+      .def_readonly("width", &Camera::width)
+      .def_readonly("height", &Camera::height)
+      .def_property_readonly("eye", &Camera::eye)
+      .def_property_readonly("forward", &Camera::forward)
+      .def("project", [](const Camera& c, py::handle p) {
+        double depth = 0;
+        const Eigen::Vector2d px = c.project(vec3(p, "point"), &depth);
+        return py::make_tuple(px.x(), px.y(), depth);
+      }, py::arg("point"), "(x, y, depth): where a world point (m) lands in the image, in pixels, and its depth "
+                           "(m) in front of the eye")
+      .def("ray", [](const Camera& c, double x, double y) {
+        const csb::viewer::Ray r = c.ray(x, y);
+        return py::make_tuple(r.origin, r.direction);
+      }, py::arg("x"), py::arg("y"), "(origin, unit direction) of the ray through pixel (x, y)")
+      .def("orbit", &Camera::orbit, py::arg("dx"), py::arg("dy"))
+      .def("pan", &Camera::pan, py::arg("dx"), py::arg("dy"))
+      .def("zoom", &Camera::zoom, py::arg("steps"));
+
+  py::class_<Viewer>(m, "Viewer",
+      "Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().")
+      .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, int width, int height,
+                       bool offscreen, const std::string& title, int samples, bool vsync, bool overlay,
+                       bool wireframe, bool particles, bool grid, bool paused, double frame_time,
+                       double grab_compliance, double tear_max_strain, Index tear_max_per_step,
+                       const std::string& screenshot_prefix) {
+             csb::viewer::ViewerOptions o;
+             o.width = width;
+             o.height = height;
+             o.offscreen = offscreen;
+             o.title = title;
+             o.samples = samples;
+             o.vsync = vsync;
+             o.overlay = overlay;
+             o.wireframe = wireframe;
+             o.particles = particles;
+             o.grid = grid;
+             o.paused = paused;
+             o.frame_time = frame_time;
+             o.grab_compliance = grab_compliance;
+             o.tear_max_strain = tear_max_strain;
+             o.tear_max_per_step = tear_max_per_step;
+             o.screenshot_prefix = screenshot_prefix;
+             return std::make_unique<Viewer>(model, state, settings, o);
+           }),
+           py::arg("model"), py::arg("state"), py::arg("settings"), py::kw_only(), py::arg("width") = 1280,
+           py::arg("height") = 800, py::arg("offscreen") = false, py::arg("title") = "csb", py::arg("samples") = 4,
+           py::arg("vsync") = true, py::arg("overlay") = true, py::arg("wireframe") = false,
+           py::arg("particles") = false, py::arg("grid") = true, py::arg("paused") = false,
+           py::arg("frame_time") = 1.0 / 60.0, py::arg("grab_compliance") = 0.0, py::arg("tear_max_strain") = 0.0,
+           py::arg("tear_max_per_step") = 1, py::arg("screenshot_prefix") = "csb-screenshot",
+           "Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. "
+           "frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the "
+           "mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).")
+      .def("run", [](Viewer& v, std::int64_t max_frames) {
+        py::gil_scoped_release release;
+        return v.run(max_frames);
+      }, py::arg("max_frames") = 0, "Frames until the window closes (or max_frames > 0 were drawn); returns the "
+                                    "frames drawn. The GIL is released meanwhile.")
+      .def("frame", [](Viewer& v) {
+        py::gil_scoped_release release;
+        return v.frame();
+      }, "One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.")
+      .def("redraw", &Viewer::redraw, "Draws the current state again without stepping.")
+      .def_property_readonly("closed", &Viewer::closed, "The window was asked to close, or close() was called.")
+      .def("close", &Viewer::close, "Releases the window (or offscreen context) now; frame() then returns False.")
+      .def("__enter__", [](Viewer& v) -> Viewer& { return v; }, py::return_value_policy::reference)
+      .def("__exit__", [](Viewer& v, py::args) { v.close(); })
+      .def("screenshot", [](Viewer& v) { return image_array(v.screenshot()); },
+           "The last frame drawn as an (height, width, 3) uint8 array, top row first.")
+      .def("save_png", [](Viewer& v, const std::string& path) { csb::viewer::write_png(v.screenshot(), path); },
+           py::arg("path"))
+      .def("capture", [](Viewer& v, std::int64_t frames, const std::string& directory, std::int64_t every,
+                         const std::string& prefix, bool png, bool video) {
+        csb::viewer::CaptureOptions o;
+        o.frames = frames;
+        o.directory = directory;
+        o.every = every;
+        o.prefix = prefix;
+        o.png = png;
+        o.video = video;
+        csb::viewer::CaptureResult r;
+        {
+          py::gil_scoped_release release;
+          r = csb::viewer::capture(v, o);
+        }
+        py::dict d;
+        d["images"] = r.images;
+        d["video"] = r.video.empty() ? py::object(py::none()) : py::object(py::str(r.video));
+        d["video_note"] = r.video_note;
+        d["ms_per_frame"] = r.ms_per_frame;
+        d["draw_ms_per_frame"] = r.draw_ms_per_frame;
+        return d;
+      }, py::kw_only(), py::arg("frames"), py::arg("directory"), py::arg("every") = 1, py::arg("prefix") = "frame",
+         py::arg("png") = true, py::arg("video") = true,
+         "Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and "
+         "<prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.")
+      .def("mouse_button", &Viewer::mouse_button, py::arg("button"), py::arg("pressed"), py::arg("x"), py::arg("y"),
+           py::arg("shift") = false, "A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.")
+      .def("mouse_move", &Viewer::mouse_move, py::arg("x"), py::arg("y"))
+      .def("scroll", &Viewer::scroll, py::arg("steps"))
+      .def("key", [](Viewer& v, const std::string& name) { v.key(csb::viewer::key_code(name)); }, py::arg("name"),
+           "A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.")
+      .def_property("paused", &Viewer::paused, &Viewer::set_paused)
+      .def("single_step", &Viewer::single_step)
+      .def("reset", &Viewer::reset)
+      .def_property("method", [](const Viewer& v) { return method_str(v.method()); },
+                    [](Viewer& v, const std::string& m) { v.set_method(parse_method(m)); })
+      .def_property("wireframe", [](Viewer& v) { return v.draw_options().wireframe; },
+                    [](Viewer& v, bool on) { v.draw_options().wireframe = on; })
+      .def_property("particles", [](Viewer& v) { return v.draw_options().particles; },
+                    [](Viewer& v, bool on) { v.draw_options().particles = on; })
+      .def_property("grid", [](Viewer& v) { return v.draw_options().grid; },
+                    [](Viewer& v, bool on) { v.draw_options().grid = on; })
+      .def("set_overlay", &Viewer::set_overlay, py::arg("on"))
+      .def("frame_scene", &Viewer::frame_scene)
+      .def_property_readonly("camera", py::overload_cast<>(&Viewer::camera), py::return_value_policy::reference_internal)
+      .def_property_readonly("model", [](const Viewer& v) { return Model(v.model()); },
+                             "A copy of the model being simulated (a tear makes a new one).")
+      .def_property_readonly("state", py::overload_cast<>(&Viewer::state), py::return_value_policy::reference_internal,
+                             "The live state (positions and velocities as numpy views).")
+      .def_property_readonly("settings", &Viewer::settings)
+      .def_property_readonly("held_particle", &Viewer::held_particle, "The particle under the mouse's grab, or -1.")
+      .def_property_readonly("steps_per_frame", &Viewer::steps_per_frame)
+      .def_property_readonly("stats", [](const Viewer& v) {
+        const csb::viewer::Stats& s = v.stats();
+        py::dict d;
+        d["fps"] = s.fps;
+        d["frame_ms"] = s.frame_ms;
+        d["step_ms"] = s.step_ms;
+        d["draw_ms"] = s.draw_ms;
+        d["frames"] = s.frames;
+        d["steps"] = s.steps;
+        d["kinetic_energy"] = s.kinetic;
+        d["gravitational_energy"] = s.gravitational;
+        d["elastic_energy"] = s.elastic;
+        return d;
+      }, "What the overlay shows: fps, ms per frame, per step and to draw (wall clock, smoothed), energies (J).");
+}

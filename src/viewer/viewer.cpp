@@ -1,0 +1,600 @@
+#include "viewer/viewer.hpp"
+
+#include "csb/interaction.hpp"
+#include "csb/metrics.hpp"
+#include "csb/tearing.hpp"
+#include "viewer/gl.hpp"
+#include "viewer/renderer.hpp"
+
+#include <GLFW/glfw3.h>
+#include <epoxy/egl.h>
+#include <imgui.h>
+#include <imgui_impl_glfw.h>
+#include <imgui_impl_opengl3.h>
+
+#include <algorithm>
+#include <cctype>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+
+namespace csb::viewer {
+
+namespace {
+
+double now() {
+  using clock = std::chrono::steady_clock;
+  return std::chrono::duration<double>(clock::now().time_since_epoch()).count();
+}
+
+// GLFW reports errors through a callback; the last one goes into the exception we throw.
+std::string& glfw_error() {
+  static std::string message;
+  return message;
+}
+
+void on_glfw_error(int code, const char* description) {
+  glfw_error() = "GLFW error " + std::to_string(code) + ": " + (description ? description : "");
+}
+
+const char* method_name(Method m) {
+  switch (m) {
+    case Method::Pbd: return "PBD (Mueller 2007)";
+    case Method::Xpbd: return "XPBD (Macklin 2016)";
+    case Method::Jakobsen: return "Verlet (Jakobsen 2001)";
+  }
+  return "?";
+}
+
+// Exponential moving average: smooth enough to read, quick enough to follow a change.
+void smooth(double& average, double sample, std::int64_t n) { average = n <= 1 ? sample : 0.9 * average + 0.1 * sample; }
+
+std::string egl_error(const char* what) {
+  char buffer[96];
+  std::snprintf(buffer, sizeof buffer, "%s failed (EGL error 0x%04x)", what, static_cast<unsigned>(eglGetError()));
+  return buffer;
+}
+
+int live_glfw_windows = 0;  // glfwInit/glfwTerminate around the windows that are open
+
+}  // namespace
+
+struct Viewer::Context {
+  GLFWwindow* window = nullptr;
+  EGLDisplay display = EGL_NO_DISPLAY;
+  EGLContext egl = EGL_NO_CONTEXT;
+  std::unique_ptr<RenderTarget> target;
+  std::unique_ptr<Renderer> renderer;
+  ImGuiContext* imgui = nullptr;
+  bool imgui_glfw = false, imgui_gl = false;
+
+  // Several viewers, windowed and offscreen, may live in one thread: a GLX context and an EGL
+  // context cannot both be current, so the other kind is released first.
+  void make_current() const {
+    if (window) {
+      if (eglGetCurrentContext() != EGL_NO_CONTEXT)
+        eglMakeCurrent(eglGetCurrentDisplay(), EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+      if (glfwGetCurrentContext() != window) glfwMakeContextCurrent(window);
+    } else if (egl != EGL_NO_CONTEXT && eglGetCurrentContext() != egl) {
+      if (live_glfw_windows > 0 && glfwGetCurrentContext()) glfwMakeContextCurrent(nullptr);
+      eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, egl);
+    }
+    if (imgui) ImGui::SetCurrentContext(imgui);
+  }
+
+  void open_window(const ViewerOptions& o) {
+    glfwSetErrorCallback(on_glfw_error);
+    glfw_error().clear();
+    if (live_glfw_windows == 0 && !glfwInit())
+      throw Error("viewer: cannot open a window (" + glfw_error() +
+                  "); without a display use the offscreen mode (csb render, or offscreen=True)");
+    ++live_glfw_windows;
+    if (eglGetCurrentContext() != EGL_NO_CONTEXT)
+      eglMakeCurrent(eglGetCurrentDisplay(), EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+    glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
+    glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+    glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+    glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+    glfwWindowHint(GLFW_SAMPLES, 0);  // multisampling happens in our own target
+    window = glfwCreateWindow(o.width, o.height, o.title.c_str(), nullptr, nullptr);
+    if (!window) {
+      close();
+      throw Error("viewer: cannot create an OpenGL 3.3 core window (" + glfw_error() + ")");
+    }
+    glfwMakeContextCurrent(window);
+    glfwSwapInterval(o.vsync ? 1 : 0);
+  }
+
+  void open_offscreen() {
+    // Mesa's surfaceless platform needs no window system at all; the default display is the
+    // fallback for drivers without it.
+    auto get_platform_display =
+        reinterpret_cast<PFNEGLGETPLATFORMDISPLAYEXTPROC>(eglGetProcAddress("eglGetPlatformDisplayEXT"));
+    if (get_platform_display) display = get_platform_display(EGL_PLATFORM_SURFACELESS_MESA, EGL_DEFAULT_DISPLAY, nullptr);
+    if (display == EGL_NO_DISPLAY) display = eglGetDisplay(EGL_DEFAULT_DISPLAY);
+    EGLint major = 0, minor = 0;
+    if (display == EGL_NO_DISPLAY || !eglInitialize(display, &major, &minor))
+      throw Error("viewer: offscreen rendering needs EGL (Mesa's libegl-mesa0 and libgl1-mesa-dri): " +
+                  egl_error("eglInitialize"));
+    if (!eglBindAPI(EGL_OPENGL_API)) throw Error("viewer: " + egl_error("eglBindAPI(OpenGL)"));
+    const EGLint config_attributes[] = {EGL_SURFACE_TYPE, EGL_PBUFFER_BIT, EGL_RENDERABLE_TYPE, EGL_OPENGL_BIT,
+                                        EGL_NONE};
+    EGLConfig config = nullptr;
+    EGLint configs = 0;
+    eglChooseConfig(display, config_attributes, &config, 1, &configs);
+    const EGLint context_attributes[] = {EGL_CONTEXT_MAJOR_VERSION, 3, EGL_CONTEXT_MINOR_VERSION, 3,
+                                         EGL_CONTEXT_OPENGL_PROFILE_MASK, EGL_CONTEXT_OPENGL_CORE_PROFILE_BIT,
+                                         EGL_NONE};
+    egl = eglCreateContext(display, configs > 0 ? config : EGL_NO_CONFIG_KHR, EGL_NO_CONTEXT, context_attributes);
+    if (egl == EGL_NO_CONTEXT) {
+      close();
+      throw Error("viewer: no OpenGL 3.3 core context offscreen: " + egl_error("eglCreateContext"));
+    }
+    if (live_glfw_windows > 0 && glfwGetCurrentContext()) glfwMakeContextCurrent(nullptr);
+    if (!eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, egl)) {
+      const std::string e = egl_error("eglMakeCurrent");
+      close();
+      throw Error("viewer: " + e);
+    }
+  }
+
+  void close() {
+    if (imgui) {
+      make_current();
+      if (imgui_gl) ImGui_ImplOpenGL3_Shutdown();
+      if (imgui_glfw) ImGui_ImplGlfw_Shutdown();
+      ImGui::DestroyContext(imgui);
+      imgui = nullptr;
+    }
+    if (window || egl != EGL_NO_CONTEXT) {
+      if (renderer || target) make_current();
+      renderer.reset();
+      target.reset();
+    }
+    if (window) {
+      glfwDestroyWindow(window);
+      window = nullptr;
+    }
+    if (live_glfw_windows > 0 && egl == EGL_NO_CONTEXT && display == EGL_NO_DISPLAY) {
+      if (--live_glfw_windows == 0) glfwTerminate();
+    }
+    if (egl != EGL_NO_CONTEXT) {
+      eglMakeCurrent(display, EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
+      eglDestroyContext(display, egl);
+      egl = EGL_NO_CONTEXT;
+    }
+    if (display != EGL_NO_DISPLAY) {
+      eglTerminate(display);
+      display = EGL_NO_DISPLAY;
+    }
+  }
+
+  // Pixels of the image; the window's framebuffer may differ from its coordinates on HiDPI.
+  void size(const ViewerOptions& o, int& width, int& height, double& pixels_per_point) const {
+    if (window) {
+      int w = 0, h = 0, fw = 0, fh = 0;
+      glfwGetWindowSize(window, &w, &h);
+      glfwGetFramebufferSize(window, &fw, &fh);
+      width = std::max(fw, 1);
+      height = std::max(fh, 1);
+      pixels_per_point = w > 0 ? double(fw) / w : 1.0;
+    } else {
+      width = o.width;
+      height = o.height;
+      pixels_per_point = 1;
+    }
+  }
+};
+
+Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settings, const ViewerOptions& options)
+    : context_(std::make_unique<Context>()),
+      options_(options),
+      initial_model_(std::make_shared<const Model>(model)),
+      model_(initial_model_),
+      initial_state_(state),
+      state_(state),
+      settings_(settings),
+      initial_settings_(settings) {
+  if (options.width < 16 || options.height < 16 || options.width > 16384 || options.height > 16384)
+    throw InvalidArgument("viewer: width and height must be 16 to 16384 pixels, got " + std::to_string(options.width) +
+                          "x" + std::to_string(options.height));
+  if (!(options.frame_time > 0) || !std::isfinite(options.frame_time))
+    throw InvalidArgument("viewer: frame_time must be > 0 s, got " + std::to_string(options.frame_time));
+  if (!(options.grab_compliance >= 0)) throw InvalidArgument("viewer: grab_compliance must be >= 0 m/N");
+  if (!(options.tear_max_strain >= 0)) throw InvalidArgument("viewer: tear max_strain must be >= 0");
+  if (options.tear_max_per_step < 1) throw InvalidArgument("viewer: tear max_per_step must be >= 1");
+  if (options.samples < 0 || options.samples > 16) throw InvalidArgument("viewer: samples must be 0 to 16");
+  if (state.x.cols() != model.num_particles() || state.v.cols() != model.num_particles())
+    throw InvalidArgument("viewer: the state has " + std::to_string(state.x.cols()) + " particles, the model " +
+                          std::to_string(model.num_particles()));
+  validate(settings);
+  stepper_ = std::make_unique<PbdStepper>(settings_);
+  steps_per_frame_ = std::max(1, static_cast<int>(std::lround(options.frame_time / settings.dt)));
+  paused_ = options.paused;
+  draw_.wireframe = options.wireframe;
+  draw_.particles = options.particles;
+  draw_.grid = options.grid;
+
+  Context& c = *context_;
+  if (options.offscreen)
+    c.open_offscreen();
+  else
+    c.open_window(options);
+  try {
+    c.target = std::make_unique<RenderTarget>();
+    c.renderer = std::make_unique<Renderer>();
+    c.renderer->set_model(*model_);
+    IMGUI_CHECKVERSION();
+    c.imgui = ImGui::CreateContext();
+    ImGui::SetCurrentContext(c.imgui);
+    ImGuiIO& io = ImGui::GetIO();
+    io.IniFilename = nullptr;  // no imgui.ini in the user's directory
+    ImGui::StyleColorsDark();
+    ImGui::GetStyle().WindowRounding = 4;
+    if (c.window) {
+      glfwSetWindowUserPointer(c.window, this);
+      glfwSetMouseButtonCallback(c.window, [](GLFWwindow* w, int button, int action, int mods) {
+        auto* v = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+        if (action == GLFW_PRESS && ImGui::GetIO().WantCaptureMouse) return;
+        double x = 0, y = 0;
+        glfwGetCursorPos(w, &x, &y);
+        int ww = 0, fw = 0, h = 0;
+        glfwGetWindowSize(w, &ww, &h);
+        glfwGetFramebufferSize(w, &fw, &h);
+        const double s = ww > 0 ? double(fw) / ww : 1.0;
+        const int b = button == GLFW_MOUSE_BUTTON_LEFT ? 0 : button == GLFW_MOUSE_BUTTON_RIGHT ? 1 : 2;
+        v->mouse_button(b, action == GLFW_PRESS, s * x, s * y, (mods & GLFW_MOD_SHIFT) != 0);
+      });
+      glfwSetCursorPosCallback(c.window, [](GLFWwindow* w, double x, double y) {
+        auto* v = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+        int ww = 0, fw = 0, h = 0;
+        glfwGetWindowSize(w, &ww, &h);
+        glfwGetFramebufferSize(w, &fw, &h);
+        const double s = ww > 0 ? double(fw) / ww : 1.0;
+        v->mouse_move(s * x, s * y);
+      });
+      glfwSetScrollCallback(c.window, [](GLFWwindow* w, double, double dy) {
+        if (ImGui::GetIO().WantCaptureMouse) return;
+        static_cast<Viewer*>(glfwGetWindowUserPointer(w))->scroll(dy);
+      });
+      glfwSetKeyCallback(c.window, [](GLFWwindow* w, int key, int, int action, int) {
+        if (action == GLFW_RELEASE || ImGui::GetIO().WantCaptureKeyboard) return;
+        static_cast<Viewer*>(glfwGetWindowUserPointer(w))->key(key);
+      });
+      c.imgui_glfw = ImGui_ImplGlfw_InitForOpenGL(c.window, true);  // chains to the callbacks above
+    }
+    c.imgui_gl = ImGui_ImplOpenGL3_Init("#version 330 core");
+    if (!c.imgui_gl) throw Error("viewer: Dear ImGui's OpenGL 3 backend did not start");
+  } catch (...) {
+    c.close();
+    throw;
+  }
+  int w = 0, h = 0;
+  double s = 1;
+  c.size(options_, w, h, s);
+  camera_.width = w;
+  camera_.height = h;
+  frame_scene();
+  update_energy();
+}
+
+Viewer::~Viewer() { close(); }
+
+void Viewer::close() {
+  if (context_) context_->close();
+  released_ = true;
+}
+
+void Viewer::require_open() const {
+  if (released_) throw Error("viewer: this viewer was closed");
+}
+
+bool Viewer::closed() const {
+  return released_ || (context_->window && glfwWindowShouldClose(context_->window));
+}
+
+void Viewer::frame_scene() {
+  Vec3 lo, hi;
+  context_->renderer->bounds(lo, hi);
+  camera_.frame(lo, hi);
+}
+
+std::int64_t Viewer::run(std::int64_t max_frames) {
+  std::int64_t n = 0;
+  while ((max_frames <= 0 || n < max_frames) && frame()) ++n;
+  return n;
+}
+
+bool Viewer::frame() {
+  if (released_) return false;
+  Context& c = *context_;
+  c.make_current();
+  if (c.window) {
+    glfwPollEvents();
+    if (glfwWindowShouldClose(c.window)) return false;
+  }
+  if (!paused_) advance(steps_per_frame_);
+  draw();
+  if (c.window) glfwSwapBuffers(c.window);
+  const double t = now();
+  if (last_frame_time_ >= 0) {
+    const double dt = t - last_frame_time_;
+    smooth(stats_.frame_ms, 1e3 * dt, stats_.frames);
+    stats_.fps = stats_.frame_ms > 0 ? 1e3 / stats_.frame_ms : 0;
+  }
+  last_frame_time_ = t;
+  ++stats_.frames;
+  return true;
+}
+
+void Viewer::redraw() {
+  require_open();
+  context_->make_current();
+  draw();
+  if (context_->window) glfwSwapBuffers(context_->window);
+}
+
+void Viewer::advance(int steps) {
+  for (int s = 0; s < steps; ++s) {
+    const double t0 = now();
+    try {
+      stepper_->step(*model_, state_, 1);
+    } catch (const SimulationError& e) {
+      paused_ = true;
+      message_ = e.what();
+      return;
+    }
+    smooth(stats_.step_ms, 1e3 * (now() - t0), ++stats_.steps);
+    if (options_.tear_max_strain > 0) {
+      TearResult r = tear(*model_, state_, options_.tear_max_strain, options_.tear_max_per_step);
+      if (r.torn > 0) {
+        model_ = r.model;
+        if (!released_) {
+          context_->make_current();
+          context_->renderer->set_model(*model_);
+        }
+      }
+    }
+  }
+  update_energy();
+}
+
+void Viewer::update_energy() {
+  const Metrics m = measure(*model_, state_, settings_.gravity);
+  stats_.kinetic = m.kinetic_energy;
+  stats_.gravitational = m.gravitational_energy;
+  stats_.elastic = m.elastic_energy;
+}
+
+void Viewer::single_step() {
+  const bool was = paused_;
+  advance(1);
+  paused_ = was || paused_;
+}
+
+void Viewer::reset() {
+  release_grab();
+  model_ = initial_model_;
+  state_ = initial_state_;
+  stepper_ = std::make_unique<PbdStepper>(settings_);
+  stats_.steps = 0;
+  message_.clear();
+  if (!released_) {
+    context_->make_current();
+    context_->renderer->set_model(*model_);
+  }
+  update_energy();
+}
+
+void Viewer::set_method(Method method) {
+  if (method == settings_.method) return;
+  release_grab();
+  // From the settings given, so that switching back restores them. Jakobsen's method predicts
+  // from the previous position (Verlet) and damps only by its drag: Müller's velocity damping
+  // has nothing to act on there and is switched off, which the overlay says.
+  settings_ = initial_settings_;
+  settings_.method = method;
+  message_ = std::string("method: ") + method_name(method);
+  if (method == Method::Jakobsen) {
+    settings_.front_end = FrontEnd::Verlet;
+    if (settings_.damping > 0) {
+      message_ += " (Mueller damping " + std::to_string(settings_.damping) + " off: Verlet damps by its drag, " +
+                  std::to_string(settings_.verlet_drag) + ")";
+      settings_.damping = 0;
+    }
+  } else if (initial_settings_.method == Method::Jakobsen) {
+    settings_.front_end = FrontEnd::Euler;
+  }
+  stepper_ = std::make_unique<PbdStepper>(settings_);
+  stats_.step_ms = 0;
+}
+
+void Viewer::release_grab() {
+  if (grab_handle_) stepper_->release(grab_handle_);
+  grab_handle_ = 0;
+  held_particle_ = -1;
+  if (drag_button_ == 2) drag_button_ = -1;
+}
+
+void Viewer::mouse_button(int button, bool pressed, double x, double y, bool shift) {
+  mouse_x_ = x;
+  mouse_y_ = y;
+  if (!pressed) {
+    release_grab();
+    drag_button_ = -1;
+    return;
+  }
+  if (button == 0 && !shift) {
+    const Ray ray = camera_.ray(x, y);
+    Vec3 lo, hi;
+    context_->renderer->bounds(lo, hi);
+    // Near a silhouette or on a chain, the nearest particle within 2 % of the scene's size.
+    const Pick pick = pick_particle(*model_, state_, ray.origin, ray.direction, 0.02 * (hi - lo).norm());
+    if (pick.particle >= 0) {
+      release_grab();
+      drag_point_ = state_.x.col(pick.particle);
+      grab_handle_ = stepper_->grab(*model_, state_, pick.particle, drag_point_, options_.grab_compliance);
+      held_particle_ = pick.particle;
+      drag_button_ = 2;
+      return;
+    }
+    drag_button_ = 0;
+  } else {
+    drag_button_ = 1;
+  }
+}
+
+void Viewer::mouse_move(double x, double y) {
+  const double dx = x - mouse_x_, dy = y - mouse_y_;
+  mouse_x_ = x;
+  mouse_y_ = y;
+  switch (drag_button_) {
+    case 0: camera_.orbit(dx, dy); break;
+    case 1: camera_.pan(dx, dy); break;
+    case 2: {
+      // The hand moves in the plane through it that faces the camera.
+      const Ray ray = camera_.ray(x, y);
+      const Vec3 n = camera_.forward();
+      const double denom = ray.direction.dot(n);
+      if (std::abs(denom) < 1e-9) break;
+      const double s = (drag_point_ - ray.origin).dot(n) / denom;
+      if (!(s > 0)) break;
+      drag_point_ = ray.origin + s * ray.direction;
+      stepper_->move_grab(grab_handle_, drag_point_);
+      break;
+    }
+    default: break;
+  }
+}
+
+void Viewer::scroll(double steps) { camera_.zoom(steps); }
+
+void Viewer::key(int k) {
+  switch (k) {
+    case GLFW_KEY_SPACE: paused_ = !paused_; break;
+    case GLFW_KEY_PERIOD:
+    case GLFW_KEY_RIGHT: single_step(); break;
+    case GLFW_KEY_R: reset(); break;
+    case GLFW_KEY_W: draw_.wireframe = !draw_.wireframe; break;
+    case GLFW_KEY_P: draw_.particles = !draw_.particles; break;
+    case GLFW_KEY_G: draw_.grid = !draw_.grid; break;
+    case GLFW_KEY_O: options_.overlay = !options_.overlay; break;
+    case GLFW_KEY_F: frame_scene(); break;
+    case GLFW_KEY_M:
+      set_method(settings_.method == Method::Pbd    ? Method::Xpbd
+                 : settings_.method == Method::Xpbd ? Method::Jakobsen
+                                                    : Method::Pbd);
+      break;
+    case GLFW_KEY_1: set_method(Method::Pbd); break;
+    case GLFW_KEY_2: set_method(Method::Xpbd); break;
+    case GLFW_KEY_3: set_method(Method::Jakobsen); break;
+    case GLFW_KEY_C: {
+      const std::string path = options_.screenshot_prefix + "-" + std::to_string(++screenshots_) + ".png";
+      try {
+        write_png(screenshot(), path);
+        message_ = "wrote " + path;
+      } catch (const Error& e) {
+        message_ = e.what();
+      }
+      break;
+    }
+    case GLFW_KEY_Q:
+    case GLFW_KEY_ESCAPE:
+      if (context_->window) glfwSetWindowShouldClose(context_->window, GLFW_TRUE);
+      break;
+    default: break;
+  }
+}
+
+int key_code(const std::string& name) {
+  if (name == "space") return GLFW_KEY_SPACE;
+  if (name == "period" || name == ".") return GLFW_KEY_PERIOD;
+  if (name == "right") return GLFW_KEY_RIGHT;
+  if (name == "escape") return GLFW_KEY_ESCAPE;
+  if (name.size() == 1 && std::isalpha(static_cast<unsigned char>(name[0])))
+    return GLFW_KEY_A + (std::tolower(static_cast<unsigned char>(name[0])) - 'a');
+  if (name.size() == 1 && std::isdigit(static_cast<unsigned char>(name[0]))) return GLFW_KEY_0 + (name[0] - '0');
+  throw InvalidArgument("unknown key '" + name + "': use space, period, right, escape, a letter or a digit");
+}
+
+void Viewer::draw() {
+  Context& c = *context_;
+  int w = 0, h = 0;
+  double pixels_per_point = 1;
+  c.size(options_, w, h, pixels_per_point);
+  camera_.width = w;
+  camera_.height = h;
+  const double t0 = now();
+  c.target->resize(w, h, options_.samples);
+  c.target->bind();
+  std::vector<Index> held;
+  if (held_particle_ >= 0) held.push_back(held_particle_);
+  c.renderer->draw(*model_, state_, camera_, draw_, held);
+  if (options_.overlay) draw_overlay();
+  c.target->resolve();
+  if (c.window) c.target->blit_to_window(w, h);
+  smooth(stats_.draw_ms, 1e3 * (now() - t0), stats_.frames + 1);
+}
+
+void Viewer::draw_overlay() {
+  // A window that sizes itself to its contents is measured in its first frames and drawn from
+  // then on: run those frames now, without drawing, so that the overlay is in the first image.
+  while (overlay_frames_ < 2) {
+    ++overlay_frames_;
+    build_overlay();
+    ImGui::EndFrame();
+  }
+  build_overlay();
+  ImGui::Render();
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+}
+
+void Viewer::build_overlay() {
+  Context& c = *context_;
+  ImGuiIO& io = ImGui::GetIO();
+  ImGui_ImplOpenGL3_NewFrame();
+  if (c.imgui_glfw) {
+    ImGui_ImplGlfw_NewFrame();
+  } else {
+    io.DisplaySize = ImVec2(static_cast<float>(camera_.width), static_cast<float>(camera_.height));
+    io.DeltaTime = static_cast<float>(std::max(options_.frame_time, 1e-3));
+  }
+  ImGui::NewFrame();
+  ImGui::SetNextWindowPos(ImVec2(10, 10), ImGuiCond_Always);
+  ImGui::SetNextWindowBgAlpha(0.6f);
+  const ImGuiWindowFlags flags = ImGuiWindowFlags_NoDecoration | ImGuiWindowFlags_AlwaysAutoResize |
+                                 ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoFocusOnAppearing |
+                                 ImGuiWindowFlags_NoNav | ImGuiWindowFlags_NoMove;
+  if (ImGui::Begin("csb", nullptr, flags)) {
+    const Real dt = settings_.dt;
+    ImGui::Text("%s%s", method_name(settings_.method), paused_ ? "   [paused]" : "");
+    ImGui::Text("%.1f fps   %.2f ms/frame", stats_.fps, stats_.frame_ms);
+    ImGui::Text("%.3f ms/step  (%d step%s/frame, dt %.4g s)", stats_.step_ms, steps_per_frame_,
+                steps_per_frame_ == 1 ? "" : "s", dt);
+    ImGui::Text("%d substep%s x %d iteration%s", settings_.substeps, settings_.substeps == 1 ? "" : "s",
+                settings_.iterations, settings_.iterations == 1 ? "" : "s");
+    ImGui::Text("t = %.3f s   %d particles   %d constraints", state_.t, model_->num_particles(),
+                model_->num_constraints());
+    ImGui::Text("energy %.5g J (kinetic %.4g, gravity %.4g, elastic %.4g)",
+                stats_.kinetic + stats_.gravitational + stats_.elastic, stats_.kinetic, stats_.gravitational,
+                stats_.elastic);
+    if (held_particle_ >= 0) ImGui::Text("holding particle %d", held_particle_);
+    if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
+    ImGui::TextDisabled("space pause  . step  r reset  w wire  p points  m/1/2/3 method");
+  }
+  ImGui::End();
+}
+
+Image Viewer::screenshot() {
+  require_open();
+  context_->make_current();
+  if (context_->target->width() == 0) draw();  // nothing drawn yet
+  Image image;
+  image.width = context_->target->width();
+  image.height = context_->target->height();
+  image.rgb.resize(static_cast<std::size_t>(image.width) * image.height * 3);
+  if (!image.rgb.empty()) context_->target->read(image.rgb.data());
+  return image;
+}
+
+}  // namespace csb::viewer

@@ -1,0 +1,167 @@
+// csb viewer — steps a simulation in real time and draws it (OpenGL 3.3 core, GLSL shaders in
+// src/viewer/shaders/), in a GLFW window or offscreen (EGL, no window system).
+//
+// Window: the left button on the mesh grabs the particle under the cursor (a ray cast,
+// csb::pick_particle) and drags it in the plane through it facing the camera
+// (PbdStepper::grab / move_grab / release); the left button elsewhere orbits, the right or middle
+// button (or shift + left) pans, the wheel zooms. Keys:
+//   space pause/run      . or → one step      r reset       w wireframe      p particles
+//   m next method (PBD → XPBD → Verlet)   1 PBD   2 XPBD   3 Verlet (Jakobsen)
+//   o overlay      g grid      c save a screenshot      f frame the scene      q/escape quit
+// The overlay (Dear ImGui) shows fps, ms per step, substeps × iterations, the method, energies
+// and the simulated time.
+//
+// Every frame advances the simulation by `frame_time` of simulated time (whole steps of the
+// stepper's dt), so at 60 frames per second and frame_time = 1/60 s it runs in real time. The
+// window and the offscreen mode draw into the same offscreen target, so screenshots read the
+// same pixels in both.
+#pragma once
+
+#include "csb/pbd.hpp"
+#include "viewer/camera.hpp"
+#include "viewer/renderer.hpp"
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace csb::viewer {
+
+struct ViewerOptions {
+  int width = 1280;              // pixels
+  int height = 800;
+  bool offscreen = false;        // EGL surfaceless context, no window
+  std::string title = "csb";
+  int samples = 4;               // multisampling
+  bool vsync = true;             // window only
+  bool overlay = true;           // the ImGui overlay (also drawn into screenshots and frames)
+  bool wireframe = false;
+  bool particles = false;
+  bool grid = true;
+  bool paused = false;
+  Real frame_time = 1.0 / 60.0;  // s of simulated time per frame, rounded to whole steps (>= 1)
+  // m/N: 0 drags kinematically, > 0 pulls with an XPBD spring of stiffness 1/compliance.
+  Real grab_compliance = 0;
+  // Tearing (Müller 2007 §4.6) after every step, as in scenes; max_strain 0: no tearing.
+  Real tear_max_strain = 0;
+  Index tear_max_per_step = 1;
+  std::string screenshot_prefix = "csb-screenshot";  // the `c` key writes <prefix>-<n>.png
+};
+
+// What the overlay shows, measured over the last frames.
+struct Stats {
+  double fps = 0;              // frames per wall-clock second
+  double frame_ms = 0;         // wall ms per frame, everything included
+  double step_ms = 0;          // wall ms per stepper step (dt of simulated time)
+  double draw_ms = 0;          // wall ms to draw a frame (CPU side, up to the GPU's finish)
+  std::int64_t frames = 0;     // drawn since start
+  std::int64_t steps = 0;      // stepper steps since the last reset
+  double kinetic = 0, gravitational = 0, elastic = 0;  // J
+};
+
+// An RGB8 image, top row first.
+struct Image {
+  int width = 0, height = 0;
+  std::vector<unsigned char> rgb;
+};
+
+void write_png(const Image& image, const std::string& path);
+
+// The GLFW key code of a key's name ('space', 'period', 'right', 'escape', a letter or a digit),
+// for synthetic key presses; throws InvalidArgument for other names.
+int key_code(const std::string& name);
+
+class Viewer {
+ public:
+  // Copies the model and state (reset returns to them); `settings` configure the stepper (the
+  // method switch keeps everything else). Opens the window or the offscreen context; throws
+  // csb::Error saying what is missing (no display, no OpenGL 3.3) if it cannot.
+  Viewer(const Model& model, const State& state, const PbdSettings& settings, const ViewerOptions& options = {});
+  ~Viewer();
+  Viewer(const Viewer&) = delete;
+  Viewer& operator=(const Viewer&) = delete;
+
+  // Frames until the window closes (or `max_frames` > 0 frames were drawn); returns the frames drawn.
+  std::int64_t run(std::int64_t max_frames = 0);
+  // One frame: window events, the simulation's advance (unless paused), drawing. Returns false
+  // once the window has been asked to close.
+  bool frame();
+  // Draws the current state again without stepping (after a camera change, say).
+  void redraw();
+  // Whether the window was asked to close, or close() was called.
+  bool closed() const;
+  // Releases the window or offscreen context and its OpenGL objects now (the destructor does it
+  // otherwise); frame() then returns false and drawing or screenshots throw.
+  void close();
+
+  // The last frame drawn.
+  Image screenshot();  // draws first if nothing was drawn yet
+
+  // Input, in window pixels from the top-left corner; the window's callbacks call these, and so
+  // may tests and scripts (synthetic events). button: 0 left, 1 right, 2 middle.
+  void mouse_button(int button, bool pressed, double x, double y, bool shift = false);
+  void mouse_move(double x, double y);
+  void scroll(double steps);
+  // A key by its GLFW key code (GLFW_KEY_SPACE, ...); unknown keys are ignored.
+  void key(int glfw_key);
+
+  // The actions behind the keys.
+  void set_paused(bool paused) { paused_ = paused; }
+  bool paused() const { return paused_; }
+  void single_step();  // one step of dt, also while paused
+  void reset();        // the model and state given at construction; the camera stays
+  void set_method(Method method);
+  Method method() const { return settings_.method; }
+  DrawOptions& draw_options() { return draw_; }
+  void set_overlay(bool on) { options_.overlay = on; }
+  void frame_scene();  // the camera frames the model and its colliders
+
+  Camera& camera() { return camera_; }
+  const Camera& camera() const { return camera_; }
+  const Model& model() const { return *model_; }
+  const State& state() const { return state_; }
+  State& state() { return state_; }
+  const PbdStepper& stepper() const { return *stepper_; }
+  const PbdSettings& settings() const { return settings_; }
+  // The particle held by the mouse, or -1.
+  Index held_particle() const { return held_particle_; }
+  const Stats& stats() const { return stats_; }
+  int steps_per_frame() const { return steps_per_frame_; }
+
+ private:
+  struct Context;
+  void advance(int steps);
+  void draw();
+  void draw_overlay();
+  void build_overlay();  // the overlay's widgets for one ImGui frame, up to End()
+  void update_energy();
+  void release_grab();
+  void require_open() const;
+
+  std::unique_ptr<Context> context_;
+  ViewerOptions options_;
+  DrawOptions draw_;
+  std::shared_ptr<const Model> initial_model_, model_;
+  State initial_state_, state_;
+  PbdSettings settings_;
+  PbdSettings initial_settings_;
+  std::unique_ptr<PbdStepper> stepper_;
+  Camera camera_;
+  bool paused_ = false;
+  int steps_per_frame_ = 1;
+  // Mouse.
+  int drag_button_ = -1;      // 0 orbit, 1 pan, 2 grab
+  double mouse_x_ = 0, mouse_y_ = 0;
+  int grab_handle_ = 0;
+  Index held_particle_ = -1;
+  Vec3 drag_point_ = Vec3::Zero();  // m, where the hand is
+  Stats stats_;
+  double last_frame_time_ = -1;
+  int screenshots_ = 0;
+  int overlay_frames_ = 0;    // ImGui frames run so far
+  bool released_ = false;     // close() was called
+  std::string message_;       // the overlay's last notice (a save, a simulation error)
+};
+
+}  // namespace csb::viewer

@@ -1,0 +1,387 @@
+"""The OpenGL viewer (src/viewer/), headless: offscreen through EGL with Mesa's software renderer,
+and in a real GLFW window on an Xvfb display driven by xdotool. `./dev test` installs Xvfb,
+xdotool and Mesa, builds the viewer and sets CSB_REQUIRE_VIEWER=1, so that these tests fail
+rather than skip when the viewer is missing there.
+
+What is checked is geometry, not taste: the cloth's pixels are where the camera projects the
+simulated particles, a drag puts the held particle under the cursor, keys do what they say."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import csb
+
+if not csb.viewer_available():
+    if os.environ.get("CSB_REQUIRE_VIEWER") == "1":
+        raise RuntimeError(f"CSB_REQUIRE_VIEWER=1 but the viewer was not built: {csb.viewer_missing()}")
+    pytest.skip(f"the viewer was not built: {csb.viewer_missing()}", allow_module_level=True)
+
+BACKGROUND = np.array([219, 224, 232])  # the clear colour, sRGB (0.86, 0.88, 0.91)
+W, H = 320, 240
+
+
+def covered(img: np.ndarray, tolerance: int = 12) -> np.ndarray:
+    """Pixels that are not background."""
+    return np.abs(img.astype(int) - BACKGROUND).max(axis=2) > tolerance
+
+
+def projected(viewer, points: np.ndarray) -> np.ndarray:
+    return np.array([viewer.camera.project(p)[:2] for p in points])
+
+
+@pytest.fixture
+def viewer_on():
+    """Opens viewers (offscreen, no overlay or grid, unless asked) and closes them after the test,
+    passed or failed, so that no window outlives the Xvfb server it is on."""
+    opened = []
+
+    def open_(scene="cloth_drop", **kw):
+        kw.setdefault("offscreen", True)
+        kw.setdefault("overlay", False)
+        kw.setdefault("grid", False)
+        kw.setdefault("samples", 0)
+        kw.setdefault("width", W)
+        kw.setdefault("height", H)
+        opened.append(csb.open_viewer(scene, **kw))
+        return opened[-1]
+
+    yield open_
+    for v in opened:
+        v.close()
+
+
+def test_the_build_reports_the_viewer():
+    assert csb.build_info()["viewer"] == "built" and csb.viewer_missing() == ""
+
+
+def test_screenshot_shows_the_cloth_where_the_simulation_says_it_is(viewer_on):
+    v = viewer_on()
+    for _ in range(20):  # 1/3 s: the cloth swings down from its two pinned corners
+        v.frame()
+    img = v.screenshot()
+    assert img.shape == (H, W, 3) and img.dtype == np.uint8
+    mask = covered(img)
+    assert 0.03 < mask.mean() < 0.9, "blank or filled"
+    x = np.array(v.state.x)
+    px = projected(v, x)
+    inside = (px[:, 0] >= 1) & (px[:, 0] < W - 1) & (px[:, 1] >= 1) & (px[:, 1] < H - 1)
+    assert inside.all(), "the camera frames the whole cloth"
+    ij = np.floor(px).astype(int)
+    # Every particle's pixel (or a neighbour, for vertices on the silhouette) is covered ...
+    hit = np.zeros(len(ij), bool)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            hit |= mask[ij[:, 1] + dy, ij[:, 0] + dx]
+    assert hit.all(), f"{(~hit).sum()} particles fall on background"
+    # ... in the cloth's colour (blue; the two pinned corners are red dots) ...
+    rgb = img[ij[:, 1], ij[:, 0]].astype(int)
+    assert (rgb[:, 2] > rgb[:, 0]).mean() > 0.95
+    # ... and nothing else is drawn: the covered pixels lie within the particles' projection.
+    ys, xs = np.nonzero(mask)
+    pad = 6  # px: the pinned corners' dots are up to 9 px wide
+    assert xs.min() >= px[:, 0].min() - pad and xs.max() <= px[:, 0].max() + pad
+    assert ys.min() >= px[:, 1].min() - pad and ys.max() <= px[:, 1].max() + pad
+
+
+def test_the_image_follows_the_simulation(viewer_on):
+    v = viewer_on(paused=True)
+    v.frame()
+    before = covered(v.screenshot())
+    v.paused = False
+    for _ in range(30):
+        v.frame()
+    after = covered(v.screenshot())
+    # The cloth hangs lower: its lowest covered row moved down the image.
+    assert np.nonzero(after)[0].max() > np.nonzero(before)[0].max() + 10
+
+
+def test_a_synthetic_drag_moves_the_grabbed_particle_under_the_cursor(viewer_on):
+    v = viewer_on()
+    for _ in range(10):
+        v.frame()
+    x = np.array(v.state.x)
+    free = np.nonzero(np.array(v.model.inv_mass) > 0)[0]
+    i = free[np.argmin(np.linalg.norm(x[free] - x[free].mean(axis=0), axis=1))]  # near the middle
+    sx, sy, depth = v.camera.project(x[i])
+    assert depth > 0
+    v.mouse_button(0, True, sx, sy)
+    held = v.held_particle
+    assert held >= 0 and np.linalg.norm(x[held] - x[i]) < 0.1, "the click picks a particle at the cursor"
+    before = v.screenshot()
+    tx, ty = sx + 50, sy - 40
+    v.mouse_move(tx, ty)
+    for _ in range(5):
+        v.frame()
+    gx, gy, _ = v.camera.project(np.array(v.state.x)[held])
+    assert abs(gx - tx) < 1.0 and abs(gy - ty) < 1.0, "a kinematic grab puts the particle under the cursor"
+    after = v.screenshot()
+    assert covered(after)[int(ty), int(tx)] and not covered(before)[int(ty), int(tx)], \
+        "the cloth now covers the pixel it was dragged to"
+    # The held particle is drawn as a yellow dot.
+    r, g, b = after[int(ty), int(tx)].astype(int)
+    assert r > 200 and g > 170 and b < 120
+    v.mouse_button(0, False, tx, ty)
+    assert v.held_particle == -1
+    v.frame()  # released: it falls again
+    for _ in range(20):
+        v.frame()
+    assert np.array(v.state.x)[held][1] < v.camera.ray(tx, ty)[0][1] + 10  # finite, still there
+    assert np.isfinite(np.array(v.state.x)).all()
+
+
+def test_dragging_off_the_mesh_orbits_and_the_wheel_zooms(viewer_on):
+    v = viewer_on()
+    v.frame()
+    yaw, distance = v.camera.yaw, v.camera.distance
+    v.mouse_button(0, True, 5, 5)  # a corner of the image: background
+    assert v.held_particle == -1
+    v.mouse_move(45, 5)
+    v.mouse_button(0, False, 45, 5)
+    assert v.camera.yaw != yaw
+    v.scroll(2)
+    assert v.camera.distance == pytest.approx(distance * 0.81)
+    target = np.array(v.camera.target)
+    v.mouse_button(1, True, 100, 100)
+    v.mouse_move(120, 100)
+    v.mouse_button(1, False, 120, 100)
+    assert np.linalg.norm(np.array(v.camera.target) - target) > 0
+
+
+def test_keys_pause_step_reset_and_switch_method(viewer_on):
+    v = viewer_on()
+    x0 = np.array(v.state.x).copy()
+    dt = v.settings.dt
+    v.frame()
+    v.key("space")
+    assert v.paused
+    t = v.state.t
+    x = np.array(v.state.x).copy()
+    v.frame()
+    assert v.state.t == t and np.array_equal(np.array(v.state.x), x), "paused: frames do not step"
+    v.key("period")
+    assert v.state.t == pytest.approx(t + dt) and v.paused, "one step, still paused"
+    v.key("r")
+    assert v.state.t == 0 and np.array_equal(np.array(v.state.x), x0), "reset: the initial state, exactly"
+    assert v.method == "pbd"
+    for expected in ("xpbd", "jakobsen", "pbd"):
+        v.key("m")
+        assert v.method == expected
+    v.key("2")
+    assert v.method == "xpbd" and v.settings.method == "xpbd"
+    v.key("3")
+    assert v.method == "jakobsen" and v.settings.front_end == "verlet"
+    v.key("space")
+    for _ in range(10):
+        v.frame()
+    assert np.isfinite(np.array(v.state.x)).all() and v.state.t > 0
+    v.key("w")
+    assert v.wireframe
+    v.key("p")
+    assert v.particles
+    with pytest.raises(csb.ParameterError, match="unknown key"):
+        v.key("F13")
+    with pytest.raises(csb.ParameterError, match="method"):
+        v.method = "rk4"
+
+
+def test_switching_method_continues_from_the_same_state(viewer_on):
+    """The switch keeps positions and velocities: one step after the switch equals one step of
+    a fresh stepper of the new method from the same state."""
+    v = viewer_on(paused=True)
+    for _ in range(5):
+        v.single_step()
+    v.method = "xpbd"
+    sim = csb.load_scene("cloth_drop").build()
+    sim.state.x[:] = v.state.x
+    sim.state.v[:] = v.state.v
+    stepper = csb.PbdStepper(method="xpbd", dt=v.settings.dt, substeps=v.settings.substeps,
+                             iterations=v.settings.iterations, damping=v.settings.damping)
+    v.single_step()
+    stepper.step(sim.model, sim.state)
+    assert np.array_equal(np.array(v.state.x), np.array(sim.state.x))
+
+
+def test_wireframe_and_overlay_change_the_image(viewer_on):
+    v = viewer_on(paused=True)
+    v.frame()
+    plain = v.screenshot()
+    v.wireframe = True
+    v.redraw()
+    wire = v.screenshot()
+    assert (np.abs(wire.astype(int) - plain).max(axis=2) > 30).sum() > 200
+    v.wireframe = False
+    v.set_overlay(True)
+    v.redraw()
+    over = v.screenshot()
+    corner = (slice(0, 60), slice(0, 150))  # the overlay sits in the top-left corner
+    assert (np.abs(over[corner].astype(int) - plain[corner]).max(axis=2) > 30).mean() > 0.3
+
+
+def test_soft_body_and_colliders_are_drawn(viewer_on):
+    v = viewer_on("balloon_squeeze", grid=True)
+    v.frame()
+    img = v.screenshot()
+    mask = covered(img)
+    # The balloon (blue) between two grey plates.
+    grey = (np.abs(img[..., 0].astype(int) - img[..., 2]) < 12) & mask & (img.sum(axis=2) < 500)
+    blue = mask & (img[..., 2].astype(int) > img[..., 0] + 40)
+    assert grey.sum() > 500 and blue.sum() > 500
+
+
+def test_offscreen_render_writes_the_requested_frames(tmp_path):
+    r = csb.render("cloth_drop", tmp_path, frames=7, every=3, width=W, height=H, video=False)
+    assert [p.name for p in r.images] == ["frame_00000.png", "frame_00003.png", "frame_00006.png"]
+    import matplotlib.image as mpimg
+
+    for p in r.images:
+        img = (mpimg.imread(p)[..., :3] * 255).round().astype(np.uint8)
+        assert img.shape == (H, W, 3) and covered(img).mean() > 0.02
+    assert r.video is None and r.ms_per_frame > 0
+
+
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed")
+def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
+    r = csb.render("cloth_drop", tmp_path, frames=12, width=W, height=H)
+    assert r.video is not None and r.video.stat().st_size > 1000
+    probe = subprocess.run(["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
+                            "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(r.video)],
+                           capture_output=True, text=True)
+    assert probe.stdout.strip() == f"{W},{H},12"
+
+
+def test_bad_viewer_parameters_are_named(viewer_on):
+    sim = csb.load_scene("cloth_drop").build()
+    with pytest.raises(csb.ParameterError, match="width and height"):
+        csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, width=0, offscreen=True)
+    with pytest.raises(csb.ParameterError, match="frame_time"):
+        csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, frame_time=0.0, offscreen=True)
+    with pytest.raises(csb.ParameterError, match="frames"):
+        csb.render("cloth_drop", "unused", frames=0)
+    with pytest.raises(csb.ParameterError, match="zoom"):
+        viewer_on(camera=csb.CameraPose(zoom=0))
+
+
+def test_a_window_without_a_display_says_what_to_do():
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    code = "import csb\ntry:\n    csb.view('cloth_drop', frames=1)\nexcept csb.Error as e:\n    print(e)\n"
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert r.returncode == 0 and "cannot open a window" in r.stdout and "offscreen" in r.stdout, r.stdout + r.stderr
+
+
+# ------------------------------------------------------------------ a real window on Xvfb
+
+
+@pytest.fixture(scope="module")
+def display():
+    """A private Xvfb server; its display name."""
+    if shutil.which("Xvfb") is None or shutil.which("xdotool") is None:
+        if os.environ.get("CSB_REQUIRE_VIEWER") == "1":
+            pytest.fail("Xvfb and xdotool are needed (./dev test installs them)")
+        pytest.skip("Xvfb or xdotool is not installed")
+    read, write = os.pipe()
+    proc = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                            pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write)
+    with os.fdopen(read) as f:
+        number = f.readline().strip()
+    assert number, "Xvfb did not start"
+    yield f":{number}"
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+@pytest.fixture
+def on_display(display, monkeypatch):
+    monkeypatch.setenv("DISPLAY", display)
+    return display
+
+
+def xdotool(*args) -> str:
+    r = subprocess.run(["xdotool", *map(str, args)], capture_output=True, text=True, timeout=30)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def test_window_draws_what_offscreen_draws(viewer_on, on_display):
+    win = viewer_on(offscreen=False, vsync=False, title="csb-test-same")
+    off = viewer_on()
+    for _ in range(8):
+        win.frame()
+        off.frame()
+    a, b = win.screenshot().astype(int), off.screenshot().astype(int)
+    assert a.shape == b.shape
+    # The same renderer into the same kind of target: at most a few pixels differ (rounding).
+    assert (np.abs(a - b).max(axis=2) > 8).mean() < 0.002
+
+
+def test_xdotool_drag_and_keys_in_a_real_window(viewer_on, on_display):
+    title = f"csb-test-{os.getpid()}"
+    v = viewer_on(offscreen=False, vsync=False, title=title)
+    for _ in range(10):
+        v.frame()
+    window = xdotool("search", "--sync", "--name", title).split()[0]
+    x = np.array(v.state.x)
+    free = np.nonzero(np.array(v.model.inv_mass) > 0)[0]
+    i = free[np.argmin(np.linalg.norm(x[free] - x[free].mean(axis=0), axis=1))]
+    sx, sy, _ = v.camera.project(x[i])
+    sx, sy = int(round(sx)), int(round(sy))
+    xdotool("mousemove", "--window", window, sx, sy)
+    v.frame()
+    xdotool("mousedown", 1)
+    v.frame()
+    held = v.held_particle
+    assert held >= 0, "the press over the cloth grabbed a particle"
+    tx, ty = sx - 40, sy + 30
+    xdotool("mousemove", "--window", window, tx, ty)
+    for _ in range(6):
+        v.frame()
+    gx, gy, _ = v.camera.project(np.array(v.state.x)[held])
+    assert abs(gx - tx) < 1.5 and abs(gy - ty) < 1.5
+    xdotool("mouseup", 1)
+    v.frame()
+    assert v.held_particle == -1
+    # Keys go to the window under the pointer (no window manager on Xvfb).
+    xdotool("key", "space")
+    v.frame()
+    assert v.paused
+    xdotool("key", "m")
+    v.frame()
+    assert v.method == "xpbd"
+    xdotool("key", "q")
+    assert not v.frame() and v.closed
+
+
+def test_csb_view_and_render_commands(on_display, tmp_path):
+    exe = Path(sys.executable).parent
+    r = subprocess.run([exe / "csb", "view", "cloth_drop", "--frames", "5", "--size", "320x240"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "5 frames" in r.stdout, r.stderr
+    r = subprocess.run([exe / "csb", "render", "soft_cube_drop", "--frames", "4", "--every", "2", "--size", "200x150",
+                        "--out", tmp_path, "--no-video"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.png")) == ["frame_00000.png", "frame_00002.png", "frame_00003.png"]
+    r = subprocess.run([exe / "csb", "render", "no_such_scene"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "no_such_scene" in r.stderr
+
+
+def test_the_cpp_viewer_opens_a_mesh_file(tmp_path):
+    exe = Path(sys.executable).parent / "csb-view"
+    mesh = Path(csb.__file__).parent / "scenes" / "meshes" / "cloth_panels.obj"
+    r = subprocess.run([exe, mesh, "--offscreen", "3", "--out", tmp_path, "--size", "200x150"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "1089 particles" in r.stderr and "wrote 3 frames" in r.stdout
+    assert len(list(tmp_path.glob("frame_*.png"))) == 3
+    r = subprocess.run([exe, tmp_path / "missing.obj", "--offscreen", "1"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "missing.obj" in r.stderr
+    r = subprocess.run([exe, mesh, "--method", "rk4"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "--method" in r.stderr
