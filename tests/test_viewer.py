@@ -385,3 +385,12 @@ def test_the_cpp_viewer_opens_a_mesh_file(tmp_path):
     assert r.returncode == 2 and "missing.obj" in r.stderr
     r = subprocess.run([exe, mesh, "--method", "rk4"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--method" in r.stderr
+
+
+def test_the_frame_time_benchmark_times_whole_and_paused_frames():
+    from csb.view import format_frame_times, frame_times
+
+    (row,) = frame_times(8, ((64, 48),), frames=3, warmup=1, samples=0)
+    assert row["particles"] == 64 and row["triangles"] == 2 * 7 * 7
+    assert row["frame_ms"] > 0 and row["draw_ms"] > 0 and row["fps"] == pytest.approx(1e3 / row["frame_ms"])
+    assert "8x8" in format_frame_times([row])

@@ -164,7 +164,7 @@ def format_dispatch(rows: Sequence[dict]) -> str:
 
 
 def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int = 1, steps: int = 10,
-         rounds: int = 7, parts: Sequence[str] = ("step", "front-ends", "dispatch"),
+         rounds: int = 7, parts: Sequence[str] = ("step", "front-ends", "dispatch", "viewer"),
          front_end_sizes: Sequence[int] = (32, 128, 512)) -> dict:
     info = _core.build_info()
     out: dict = {}
@@ -185,4 +185,15 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
               f"deformed cloth_grid; median of {rounds} repeats)")
         out["dispatch"] = dispatch(sizes, sweeps=iterations, repeats=rounds)
         print(format_dispatch(out["dispatch"]))
+    if "viewer" in parts:
+        from .view import format_frame_times, frame_times, viewer_available, viewer_missing
+
+        if viewer_available():
+            print("\nViewer frame time, offscreen (EGL), overlay on, 4x multisampling: cloth_grid 64 x 64, one "
+                  "step of 1 x 10 iterations per frame; median of 60 frames (software rendering: a figure, not a "
+                  "GPU measurement)")
+            out["viewer"] = frame_times(64)
+            print(format_frame_times(out["viewer"]))
+        else:
+            print(f"\nViewer frame time: not measured, the viewer was not built ({viewer_missing()})")
     return out

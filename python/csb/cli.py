@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -61,9 +62,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
     scene = load_scene(args.scene)
     out = Path(args.out) if args.out else Path("out") / scene.name / "frames"
     w, h = args.size
-    r = render(scene, out, frames=args.frames, every=args.every, width=w, height=h, video=not args.no_video,
+    frames = args.frames if args.frames is not None else max(1, math.ceil(scene.duration * 60 - 1e-9))
+    r = render(scene, out, frames=frames, every=args.every, width=w, height=h, video=not args.no_video,
                method=args.method, camera=_camera(args), overlay=args.overlay, wireframe=args.wireframe,
-               particles=args.particles)
+               particles=args.particles, prefix=args.prefix)
     print(f"{scene.name}: {len(r.images)} frames of {w}x{h} in {out} "
           f"({r.ms_per_frame:.1f} ms per frame: step, draw and read-back; {r.draw_ms_per_frame:.1f} ms to draw)")
     if r.video is not None:
@@ -99,14 +101,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("bench", help="time the PBD step, its front ends and virtual dispatch (prints tables)")
+    p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch and the viewer's frames (prints tables)")
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="particles per side (default: 64 128)")
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--steps", type=int, default=10, help="steps per timed round")
     p.add_argument("--rounds", type=int, default=7, help="timed rounds; the median is reported")
-    p.add_argument("--parts", nargs="+", default=["step", "front-ends", "dispatch"],
-                   choices=["step", "front-ends", "dispatch"], help="which tables to print (default: all)")
+    p.add_argument("--parts", nargs="+", default=["step", "front-ends", "dispatch", "viewer"],
+                   choices=["step", "front-ends", "dispatch", "viewer"], help="which tables to print (default: all)")
     p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.set_defaults(func=_cmd_bench)
@@ -131,11 +133,12 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("render", help="draw frames of a scene offscreen into PNG files (and MP4 with ffmpeg)")
     view_options(p)
     p.add_argument("--out", help="output directory (default: out/<scene name>/frames)")
-    p.add_argument("--frames", type=int, default=60, help="frames to draw, each 1/60 s of simulated time (default 60)")
+    p.add_argument("--frames", type=int, help="frames to draw, each 1/60 s of simulated time (default: the scene's duration)")
     p.add_argument("--every", type=int, default=1, help="write every k-th frame (default 1)")
     p.add_argument("--size", type=_size, default=(960, 600), help="image size WxH in pixels (default 960x600)")
     p.add_argument("--overlay", action="store_true", help="draw the fps/energy overlay into the frames")
     p.add_argument("--no-video", action="store_true", help="no MP4 even if ffmpeg is installed")
+    p.add_argument("--prefix", default="frame", help="file names: <prefix>_NNNNN.png, <prefix>.mp4 (default frame)")
     p.set_defaults(func=_cmd_render)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)

@@ -121,3 +121,49 @@ def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, e
     return RenderResult(images=[Path(p) for p in r["images"]], video=Path(r["video"]) if r["video"] else None,
                         video_note=r["video_note"], ms_per_frame=r["ms_per_frame"],
                         draw_ms_per_frame=r["draw_ms_per_frame"], size=(width, height))
+
+
+def frame_times(n: int = 64, sizes: tuple[tuple[int, int], ...] = ((640, 480), (1280, 720)), *, frames: int = 60,
+                warmup: int = 10, samples: int = 4) -> list[dict[str, Any]]:
+    """Wall time per frame of the viewer, offscreen, on the bundled cloth_grid scene at n x n
+    particles (its solver: dt = 1/60 s, 1 sub-step x 10 iterations, one step per frame), with the
+    overlay on. Per image size: the median ms of a whole frame (step, normals, upload, draw, read
+    back), of a frame drawn while paused (everything but the step), and their difference, the
+    step. A figure for the record: with Mesa's software renderer it measures the CPU."""
+    import statistics
+    import time
+
+    from .bench import cloth_simulation
+
+    rows = []
+    for width, height in sizes:
+        sim = cloth_simulation(n)
+        with open_viewer(sim, offscreen=True, width=width, height=height, overlay=True, samples=samples) as v:
+            def timed(paused: bool) -> float:
+                v.paused = paused
+                t0 = time.perf_counter()
+                v.frame()
+                v.screenshot()  # waits for the renderer to finish
+                return 1e3 * (time.perf_counter() - t0)
+
+            for _ in range(warmup):
+                timed(False)
+            # Whole and paused frames alternate, so that both see the same load on a shared machine.
+            whole, drawn = [], []
+            for _ in range(frames):
+                whole.append(timed(False))
+                drawn.append(timed(True))
+        w, d = statistics.median(whole), statistics.median(drawn)
+        rows.append({"n": n, "particles": n * n, "triangles": len(sim.model.triangles), "width": width,
+                     "height": height, "frame_ms": w, "draw_ms": d, "step_ms": w - d, "fps": 1e3 / w})
+    return rows
+
+
+def format_frame_times(rows: list[dict[str, Any]]) -> str:
+    head = (f"{'cloth':>9} {'triangles':>9} {'image':>10} {'frame ms':>9} {'fps':>6} {'draw+read ms':>13} "
+            f"{'step ms':>8}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['triangles']:>9} {r['width']:>4}x{r['height']:<5} "
+                     f"{r['frame_ms']:>9.2f} {r['fps']:>6.1f} {r['draw_ms']:>13.2f} {r['step_ms']:>8.2f}")
+    return "\n".join(lines)
