@@ -133,7 +133,7 @@ CaptureResult capture(Viewer& viewer, const CaptureOptions& o) {
     const Image image = viewer.screenshot();  // waits for the drawing to finish
     const double t2 = now();
     frame_ms.push_back(1e3 * (t2 - t0));
-    draw_ms.push_back(1e3 * (t2 - t1) + viewer.stats().draw_ms);
+    draw_ms.push_back(1e3 * (t2 - t1) + viewer.stats().last_draw_ms);
     if (o.png) {
       const std::string path = frame_name(o, k);
       write_png(image, path);

@@ -23,7 +23,7 @@ struct CaptureResult {
   std::string video;                // the MP4 file, or empty
   std::string video_note;           // why there is no video, when there is none
   double ms_per_frame = 0;          // median wall time of a frame (step + draw + read back)
-  double draw_ms_per_frame = 0;     // median wall time of drawing and reading back alone
+  double draw_ms_per_frame = 0;     // median wall time of drawing and reading back alone (no step)
 };
 
 // Draws `frames` frames of the viewer (in its current state; paused viewers redraw the same

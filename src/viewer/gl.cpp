@@ -8,6 +8,17 @@ namespace csb::viewer {
 
 namespace {
 
+// The info log of a shader or program (get_iv/get_log: glGetShaderiv/glGetShaderInfoLog or the
+// program's pair).
+template <class GetIv, class GetLog>
+std::string info_log(GLuint id, GetIv get_iv, GetLog get_log) {
+  GLint n = 0;
+  get_iv(id, GL_INFO_LOG_LENGTH, &n);
+  std::string log(std::max(n, 1), '\0');
+  get_log(id, n, nullptr, log.data());
+  return log;
+}
+
 GLuint compile(GLenum kind, const std::string& file) {
   const char* source = shader_source(file);
   GLuint s = glCreateShader(kind);
@@ -16,10 +27,7 @@ GLuint compile(GLenum kind, const std::string& file) {
   GLint ok = 0;
   glGetShaderiv(s, GL_COMPILE_STATUS, &ok);
   if (!ok) {
-    GLint n = 0;
-    glGetShaderiv(s, GL_INFO_LOG_LENGTH, &n);
-    std::string log(std::max(n, 1), '\0');
-    glGetShaderInfoLog(s, n, nullptr, log.data());
+    const std::string log = info_log(s, glGetShaderiv, glGetShaderInfoLog);
     glDeleteShader(s);
     throw Error("viewer: shader " + file + " does not compile: " + log);
   }
@@ -46,10 +54,7 @@ Program::Program(const std::string& vertex_file, const std::string& fragment_fil
   GLint ok = 0;
   glGetProgramiv(id_, GL_LINK_STATUS, &ok);
   if (!ok) {
-    GLint n = 0;
-    glGetProgramiv(id_, GL_INFO_LOG_LENGTH, &n);
-    std::string log(std::max(n, 1), '\0');
-    glGetProgramInfoLog(id_, n, nullptr, log.data());
+    const std::string log = info_log(id_, glGetProgramiv, glGetProgramInfoLog);
     glDeleteProgram(id_);
     id_ = 0;
     throw Error("viewer: shaders " + vertex_file + " + " + fragment_file + " do not link: " + log);

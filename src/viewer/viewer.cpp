@@ -533,7 +533,8 @@ void Viewer::draw() {
   if (options_.overlay) draw_overlay();
   c.target->resolve();
   if (c.window) c.target->blit_to_window(w, h);
-  smooth(stats_.draw_ms, 1e3 * (now() - t0), stats_.frames + 1);
+  stats_.last_draw_ms = 1e3 * (now() - t0);
+  smooth(stats_.draw_ms, stats_.last_draw_ms, stats_.frames + 1);
 }
 
 void Viewer::draw_overlay() {

@@ -54,7 +54,8 @@ struct Stats {
   double fps = 0;              // frames per wall-clock second
   double frame_ms = 0;         // wall ms per frame, everything included
   double step_ms = 0;          // wall ms per stepper step (dt of simulated time)
-  double draw_ms = 0;          // wall ms to draw a frame (CPU side, up to the GPU's finish)
+  double draw_ms = 0;          // wall ms to draw a frame (commands issued; smoothed)
+  double last_draw_ms = 0;     // the same for the last frame alone
   std::int64_t frames = 0;     // drawn since start
   std::int64_t steps = 0;      // stepper steps since the last reset
   double kinetic = 0, gravitational = 0, elastic = 0;  // J
