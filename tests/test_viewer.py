@@ -250,8 +250,8 @@ def test_offscreen_render_writes_the_requested_frames(tmp_path):
 
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed")
 def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
-    r = csb.render("cloth_drop", tmp_path, frames=12, width=W, height=H)
-    assert r.video is not None and r.video.stat().st_size > 1000
+    r = csb.render("cloth_drop", tmp_path, frames=12, every=5, width=W, height=H)
+    assert len(r.images) == 4 and r.video is not None and r.video.stat().st_size > 1000  # 0, 5, 10, 11; all in the video
     probe = subprocess.run(["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0", "-show_entries",
                             "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(r.video)],
                            capture_output=True, text=True)

@@ -66,7 +66,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     r = render(scene, out, frames=frames, every=args.every, width=w, height=h, video=not args.no_video,
                method=args.method, camera=_camera(args), overlay=args.overlay, wireframe=args.wireframe,
                particles=args.particles, prefix=args.prefix)
-    print(f"{scene.name}: {len(r.images)} frames of {w}x{h} in {out} "
+    print(f"{scene.name}: {frames} frames of {w}x{h}, {len(r.images)} written as PNG in {out} "
           f"({r.ms_per_frame:.1f} ms per frame: step, draw and read-back; {r.draw_ms_per_frame:.1f} ms to draw)")
     if r.video is not None:
         print(f"  wrote {r.video}")

@@ -112,8 +112,8 @@ def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, e
            overlay: bool = False, **options: Any) -> RenderResult:
     """Draws `frames` frames of a scene offscreen (EGL: no window, no display needed), each
     advancing the simulation by frame_time (default 1/60 s), and writes every `every`-th (and the
-    last) as ``<out>/<prefix>_NNNNN.png``, and ``<out>/<prefix>.mp4`` when ffmpeg is on the PATH
-    and `video` is set."""
+    last) as ``<out>/<prefix>_NNNNN.png``, and all of them as ``<out>/<prefix>.mp4`` (in real
+    time) when ffmpeg is on the PATH and `video` is set."""
     if frames < 1:
         raise _core.ParameterError(f"frames must be >= 1, got {frames}")
     with open_viewer(scene, offscreen=True, width=width, height=height, overlay=overlay, **options) as v:

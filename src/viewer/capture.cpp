@@ -111,7 +111,7 @@ CaptureResult capture(Viewer& viewer, const CaptureOptions& o) {
     } else {
       video = (std::filesystem::path(o.directory) / (o.prefix + ".mp4")).string();
       const Camera& cam = viewer.camera();
-      const double fps = 1.0 / (viewer.steps_per_frame() * viewer.settings().dt) / o.every;
+      const double fps = 1.0 / (viewer.steps_per_frame() * viewer.settings().dt);
       std::ostringstream cmd;
       cmd << quote(ffmpeg) << " -y -loglevel error -f rawvideo -pix_fmt rgb24 -s " << cam.width << "x" << cam.height
           << " -r " << fps << " -i - -vf 'scale=trunc(iw/2)*2:trunc(ih/2)*2' "
@@ -128,13 +128,12 @@ CaptureResult capture(Viewer& viewer, const CaptureOptions& o) {
     const double t0 = now();
     viewer.frame();
     const double t1 = now();
-    const bool keep = k % o.every == 0 || k == o.frames - 1;
-    if (!keep) continue;
     const Image image = viewer.screenshot();  // waits for the drawing to finish
     const double t2 = now();
     frame_ms.push_back(1e3 * (t2 - t0));
     draw_ms.push_back(1e3 * (t2 - t1) + viewer.stats().last_draw_ms);
-    if (o.png) {
+    const bool keep = k % o.every == 0 || k == o.frames - 1;
+    if (o.png && keep) {
       const std::string path = frame_name(o, k);
       write_png(image, path);
       result.images.push_back(path);

@@ -11,7 +11,7 @@ namespace csb::viewer {
 
 struct CaptureOptions {
   std::int64_t frames = 60;   // frames to draw (each advances the simulation by the viewer's frame_time)
-  std::int64_t every = 1;     // write every k-th frame (the first and the last are always written)
+  std::int64_t every = 1;     // write every k-th frame as PNG (the first and the last always); the video has all
   std::string directory = ".";
   std::string prefix = "frame";   // <directory>/<prefix>_<frame number, 5 digits>.png
   bool png = true;
@@ -22,7 +22,7 @@ struct CaptureResult {
   std::vector<std::string> images;  // written PNG files, in order
   std::string video;                // the MP4 file, or empty
   std::string video_note;           // why there is no video, when there is none
-  double ms_per_frame = 0;          // median wall time of a frame (step + draw + read back)
+  double ms_per_frame = 0;          // median wall time of a frame (step + draw + read back), over all frames
   double draw_ms_per_frame = 0;     // median wall time of drawing and reading back alone (no step)
 };
 
