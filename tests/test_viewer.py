@@ -394,3 +394,16 @@ def test_the_frame_time_benchmark_times_whole_and_paused_frames():
     assert row["particles"] == 64 and row["triangles"] == 2 * 7 * 7
     assert row["frame_ms"] > 0 and row["draw_ms"] > 0 and row["fps"] == pytest.approx(1e3 / row["frame_ms"])
     assert "8x8" in format_frame_times([row])
+
+
+def test_closing_a_window_twice_leaves_other_windows_open(on_display):
+    """close() then the destructor: GLFW is shut down once, when the last window goes."""
+    first = csb.open_viewer("cloth_drop", width=W, height=H, vsync=False, overlay=False)
+    first.frame()
+    first.close()
+    with csb.open_viewer("cloth_drop", width=W, height=H, vsync=False, overlay=False) as second:
+        del first  # its destructor closes again
+        import gc
+
+        gc.collect()
+        assert second.frame() and covered(second.screenshot()).mean() > 0.02

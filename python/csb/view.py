@@ -124,12 +124,13 @@ def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, e
 
 
 def frame_times(n: int = 64, sizes: tuple[tuple[int, int], ...] = ((640, 480), (1280, 720)), *, frames: int = 60,
-                warmup: int = 10, samples: int = 4) -> list[dict[str, Any]]:
+                warmup: int = 10, samples: int = 4, offscreen: bool = True) -> list[dict[str, Any]]:
     """Wall time per frame of the viewer, offscreen, on the bundled cloth_grid scene at n x n
     particles (its solver: dt = 1/60 s, 1 sub-step x 10 iterations, one step per frame), with the
     overlay on. Per image size: the median ms of a whole frame (step, normals, upload, draw, read
     back), of a frame drawn while paused (everything but the step), and their difference, the
-    step. A figure for the record: with Mesa's software renderer it measures the CPU."""
+    step. offscreen=False times a window instead (vsync off; needs a display). A figure for the
+    record: with Mesa's software renderer it measures the CPU."""
     import statistics
     import time
 
@@ -138,7 +139,9 @@ def frame_times(n: int = 64, sizes: tuple[tuple[int, int], ...] = ((640, 480), (
     rows = []
     for width, height in sizes:
         sim = cloth_simulation(n)
-        with open_viewer(sim, offscreen=True, width=width, height=height, overlay=True, samples=samples) as v:
+        extra = {} if offscreen else {"vsync": False}
+        with open_viewer(sim, offscreen=offscreen, width=width, height=height, overlay=True, samples=samples,
+                         **extra) as v:
             def timed(paused: bool) -> float:
                 v.paused = paused
                 t0 = time.perf_counter()

@@ -67,6 +67,7 @@ struct Viewer::Context {
   std::unique_ptr<Renderer> renderer;
   ImGuiContext* imgui = nullptr;
   bool imgui_glfw = false, imgui_gl = false;
+  bool holds_glfw = false;  // counted in live_glfw_windows
 
   // Several viewers, windowed and offscreen, may live in one thread: a GLX context and an EGL
   // context cannot both be current, so the other kind is released first.
@@ -89,6 +90,7 @@ struct Viewer::Context {
       throw Error("viewer: cannot open a window (" + glfw_error() +
                   "); without a display use the offscreen mode (csb render, or offscreen=True)");
     ++live_glfw_windows;
+    holds_glfw = true;
     if (eglGetCurrentContext() != EGL_NO_CONTEXT)
       eglMakeCurrent(eglGetCurrentDisplay(), EGL_NO_SURFACE, EGL_NO_SURFACE, EGL_NO_CONTEXT);
     glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
@@ -155,7 +157,8 @@ struct Viewer::Context {
       glfwDestroyWindow(window);
       window = nullptr;
     }
-    if (live_glfw_windows > 0 && egl == EGL_NO_CONTEXT && display == EGL_NO_DISPLAY) {
+    if (holds_glfw) {  // once per window, however often close() is called
+      holds_glfw = false;
       if (--live_glfw_windows == 0) glfwTerminate();
     }
     if (egl != EGL_NO_CONTEXT) {
