@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -131,6 +131,10 @@ class Model:
     """
     def __repr__(self) -> str:
         ...
+    def colouring(self, batch: str) -> dict:
+        """
+        The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is order[offsets[k]:offsets[k+1]]), overflow (the last colour's constraints may share particles and are projected serially)
+        """
     def initial_state(self) -> State:
         """
         A new State at the rest positions with zero velocities and t = 0.
@@ -177,6 +181,11 @@ class Model:
     def mass(self) -> numpy.ndarray:
         """
         (N,) masses, kg (kept for pinned particles)
+        """
+    @property
+    def memory(self) -> dict:
+        """
+        bytes the model's arrays hold (from their capacities), per part
         """
     @property
     def num_constraints(self) -> int:
@@ -318,6 +327,9 @@ class PbdSettings:
     def method(self) -> str:
         ...
     @property
+    def ordering(self) -> str:
+        ...
+    @property
     def solver(self) -> str:
         ...
     @property
@@ -329,6 +341,11 @@ class PbdSettings:
     @property
     def substeps(self) -> int:
         ...
+    @property
+    def threads(self) -> int:
+        """
+        threads per colour; 0: automatic
+        """
     @property
     def verlet_drag(self) -> float:
         """
@@ -343,9 +360,9 @@ class PbdStepper:
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0) -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots.
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (each batch colour by colour, data-parallel) or 'sequential' (as built, one thread). threads: threads per colour, >= 0 (0: the free cores; the result does not depend on it).
         """
     def contacts(self) -> dict:
         """
@@ -385,6 +402,16 @@ class PbdStepper:
     def substep_size(self) -> float:
         """
         h = dt/substeps, s
+        """
+    @property
+    def threads_used(self) -> int:
+        """
+        threads the last step used
+        """
+    @property
+    def workspace_bytes(self) -> int:
+        """
+        bytes of the stepper's per-model workspace (from the vectors' capacities)
         """
 class Pick:
     """
@@ -470,6 +497,10 @@ def cloth_grid(width: typing.SupportsFloat | typing.SupportsIndex, height: typin
     """
     Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).
     """
+def colour_constraints(particles: typing.Annotated[numpy.typing.ArrayLike, numpy.int32], num_particles: typing.SupportsInt | typing.SupportsIndex, min_colour_size: typing.SupportsInt | typing.SupportsIndex = 64) -> dict:
+    """
+    The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).
+    """
 def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, iterations: typing.SupportsInt | typing.SupportsIndex) -> float:
     """
     1 - (1 - k)^(1/iterations), Müller 2007 §3.3.
@@ -520,3 +551,5 @@ def volume_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.
     """
     Violation V - V0 of every tetrahedral volume constraint, m³.
     """
+MAX_COLOURS: int = 64
+MIN_COLOUR_SIZE: int = 64
