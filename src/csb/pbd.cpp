@@ -479,6 +479,14 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
 // Kernels read positions from r and apply corrections to o: Gauss-Seidel r = o = p, Jacobi
 // r = the positions at the sweep's start, o = the correction sums.
 
+// With gather and scatter instructions (AVX-512, -march=native) the compiler vectorises the plain
+// loop over a colour; without them (the portable x86-64 build) the blocked loop gathers by hand.
+#if defined(__AVX512F__)
+#define CSB_GATHER_SIMD 1
+#else
+#define CSB_GATHER_SIMD 0
+#endif
+
 #if defined(__GNUC__)
 #define CSB_INLINE inline __attribute__((always_inline))
 #else
@@ -502,12 +510,13 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
     const Real r2 = rest * rest;
     const Real cj = (dd - r2) / (2 * rest);
     const Real violation = cj - sense * std::max(sense * cj, Real(0));
-    s = violation != 0 ? (dd - r2) / (dd + r2) : Real(0);
+    const Real den = dd + r2;  // selects on values, then an unconditional division: no branch
+    s = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
   } else {
     const Real len = std::sqrt(dd);
     const Real cl = len - rest;
     const Real violation = cl - sense * std::max(sense * cl, Real(0));
-    s = len > 0 ? violation / len : Real(0);
+    s = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
   }
   const Real si = b.ci[c] * s, sj = b.cj[c] * s;
   o[i] -= si * dx;
@@ -518,18 +527,67 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
   o[j + 2] += sj * dz;
 }
 
+// The same over the independent constraints [begin, end) of one colour, in blocks: positions
+// gathered into small arrays one constraint at a time, the arithmetic in a loop the compiler runs
+// in SIMD lanes (SSE2 in the portable build, which has no gather instruction to vectorise the
+// plain loop with), the corrections scattered back. Per constraint the same operations in the
+// same order as distance_pbd, so the same bits.
+template <bool Approx>
+inline void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
+  constexpr Index B = 32;
+  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0);
+    for (Index k = 0; k < m; ++k) {
+      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+      dx[k] = r[i] - r[j];
+      dy[k] = r[i + 1] - r[j + 1];
+      dz[k] = r[i + 2] - r[j + 2];
+    }
+    const Real* rest = b.rest.data() + c0;
+    const std::int8_t* sense = b.sense.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      const Real dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
+      const Real sn = sense[k];
+      if constexpr (Approx) {
+        const Real r2 = rest[k] * rest[k];
+        const Real cj = (dd - r2) / (2 * rest[k]);
+        const Real violation = cj - sn * std::max(sn * cj, Real(0));
+        const Real den = dd + r2;
+        s[k] = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+      } else {
+        const Real len = std::sqrt(dd);
+        const Real cl = len - rest[k];
+        const Real violation = cl - sn * std::max(sn * cl, Real(0));
+        s[k] = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+      }
+    }
+    for (Index k = 0; k < m; ++k) {
+      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+      const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
+      o[i] -= si * dx[k];
+      o[i + 1] -= si * dy[k];
+      o[i + 2] -= si * dz[k];
+      o[j] += sj * dx[k];
+      o[j + 1] += sj * dy[k];
+      o[j + 2] += sj * dz[k];
+    }
+  }
+}
+
 // XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
 CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x) {
   const Index i = 3 * b.i[c], j = 3 * b.j[c];
   const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
-  const Real inv_len = len > 0 ? 1 / len : Real(0);
+  const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
   const Real nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
   const Real cl = len - b.rest[c];
   const Real g = b.gamma[c];
-  const Real moved = g == 0 ? Real(0)
-                            : nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
-                                  nz * ((r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]));
+  const Real along = nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
+                     nz * ((r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]));
+  const Real moved = g == 0 ? Real(0) : along;
   const Real lambda = b.lambda[c];
   Real dl = (-cl - b.alpha[c] * lambda - g * moved) * b.inv_den[c];
   const Real sense = b.sense[c];
@@ -571,7 +629,8 @@ CSB_INLINE void bending_one(ColouredFour& b, Index k, const Real* r, Real* o, co
   const Real sin_part = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
   const Real cos_part = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
   const Real theta = std::atan2(sin_part, cos_part);
-  const Real i1 = ok ? 1 / n1 : Real(0), i2 = ok ? 1 / n2 : Real(0), ie = ok ? 1 / elen : Real(0);
+  const Real one = ok ? 1 : 0;
+  const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
   const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
   const Real tcb = (cbx * ex + cby * ey + cbz * ez) * ie, tdb = (dbx * ex + dby * ey + dbz * ez) * ie;
   const Real tca = (cax * ex + cay * ey + caz * ez) * ie, tda = (dax * ex + day * ey + daz * ez) * ie;
@@ -701,8 +760,12 @@ void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const 
       }
     } else {
       if (independent) {
+#if CSB_GATHER_SIMD
 #pragma omp simd
         for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
+#else
+        distance_pbd_blocks<false>(d, begin, end, r, o);
+#endif
       } else {
         for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
       }
@@ -1480,6 +1543,42 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
   }
   t.identical = a.size() == b.size() && std::memcmp(a.data(), b.data(), sizeof(Real) * a.size()) == 0;
   return t;
+}
+
+std::vector<double> benchmark_plain_distance(const Model& model, const Positions& positions, int sweeps, int repeats) {
+  if (positions.cols() != model.num_particles()) throw InvalidArgument("positions do not match the model");
+  if (sweeps < 1 || repeats < 1) throw InvalidArgument("sweeps and repeats must be >= 1");
+  const auto& d = model.distance;
+  const Index m = d.size();
+  if (m == 0) throw InvalidArgument("the model has no distance constraints");
+  const Real* w = model.inv_mass.data();
+  std::vector<double> ns;
+  Positions a;
+  for (int r = 0; r < repeats; ++r) {
+    a = positions;
+    Real* p = a.data();
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int s = 0; s < sweeps; ++s)
+      for (Index c = 0; c < m; ++c) {
+        const Index i = d.particles[c][0], j = d.particles[c][1];
+        Real* pi = p + 3 * i;
+        Real* pj = p + 3 * j;
+        const Real dx = pi[0] - pj[0], dy = pi[1] - pj[1], dz = pi[2] - pj[2];
+        const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const Real wsum = w[i] + w[j];
+        if (wsum <= 0 || len <= 0) continue;
+        const Real f = (len - d.rest_length[c]) / (wsum * len);
+        pi[0] -= w[i] * f * dx;
+        pi[1] -= w[i] * f * dy;
+        pi[2] -= w[i] * f * dz;
+        pj[0] += w[j] * f * dx;
+        pj[1] += w[j] * f * dy;
+        pj[2] += w[j] * f * dz;
+      }
+    const auto t1 = std::chrono::steady_clock::now();
+    ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / (static_cast<double>(sweeps) * m));
+  }
+  return ns;
 }
 
 }  // namespace csb

@@ -13,6 +13,7 @@
 #include <pybind11/stl.h>
 
 #include <cstring>
+#include <chrono>
 #include <sstream>
 
 namespace py = pybind11;
@@ -246,6 +247,8 @@ PYBIND11_MODULE(_core, m) {
     d["sundials"] = b.sundials_version;
     d["sundials_klu"] = b.sundials_klu;
     d["compiler"] = b.compiler;
+    d["simd"] = b.simd;
+    d["openmp"] = b.openmp;
     return d;
   }, "Versions of csb and of the libraries it was built against.");
 
@@ -948,6 +951,31 @@ PYBIND11_MODULE(_core, m) {
      "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
   m.attr("MAX_COLOURS") = kMaxColours;
   m.attr("MIN_COLOUR_SIZE") = kMinColourSize;
+
+  m.def("benchmark_plain_distance", [](const Model& model, py::handle positions, int sweeps, int repeats) {
+    const Positions x = to_positions(positions, "positions");
+    std::vector<double> ns;
+    {
+      py::gil_scoped_release release;
+      ns = benchmark_plain_distance(model, x, sweeps, repeats);
+    }
+    return ns;
+  }, py::arg("model"), py::arg("positions"), py::arg("sweeps"), py::arg("repeats"),
+     "The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in "
+     "double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.");
+  m.def("benchmark_jacobian", [](const SpringNetwork& net, const State& state, int repeats) {
+    std::vector<double> y(net.size()), values(net.jacobian_row_indices().size());
+    net.pack(state, y.data());
+    std::vector<double> ms;
+    py::gil_scoped_release release;
+    for (int r = 0; r < repeats; ++r) {
+      const auto t0 = std::chrono::steady_clock::now();
+      net.jacobian(y.data(), values.data());
+      ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+    return ms;
+  }, py::arg("network"), py::arg("state"), py::arg("repeats"),
+     "ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.");
 
   m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
         "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");

@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -476,6 +476,14 @@ def balloon_volumes(model: Model, state: State) -> numpy.typing.NDArray[numpy.fl
 def benchmark_dispatch(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> dict:
     """
     Gauss-Seidel sweeps through the batched kernels and through one virtual Constraint object per constraint: ns per projection of each repeat, and whether the results agree bit for bit.
+    """
+def benchmark_jacobian(network: ..., state: State, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+    """
+    ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.
+    """
+def benchmark_plain_distance(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+    """
+    The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.
     """
 def bending_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
