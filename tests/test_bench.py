@@ -47,3 +47,21 @@ def test_bench_command_prints_a_table():
     rows = [line.split() for line in lines[3:]]
     assert [(r[0], r[1]) for r in rows] == [(f"{n}x{n}", kind) for n in (8, 16)
                                              for kind in ("stretch+bending", "stretch", "bending")]
+
+
+def test_issue7_bench_helpers_run_and_report_consistent_memory():
+    from csb.bench import (cloth_ms_per_frame, format_memory, format_projection_rates, make_stepper, memory_report,
+                           projection_rates)
+
+    r = cloth_ms_per_frame(8, substeps=2, iterations=1, threads=2, frames=2, rounds=2)
+    assert r["threads_used"] == 2 and r["ms"] > 0 and r["fps"] == 1e3 / r["ms"]
+    rows = projection_rates(8, sweeps=2, rounds=1)
+    assert {r["ordering"] for r in rows} == {"coloured", "sequential", "plain loop"}
+    assert "vs plain loop" in format_projection_rates(rows)
+    sim = cloth_simulation(16, iterations=1)
+    stepper = make_stepper(sim, substeps=1, iterations=1)
+    stepper.step(sim.model, sim.state)
+    m = memory_report(sim.model, stepper)
+    assert m["model_bytes"] == sim.model.memory["total"] and m["workspace_bytes"] == stepper.workspace_bytes
+    assert m["bytes_per_particle"] * m["particles"] == m["model_bytes"] + m["workspace_bytes"]
+    assert "B/particle" in format_memory([dict(n=16, method="pbd", **m)])

@@ -93,17 +93,20 @@ def test_bad_self_collision_input():
 
 
 
-@pytest.fixture(scope="module")
-def drape(tmp_path_factory) -> tuple[list[float], int]:
+@pytest.fixture(scope="module", params=["coloured", "sequential"])
+def drape(request, tmp_path_factory) -> tuple[list[float], int]:
     """The bundled cloth_sphere scene (30 x 30 XPBD cloth, 30 sub-steps of one iteration) with the
     soft bending of a drapier cloth, compliance 1000 1/(N m): its kinetic + gravitational energy per
     frame over the first 0.75 s (falling, hitting the sphere, the hem folding at frames 16-30), and
-    the edge-triangle crossings at the end."""
+    the edge-triangle crossings at the end; with the coloured sweep (the default) and the
+    sequential one (the constraints in the order they were built)."""
     text = csb.bundled_scenes()["cloth_sphere"].read_text()
     text = re.sub(r"bending = \{ compliance = [0-9.e+-]+ \}", "bending = { compliance = 1000.0 }", text)
+    text = re.sub(r"\[solver\]", f'[solver]\nordering = "{request.param}"', text)
     path = tmp_path_factory.mktemp("drape") / "soft_sphere.toml"
     path.write_text(text)
     sim = csb.load_scene(path).build()
+    assert sim.stepper.settings.ordering == request.param
     energy = []
     for _ in range(45):
         sim.stepper.step(sim.model, sim.state)
@@ -123,14 +126,21 @@ def test_a_soft_cloth_draping_over_a_sphere_does_not_explode(drape):
     energy went from 1.41 J to 1800 J by frame 32. Tolerance: the same drape without
     self-collision already peaks at 3.1 E0 (frame 29, the hem whipping off the sphere at 46 %
     strain under the collider contacts and one iteration of hard stretch, not a self-contact
-    matter); with self-collision it peaks at 4.4 E0, so 6 E0 bounds it with some margin while an
-    explosion passes 50 E0. By 0.75 s the cloth has settled below its starting energy."""
+    matter); with self-collision it peaks at 4.4 E0 in the sequential sweep, so 6 E0 bounds it
+    with some margin while an explosion passes 50 E0. The coloured sweep has no whip (its peak is
+    E0). By 0.75 s the cloth has settled below its starting energy."""
     energy, _ = drape
     assert len(energy) == 45 and max(energy) < 6 * energy[0] and energy[-1] < energy[0]
 
 
-@pytest.mark.xfail(strict=True, reason="open: during the hem's whip (frames 27-29, 60 % strain) about 50 edges "
-                   "pass through triangles, and the side rule then keeps them through (34 at frame 45)")
-def test_a_soft_cloth_draping_over_a_sphere_does_not_pass_through_itself(drape):
+def test_a_soft_cloth_draping_over_a_sphere_does_not_pass_through_itself(request, drape):
+    """With the coloured sweep the hem does not whip and no edge crosses a triangle (0 at frames
+    27 to 45). The sequential sweep (one iteration, the rows in build order) whips the hem at 60 %
+    strain and about 50 edges pass through triangles there; the side rule then keeps them through
+    (34 at frame 45): an open, strictly expected failure of that ordering."""
+    if request.node.callspec.params["drape"] == "sequential":
+        request.applymarker(pytest.mark.xfail(strict=True, reason=(
+            "open, sequential sweep only: during the hem's whip (frames 27-29, 60 % strain) about 50 edges pass "
+            "through triangles, and the side rule then keeps them through (34 at frame 45)")))
     _, crossings = drape
     assert crossings == 0

@@ -164,8 +164,11 @@ def format_dispatch(rows: Sequence[dict]) -> str:
 
 
 def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int = 1, steps: int = 10,
-         rounds: int = 7, parts: Sequence[str] = ("step", "front-ends", "dispatch", "viewer"),
+         rounds: int = 7, parts: Sequence[str] | None = None,
          front_end_sizes: Sequence[int] = (32, 128, 512)) -> dict:
+    """Prints the tables named in `parts` (default: all of them)."""
+    if parts is None:
+        parts = ("step", "front-ends", "dispatch", "viewer") + PARTS_ISSUE7
     info = _core.build_info()
     out: dict = {}
     if "step" in parts:
@@ -196,4 +199,391 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
             print(format_frame_times(out["viewer"]))
         else:
             print(f"\nViewer frame time: not measured, the viewer was not built ({viewer_missing()})")
+    issue7_parts = [p for p in parts if p in PARTS_ISSUE7]
+    if issue7_parts:
+        out.update(issue7(issue7_parts, rounds=rounds))
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Issue 7: colouring, SIMD, threads, scaling, memory, the reference's cost. Functions other code can
+# call (e.g. a peer comparison) return plain numbers; the format_* ones print tables.
+
+PARTS_ISSUE7 = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu")
+
+
+def make_stepper(sim: Simulation, *, substeps: int, iterations: int, threads: int = 0, ordering: str = "coloured",
+                 method: str | None = None) -> _core.PbdStepper:
+    """The scene's stepper with sub-steps, iterations, threads, ordering (and method) replaced."""
+    solver = dataclasses.replace(sim.scene.solver, substeps=substeps, iterations=iterations, threads=threads,
+                                 ordering=ordering, **({"method": method} if method else {}))
+    return solver.stepper()
+
+
+def time_steps(stepper: _core.PbdStepper, model, state, *, steps: int, rounds: int, warmup: int = 2) -> list[float]:
+    """ms per step of each timed round of `steps` steps, after `warmup` steps."""
+    if warmup:
+        stepper.step(model, state, warmup)
+    times = []
+    for _ in range(rounds):
+        t0 = time.perf_counter()
+        stepper.step(model, state, steps)
+        times.append((time.perf_counter() - t0) / steps * 1e3)
+    return times
+
+
+def cloth_ms_per_frame(n: int, *, substeps: int = 10, iterations: int = 1, threads: int = 0,
+                       ordering: str = "coloured", method: str = "pbd", frames: int = 10, rounds: int = 5,
+                       constraints: str = KINDS[0]) -> dict:
+    """csb on the bundled cloth_grid at n x n particles (stretch and shear edges, dihedral bending,
+    two pinned corners), dt = 1/60 s: median ms per frame (one step of dt) at (substeps,
+    iterations) with the given threads (0: automatic) and ordering; also its min-max, the fps and
+    the threads the stepper used."""
+    sim = cloth_simulation(n, iterations=iterations, substeps=substeps, constraints=constraints)
+    stepper = make_stepper(sim, substeps=substeps, iterations=iterations, threads=threads, ordering=ordering,
+                           method=method)
+    times = time_steps(stepper, sim.model, sim.state, steps=frames, rounds=rounds)
+    ms = statistics.median(times)
+    return dict(n=n, particles=sim.model.num_particles, substeps=substeps, iterations=iterations, threads=threads,
+                threads_used=stepper.threads_used, ordering=ordering, method=method, ms=ms,
+                spread=(min(times), max(times)), fps=1e3 / ms)
+
+
+def fps_table(sizes: Sequence[int] = (128, 256), *, rounds: int = 5) -> list[dict]:
+    rows = []
+    for n in sizes:
+        for substeps, iterations in ((10, 1), (1, 10)):
+            for threads in (1, 2):
+                rows.append(cloth_ms_per_frame(n, substeps=substeps, iterations=iterations, threads=threads,
+                                               rounds=rounds, frames=max(2, 20 * 128 * 128 // (n * n))))
+            try:  # the sequential sweep at one iteration per sub-step diverges on these hard cloths
+                rows.append(cloth_ms_per_frame(n, substeps=substeps, iterations=iterations, threads=1,
+                                               ordering="sequential", rounds=rounds,
+                                               frames=max(2, 20 * 128 * 128 // (n * n))))
+            except _core.SimulationError as e:
+                rows.append(dict(n=n, particles=n * n, substeps=substeps, iterations=iterations, threads=1,
+                                 threads_used=1, ordering="sequential", method="pbd", ms=float("nan"),
+                                 spread=(float("nan"), float("nan")), fps=float("nan"),
+                                 diverged=str(e).split(":")[0]))
+    return rows
+
+
+def format_fps(rows: Sequence[dict]) -> str:
+    head = f"{'cloth':>9} {'sub x it':>8} {'ordering':>10} {'threads':>7} {'ms/frame':>9} {'(min-max)':>15} {'fps':>7}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['substeps']:>3} x {r['iterations']:<2} {r['ordering']:>10} "
+                     f"{r['threads_used']:>7} {r['ms']:>9.2f} {'({:.2f}-{:.2f})'.format(*r['spread']):>15} "
+                     f"{r['fps']:>7.1f}" + (f"  diverged ({r['diverged']})" if "diverged" in r else ""))
+    return "\n".join(lines)
+
+
+def _tet_simulation(cells: int, *, iterations: int) -> tuple:
+    """A tet box of cells³ x 6 tets with volume constraints only, pinned nowhere, no gravity."""
+    b = ModelBuilder()
+    b.add_tet_mesh(_core.tet_box((1.0, 1.0, 1.0), (cells, cells, cells)), mass=1.0, stretch_stiffness=None)
+    return b.build()
+
+
+def _attachment_model(n: int):
+    b = ModelBuilder()
+    g = b.add_group("particles")
+    rng = np.random.default_rng(0)
+    for k in range(n):
+        x = rng.normal(size=3)
+        i = b.add_particle(x, 1.0, g)
+        b.attach(i, x + 0.01, stiffness=0.5)
+    return b.build()
+
+
+def projection_rates(n: int = 128, *, sweeps: int = 10, rounds: int = 5, threads: int = 1) -> list[dict]:
+    """Constraint projections per second of each type in the stepper (one sub-step of `sweeps`
+    Gauss-Seidel iterations, so predict and commit are under 1 % of the time), coloured and
+    sequential, against the plain sequential C++ loop over the same distance constraints
+    (benchmark_plain_distance) timed in the same run."""
+    rows = []
+    models = {
+        "distance": cloth_simulation(n, iterations=sweeps, constraints="stretch").model,
+        "bending": cloth_simulation(n, iterations=sweeps, constraints="bending").model,
+        "volume": _tet_simulation(max(4, n // 6), iterations=sweeps),
+        "attachment": _attachment_model(n * n),
+    }
+    for kind, model in models.items():
+        for ordering in ("coloured", "sequential"):
+            stepper = _core.PbdStepper(dt=1 / 60, iterations=sweeps, gravity=(0, -9.81, 0), ordering=ordering,
+                                       threads=threads)
+            state = model.initial_state()
+            times = time_steps(stepper, model, state, steps=3, rounds=rounds, warmup=2)
+            ms = statistics.median(times)
+            per_step = stepper.projections_per_step(model)
+            rows.append(dict(kind=kind, ordering=ordering, threads=stepper.threads_used, constraints=model.num_constraints,
+                             mproj_s=per_step / (ms * 1e-3) / 1e6, ns=1e6 * ms / per_step))
+        if kind == "distance":
+            sim = cloth_simulation(n, iterations=sweeps, constraints="stretch")
+            sim.stepper.step(sim.model, sim.state, 5)
+            ns = statistics.median(_core.benchmark_plain_distance(sim.model, sim.state.x, sweeps, rounds))
+            rows.append(dict(kind="distance", ordering="plain loop", threads=1, constraints=sim.model.num_constraints,
+                             mproj_s=1e3 / ns, ns=ns))
+    return rows
+
+
+def format_projection_rates(rows: Sequence[dict]) -> str:
+    plain = next(r for r in rows if r["ordering"] == "plain loop")
+    head = f"{'type':>10} {'ordering':>11} {'threads':>7} {'constraints':>11} {'Mproj/s':>8} {'ns/proj':>8} {'vs plain loop':>13}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['kind']:>10} {r['ordering']:>11} {r['threads']:>7} {r['constraints']:>11} {r['mproj_s']:>8.1f} "
+                     f"{r['ns']:>8.2f} {r['mproj_s'] / plain['mproj_s']:>13.2f}")
+    return "\n".join(lines)
+
+
+def _busy_loop(core: int):
+    """A process that keeps one core busy (pinned to it) until killed."""
+    import os
+    import subprocess
+    import sys
+
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"],
+                            preexec_fn=(lambda: os.sched_setaffinity(0, {core})) if hasattr(os, "sched_setaffinity") else None)
+
+
+def thread_scaling(n: int = 128, *, substeps: int = 10, iterations: int = 1, rounds: int = 5, busy: bool = False,
+                   wait_policy: str | None = None) -> dict:
+    """ms per frame of the n x n cloth with 1, 2 and automatic threads, measured in one run
+    (interleaved rounds, so that the machine's load affects all alike), optionally with another
+    process keeping core 1 busy; in a fresh interpreter so that OMP_WAIT_POLICY can be set."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    code = (
+        "import json, statistics, time, sys\n"
+        "from csb.bench import cloth_simulation, make_stepper\n"
+        f"n, sub, it, rounds = {n}, {substeps}, {iterations}, {rounds}\n"
+        "frames = max(2, 20 * 128 * 128 // (n * n))\n"
+        "runs = {}\n"
+        "for t in (1, 2, 0):\n"
+        "    sim = cloth_simulation(n, iterations=it, substeps=sub)\n"
+        "    st = make_stepper(sim, substeps=sub, iterations=it, threads=t)\n"
+        "    st.step(sim.model, sim.state, 2)\n"
+        "    runs[t] = [sim, st, []]\n"
+        "for _ in range(rounds):\n"
+        "    for t, (sim, st, times) in runs.items():\n"
+        "        t0 = time.perf_counter(); st.step(sim.model, sim.state, frames)\n"
+        "        times.append((time.perf_counter() - t0) / frames * 1e3)\n"
+        "print(json.dumps({str(t): [statistics.median(v[2]), v[1].threads_used] for t, v in runs.items()}))\n"
+    )
+    env = dict(os.environ)
+    if wait_policy:
+        env["OMP_WAIT_POLICY"] = wait_policy
+    busy_proc = _busy_loop(1) if busy else None
+    try:
+        time.sleep(0.2 if busy else 0)
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    finally:
+        if busy_proc:
+            busy_proc.kill()
+            busy_proc.wait()
+    res = json.loads(r.stdout.strip().splitlines()[-1])
+    with open("/proc/loadavg") if os.path.exists("/proc/loadavg") else open(os.devnull) as f:
+        load = f.read().split()[:1]
+    return dict(n=n, substeps=substeps, iterations=iterations, busy=busy,
+                wait_policy=wait_policy or os.environ.get("OMP_WAIT_POLICY", "passive"),
+                ms1=res["1"][0], ms2=res["2"][0], ms_auto=res["0"][0], auto_threads=res["0"][1],
+                load=float(load[0]) if load else float("nan"))
+
+
+def format_thread_scaling(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'sub x it':>8} {'busy core':>9} {'OMP_WAIT_POLICY':>15} {'1 thread':>9} {'2 threads':>9} "
+            f"{'2 vs 1':>7} {'auto':>9} {'(threads)':>9} {'load':>5}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['substeps']:>3} x {r['iterations']:<2} {'yes' if r['busy'] else 'no':>9} "
+                     f"{r['wait_policy']:>15} {r['ms1']:>9.2f} {r['ms2']:>9.2f} {r['ms2'] / r['ms1']:>7.2f} "
+                     f"{r['ms_auto']:>9.2f} {r['auto_threads']:>9} {r['load']:>5.2f}")
+    return "\n".join(lines)
+
+
+def memory_report(model, stepper: _core.PbdStepper) -> dict:
+    """Bytes of the Model (its arrays' capacities) and of the stepper's per-model workspace (step
+    the stepper once on the model first), per particle and per constraint."""
+    mem = model.memory
+    ws = stepper.workspace_bytes
+    n, c = model.num_particles, model.num_constraints
+    return dict(particles=n, constraints=c, model_bytes=mem["total"], workspace_bytes=ws,
+                bytes_per_particle=(mem["total"] + ws) / n,
+                model_per_particle=mem["particles"] / n,
+                model_per_constraint=(mem["total"] - mem["particles"]) / max(c, 1),
+                total_per_constraint=(mem["total"] + ws) / max(c, 1))
+
+
+def memory_table(sizes: Sequence[int] = (64, 256)) -> list[dict]:
+    rows = []
+    for n in sizes:
+        for method in ("pbd", "xpbd"):
+            sim = cloth_simulation(n, iterations=1, substeps=1)
+            stepper = make_stepper(sim, substeps=1, iterations=1, method=method)
+            stepper.step(sim.model, sim.state)
+            rows.append(dict(n=n, method=method, **memory_report(sim.model, stepper)))
+    return rows
+
+
+def format_memory(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'method':>6} {'particles':>9} {'constraints':>11} {'model MB':>9} {'stepper MB':>10} "
+            f"{'B/particle':>10} {'model B/constraint':>18} {'all B/constraint':>16}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['method']:>6} {r['particles']:>9} {r['constraints']:>11} "
+                     f"{r['model_bytes'] / 2**20:>9.1f} {r['workspace_bytes'] / 2**20:>10.1f} "
+                     f"{r['bytes_per_particle']:>10.0f} {r['model_per_constraint']:>18.1f} {r['total_per_constraint']:>16.1f}")
+    return "\n".join(lines)
+
+
+def particle_scaling(sizes: Sequence[int] = (32, 64, 128, 256, 512, 1024), *, substeps: int = 1,
+                     iterations: int = 10, threads: int = 1, rounds: int = 3) -> list[dict]:
+    """Cost per particle per step from 1k to 1M particles (cloth_grid, stretch + shear + bending)."""
+    rows = []
+    for n in sizes:
+        sim = cloth_simulation(n, iterations=iterations, substeps=substeps)
+        stepper = make_stepper(sim, substeps=substeps, iterations=iterations, threads=threads)
+        steps = max(1, int(2e6 / (n * n * iterations * substeps)))
+        times = time_steps(stepper, sim.model, sim.state, steps=steps, rounds=rounds, warmup=1)
+        ms = statistics.median(times)
+        rows.append(dict(n=n, particles=n * n, constraints=sim.model.num_constraints, threads=stepper.threads_used,
+                         ms=ms, ns_per_particle=1e6 * ms / (n * n),
+                         ns_per_projection=1e6 * ms / stepper.projections_per_step(sim.model)))
+    return rows
+
+
+def format_particle_scaling(rows: Sequence[dict]) -> str:
+    base = rows[0]["ns_per_particle"]
+    head = f"{'cloth':>11} {'particles':>9} {'constraints':>11} {'threads':>7} {'ms/step':>9} {'ns/particle':>11} {'ns/proj':>8} {'vs first':>8}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>5}x{r['n']:<5} {r['particles']:>9} {r['constraints']:>11} {r['threads']:>7} {r['ms']:>9.2f} "
+                     f"{r['ns_per_particle']:>11.1f} {r['ns_per_projection']:>8.2f} {r['ns_per_particle'] / base:>8.2f}")
+    return "\n".join(lines)
+
+
+def big_cloth(n: int = 1024, *, substeps: int = 1, iterations: int = 10, steps: int = 3, threads: int = 0) -> dict:
+    """Builds and steps an n x n cloth_grid in a fresh interpreter: build time, ms per step, peak
+    resident memory (VmHWM of /proc/self/status), and the memory report."""
+    import json
+    import subprocess
+    import sys
+
+    # VmHWM, not getrusage: ru_maxrss keeps the parent's peak across fork and exec.
+    code = (
+        "import json, statistics, time\n"
+        "from csb.bench import cloth_simulation, make_stepper, memory_report, time_steps\n"
+        "def hwm():\n"
+        "    return next(int(l.split()[1]) for l in open('/proc/self/status') if l.startswith('VmHWM'))\n"
+        "r0 = hwm()\n"
+        f"t0 = time.perf_counter(); sim = cloth_simulation({n}, iterations={iterations}, substeps={substeps})\n"
+        "build = time.perf_counter() - t0\n"
+        "r1 = hwm()\n"
+        f"st = make_stepper(sim, substeps={substeps}, iterations={iterations}, threads={threads})\n"
+        f"times = time_steps(st, sim.model, sim.state, steps=1, rounds={steps}, warmup=1)\n"
+        "r2 = hwm()\n"
+        "print(json.dumps(dict(build_s=build, ms=statistics.median(times), threads=st.threads_used, rss_start_mb=r0 / 1024,"
+        " rss_built_mb=r1 / 1024, rss_peak_mb=r2 / 1024, **memory_report(sim.model, st))))\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    return dict(n=n, substeps=substeps, iterations=iterations, **json.loads(r.stdout.strip().splitlines()[-1]))
+
+
+def format_big_cloth(r: dict) -> str:
+    return (f"{r['n']}x{r['n']} cloth: {r['particles']} particles, {r['constraints']} constraints; build "
+            f"{r['build_s']:.1f} s; {r['substeps']} x {r['iterations']}: {r['ms']:.0f} ms per step on {r['threads']} "
+            f"thread(s); peak RSS {r['rss_peak_mb']:.0f} MB (interpreter and numpy alone {r['rss_start_mb']:.0f} MB, "
+            f"after the build {r['rss_built_mb']:.0f} MB); reported: model {r['model_bytes'] / 2**20:.0f} MB + stepper "
+            f"{r['workspace_bytes'] / 2**20:.0f} MB = {r['bytes_per_particle']:.0f} B per particle, "
+            f"{r['total_per_constraint']:.1f} B per constraint")
+
+
+def klu_scaling(sizes: Sequence[int] = (16, 32, 64), *, duration: float = 0.02, repeats: int = 5) -> list[dict]:
+    """The reference integrator (CVODE BDF + KLU with the analytic sparse Jacobian) on cloth_grid
+    with compliant stretch and shear edges (no bending: the KLU path needs the analytic Jacobian):
+    ms per Jacobian assembly (the values into the fixed CSC pattern), and a run over `duration` s
+    of simulated time: wall time per simulated second, steps, Jacobian evaluations."""
+    from .reference import integrate_reference
+
+    rows = []
+    for n in sizes:
+        b = ModelBuilder()
+        inst = b.add_mesh(_core.cloth_grid(1.0, 1.0, n, n), mass=0.1, stretch_stiffness=1.0, stretch_compliance=1e-3)
+        b.pin(inst.first_particle)
+        b.pin(inst.first_particle + n - 1)
+        model = b.build()
+        state = model.initial_state()
+        net = _core.SpringNetwork(model, state)
+        jac = statistics.median(_core.benchmark_jacobian(net, state, repeats))
+        t0 = time.perf_counter()
+        res = integrate_reference(model, state, [duration], linear_solver="klu")
+        wall = time.perf_counter() - t0
+        rows.append(dict(n=n, particles=n * n, unknowns=net.size, nnz=len(net.jacobian(net.pack(state))[1]),
+                         jacobian_ms=jac, wall_s=wall, per_simulated_s=wall / duration, steps=res.stats["steps"],
+                         jacobian_evals=res.stats["jacobian_evals"], ms_per_step=1e3 * wall / max(res.stats["steps"], 1)))
+    return rows
+
+
+def format_klu(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'unknowns':>8} {'nnz(J)':>9} {'ms/Jacobian':>11} {'ns/nnz':>7} {'wall s/sim s':>12} "
+            f"{'steps':>6} {'J evals':>7} {'ms/step':>8}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['unknowns']:>8} {r['nnz']:>9} {r['jacobian_ms']:>11.3f} "
+                     f"{1e6 * r['jacobian_ms'] / r['nnz']:>7.1f} {r['per_simulated_s']:>12.1f} {r['steps']:>6} "
+                     f"{r['jacobian_evals']:>7} {r['ms_per_step']:>8.2f}")
+    return "\n".join(lines)
+
+
+def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
+    """Prints the tables of issue 7 that `parts` names; returns their rows."""
+    import os
+
+    info = _core.build_info()
+    out: dict = {}
+    print(f"\ncsb {info['csb']} issue 7 benchmarks ({info['compiler']}, {info['simd']} build, OpenMP "
+          f"{info['openmp'] or 'off'}, {os.cpu_count()} cores, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}); "
+          f"medians of {rounds} rounds")
+    if "fps" in parts:
+        print("\ncloth_grid (stretch + shear + bending, 2 pinned corners), dt = 1/60 s: ms per frame and frames per second")
+        out["fps"] = fps_table(rounds=rounds)
+        print(format_fps(out["fps"]))
+    if "types" in parts:
+        print("\nProjections per second by constraint type (1 sub-step x 10 Gauss-Seidel sweeps, 128x128 cloth, "
+              "a 21^3 x 6 tet box, 16k attachments; one thread) against a plain sequential C++ loop over the "
+              "distance constraints")
+        out["types"] = projection_rates(rounds=rounds)
+        print(format_projection_rates(out["types"]))
+    if "threads" in parts or "busy" in parts:
+        print("\nThreads: ms per frame of the 128x128 cloth at 10 x 1, with 1, 2 and automatic threads in one run "
+              "(interleaved rounds); 'busy core': another process spins on core 1 meanwhile")
+        rows = []
+        if "threads" in parts:
+            rows.append(thread_scaling(rounds=rounds))
+        if "busy" in parts:
+            rows.append(thread_scaling(rounds=rounds, busy=True))
+            rows.append(thread_scaling(rounds=rounds, busy=True, wait_policy="active"))
+        out["threads"] = rows
+        print(format_thread_scaling(rows))
+    if "particles" in parts:
+        print("\nCost per particle from 1k to 1M particles (cloth_grid, 1 sub-step x 10 iterations, one thread)")
+        out["particles"] = particle_scaling(rounds=3)
+        print(format_particle_scaling(out["particles"]))
+    if "memory" in parts:
+        print("\nMemory (vector capacities): Model and the stepper's per-model workspace")
+        out["memory"] = memory_table()
+        print(format_memory(out["memory"]))
+    if "big" in parts:
+        print("\nA 1024x1024 cloth (about a million particles), built and stepped in a fresh interpreter")
+        out["big"] = big_cloth()
+        print(format_big_cloth(out["big"]))
+    if "klu" in parts:
+        print("\nReference integrator (CVODE BDF + KLU, analytic sparse Jacobian) against problem size: compliant "
+              "stretch and shear (1e-3 m/N), 0.02 s simulated")
+        out["klu"] = klu_scaling()
+        print(format_klu(out["klu"]))
     return out

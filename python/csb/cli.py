@@ -101,14 +101,22 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch and the viewer's frames (prints tables)")
+    p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "
+                                     "colouring, threads, scaling, memory and the reference (prints tables)")
     p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="particles per side (default: 64 128)")
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--steps", type=int, default=10, help="steps per timed round")
     p.add_argument("--rounds", type=int, default=7, help="timed rounds; the median is reported")
-    p.add_argument("--parts", nargs="+", default=["step", "front-ends", "dispatch", "viewer"],
-                   choices=["step", "front-ends", "dispatch", "viewer"], help="which tables to print (default: all)")
+    p.add_argument("--parts", nargs="+",
+                   default=["step", "front-ends", "dispatch", "viewer", "fps", "types", "threads", "busy", "particles",
+                            "memory", "big", "klu"],
+                   choices=["step", "front-ends", "dispatch", "viewer", "fps", "types", "threads", "busy", "particles",
+                            "memory", "big", "klu"],
+                   help="which tables to print (default: all): the step, front ends, virtual dispatch, the viewer's "
+                        "frame time; issue 7: fps of 128x128 and 256x256 cloths, projections per second by type "
+                        "against a plain loop, 1 against 2 threads, the same with a busy core, cost per particle "
+                        "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size")
     p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.set_defaults(func=_cmd_bench)

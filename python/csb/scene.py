@@ -236,13 +236,16 @@ class SolverSpec:
     xpbd_damping: float = 0.0       # N s/m, XPBD only
     verlet_drag: float = 0.0        # Jakobsen's drag in [0, 1)
     sqrt_approximation: bool = False  # Jakobsen's stick relaxation without square roots
+    ordering: str = "coloured"      # or "sequential" (the batches as built, one thread)
+    threads: int = 0                # threads per colour; 0: the free cores (the result does not depend on it)
 
     def stepper(self) -> _core.PbdStepper:
         return _core.PbdStepper(
             method=self.method, dt=self.dt, substeps=self.substeps, iterations=self.iterations,
             gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
             front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
-            verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation,
+            verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation, ordering=self.ordering,
+            threads=self.threads,
         )
 
 
@@ -727,6 +730,8 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         xpbd_damping=so.number("xpbd_damping", 0.0, check=lambda x: x >= 0, expect="a damping coefficient >= 0 (N s/m)"),
         verlet_drag=so.number("verlet_drag", 0.0, check=lambda x: 0 <= x < 1, expect="a drag factor in [0, 1)"),
         sqrt_approximation=so.boolean("sqrt_approximation", False),
+        ordering=so.string("ordering", "coloured", choices=("coloured", "sequential")),
+        threads=so.integer("threads", 0, minimum=0),
     )
     so.finish()
     try:

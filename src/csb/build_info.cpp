@@ -30,6 +30,18 @@ BuildInfo build_info() {
 #else
   info.compiler = "unknown";
 #endif
+#if defined(__AVX512F__)
+  info.simd = "AVX-512";
+#elif defined(__AVX2__)
+  info.simd = "AVX2";
+#elif defined(__SSE2__) || defined(__x86_64__)
+  info.simd = "SSE2";
+#else
+  info.simd = "scalar";
+#endif
+#ifdef _OPENMP
+  info.openmp = _OPENMP;
+#endif
   return info;
 }
 

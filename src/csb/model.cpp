@@ -4,6 +4,7 @@
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/volume.hpp"
 
+#include <algorithm>
 #include <atomic>
 #include <cmath>
 #include <map>
@@ -583,7 +584,95 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
   model->attachments.target.resize(3, static_cast<Eigen::Index>(attached_.size()));
   for (std::size_t k = 0; k < attached_.size(); ++k)
     model->attachments.target.col(static_cast<Eigen::Index>(k)) = attachment_targets_[k];
+  colour_batches(*model);
   return model;
+}
+
+// ------------------------------------------------------------------------------------ colouring
+
+Colouring colour_constraints(const Index* particles, int arity, Index count, Index num_particles,
+                             Index min_colour_size) {
+  static_assert(kMaxColours <= 64, "one bit per colour in a 64-bit mask");
+  std::vector<std::uint64_t> used(static_cast<std::size_t>(num_particles), 0);  // colours at each particle
+  std::vector<Index> colour(static_cast<std::size_t>(count));
+  std::vector<Index> size(kMaxColours + 1, 0);  // the last one: no free colour
+  for (Index c = 0; c < count; ++c) {
+    const Index* q = particles + static_cast<std::size_t>(arity) * c;
+    std::uint64_t taken = 0;
+    for (int k = 0; k < arity; ++k) taken |= used[q[k]];
+    Index k = kMaxColours;
+    if (~taken != 0) k = static_cast<Index>(__builtin_ctzll(~taken));
+    if (k < kMaxColours)
+      for (int a = 0; a < arity; ++a) used[q[a]] |= std::uint64_t(1) << k;
+    colour[c] = k;
+    ++size[k];
+  }
+  // Colours too small to be worth a parallel pass join the overflow colour.
+  std::vector<Index> slot(kMaxColours + 1, -1);  // colour -> position in the output
+  Colouring out;
+  Index kept = 0;
+  for (Index k = 0; k < kMaxColours; ++k)
+    if (size[k] >= min_colour_size) slot[k] = kept++;
+  bool overflow = false;
+  for (Index k = 0; k <= kMaxColours; ++k)
+    if (size[k] > 0 && slot[k] < 0) {
+      slot[k] = kept;
+      overflow = true;
+    }
+  const Index colours = kept + (overflow ? 1 : 0);
+  out.overflow = overflow;
+  out.colour_offsets.assign(static_cast<std::size_t>(colours) + 1, 0);
+  for (Index k = 0; k <= kMaxColours; ++k)
+    if (size[k] > 0) out.colour_offsets[slot[k] + 1] += size[k];
+  for (Index k = 0; k < colours; ++k) out.colour_offsets[k + 1] += out.colour_offsets[k];
+  out.order.resize(static_cast<std::size_t>(count));
+  std::vector<Index> cursor(out.colour_offsets.begin(), out.colour_offsets.end() - 1);
+  for (Index c = 0; c < count; ++c) out.order[cursor[slot[colour[c]]]++] = c;
+  return out;
+}
+
+void colour_batches(Model& m) {
+  const Index n = m.num_particles();
+  m.distance.colours = colour_constraints(m.distance.particles.empty() ? nullptr : m.distance.particles[0].data(), 2,
+                                          m.distance.size(), n);
+  m.bending.colours =
+      colour_constraints(m.bending.particles.empty() ? nullptr : m.bending.particles[0].data(), 4, m.bending.size(), n);
+  m.volume.colours =
+      colour_constraints(m.volume.particles.empty() ? nullptr : m.volume.particles[0].data(), 4, m.volume.size(), n);
+  m.attachments.colours = colour_constraints(m.attachments.particle.data(), 1, m.attachments.size(), n);
+}
+
+namespace {
+
+template <class T>
+std::size_t bytes(const std::vector<T>& v) {
+  return v.capacity() * sizeof(T);
+}
+
+std::size_t bytes(const Colouring& c) { return bytes(c.order) + bytes(c.colour_offsets); }
+
+}  // namespace
+
+ModelMemory model_memory(const Model& m) {
+  ModelMemory r;
+  r.particles = sizeof(Real) * static_cast<std::size_t>(m.rest_positions.size()) + bytes(m.mass) + bytes(m.inv_mass) +
+                bytes(m.group) + bytes(m.group_particles) + bytes(m.thickness);
+  const auto& d = m.distance;
+  r.distance = bytes(d.particles) + bytes(d.rest_length) + bytes(d.stiffness) + bytes(d.compliance) + bytes(d.sense) +
+               bytes(d.colours);
+  const auto& b = m.bending;
+  r.bending = bytes(b.particles) + bytes(b.rest_angle) + bytes(b.stiffness) + bytes(b.compliance) + bytes(b.colours);
+  const auto& v = m.volume;
+  r.volume = bytes(v.particles) + bytes(v.rest_volume) + bytes(v.stiffness) + bytes(v.compliance) + bytes(v.colours);
+  const auto& p = m.balloons;
+  r.balloons = bytes(p.particle_offsets) + bytes(p.particles) + bytes(p.triangle_offsets) + bytes(p.triangles) +
+               bytes(p.rest_volume) + bytes(p.pressure) + bytes(p.stiffness) + bytes(p.compliance);
+  const auto& a = m.attachments;
+  r.attachments = bytes(a.particle) + sizeof(Real) * static_cast<std::size_t>(a.target.size()) + bytes(a.stiffness) +
+                  bytes(a.compliance) + bytes(a.colours);
+  r.other = bytes(m.triangles) + bytes(m.group_offsets) + bytes(m.self_collision_thickness) +
+            m.colliders.capacity() * sizeof(Collider);
+  return r;
 }
 
 }  // namespace csb

@@ -25,14 +25,41 @@ namespace csb {
 //    volumes, whose C is in m³). It is what
 //    the reference integrator (and XPBD) use, so that they model the same material.
 
+// Graph colouring of one constraint batch (issue 7): the constraints of one colour share no
+// particle, so that a Gauss-Seidel sweep may project them in any order, or at once (SIMD lanes,
+// threads), with the same result. Computed when the Model is built; the batch's arrays stay in
+// the order the constraints were added (every index into a batch is that order's), `order`
+// lists them colour by colour. Colours smaller than kMinColourSize, and constraints that find
+// no free colour among the first kMaxColours, go to a last, overflow colour whose constraints
+// may share particles and are projected one after the other, in `order`. A small model (a
+// chain, a pendulum) is then a single overflow colour: the sequential order as built.
+struct Colouring {
+  std::vector<Index> order;              // constraint indices, colour by colour, increasing within a colour
+  std::vector<Index> colour_offsets{0};  // colour k is order[colour_offsets[k] .. [k+1])
+  bool overflow = false;                 // the last colour is the overflow colour
+  Index num_colours() const { return static_cast<Index>(colour_offsets.size()) - 1; }
+  // Whether colour k's constraints may share particles (projected serially).
+  bool serial(Index k) const { return overflow && k == num_colours() - 1; }
+};
+
+constexpr Index kMaxColours = 64;
+constexpr Index kMinColourSize = 64;
+
+// Greedy first-fit colouring in constraint order (deterministic): constraint c of `count`, with
+// particles particles[arity c .. arity c + arity), takes the lowest colour none of its particles
+// has yet. Then colours under min_colour_size merge into the overflow colour.
+Colouring colour_constraints(const Index* particles, int arity, Index count, Index num_particles,
+                             Index min_colour_size = kMinColourSize);
+
 // Distance constraints: mesh edges (stretch), springs, chain links. Plain arrays, one entry per
-// constraint, in projection order.
+// constraint, in the order they were added; `colours` is the projection order.
 struct DistanceBatch {
   std::vector<Edge> particles;      // (i, j)
   std::vector<Real> rest_length;    // m
   std::vector<Real> stiffness;      // dimensionless, in [0, 1] (Müller 2007 §3.3)
   std::vector<Real> compliance;     // m/N, >= 0
   std::vector<std::int8_t> sense;   // 0: C = 0, +1: C >= 0, -1: C <= 0 (see constraints/distance.hpp)
+  Colouring colours;
   Index size() const { return static_cast<Index>(particles.size()); }
 };
 
@@ -42,6 +69,7 @@ struct BendingBatch {
   std::vector<Real> rest_angle;                 // rad, signed (see constraints/bending.hpp)
   std::vector<Real> stiffness;                  // dimensionless, in [0, 1]
   std::vector<Real> compliance;                 // rad²/J = 1/(N m), >= 0
+  Colouring colours;
   Index size() const { return static_cast<Index>(particles.size()); }
 };
 
@@ -51,6 +79,7 @@ struct VolumeBatch {
   std::vector<Real> rest_volume;                // m³, > 0
   std::vector<Real> stiffness;                  // dimensionless, in [0, 1]
   std::vector<Real> compliance;                 // m⁶/J, >= 0
+  Colouring colours;
   Index size() const { return static_cast<Index>(particles.size()); }
 };
 
@@ -78,6 +107,7 @@ struct AttachmentBatch {
   Positions target;                 // m, 3 x count
   std::vector<Real> stiffness;      // dimensionless, in [0, 1]
   std::vector<Real> compliance;     // m/N, >= 0
+  Colouring colours;
   Index size() const { return static_cast<Index>(particle.size()); }
 };
 
@@ -122,6 +152,18 @@ class Model {
 
 // A fresh Model::id, for every model built or derived (e.g. by tearing).
 std::uint64_t next_model_id();
+
+// (Re)computes the colouring of every batch of `model` (distance, bending, volume, attachments;
+// balloons are one constraint each and stay serial). ModelBuilder::build and tear call it.
+void colour_batches(Model& model);
+
+// Bytes the model's arrays hold (from their capacities), split into what belongs to the
+// particles and to each constraint type (its colouring included).
+struct ModelMemory {
+  std::size_t particles = 0, distance = 0, bending = 0, volume = 0, balloons = 0, attachments = 0, other = 0;
+  std::size_t total() const { return particles + distance + bending + volume + balloons + attachments + other; }
+};
+ModelMemory model_memory(const Model& model);
 
 // How a mesh's particles get their mass.
 struct MassSpec {

@@ -9,9 +9,15 @@
 
 #include <Eigen/Eigenvalues>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
+
+#ifdef _OPENMP
+#include <omp.h>
+#endif
 #include <sstream>
 
 namespace csb {
@@ -71,6 +77,8 @@ void validate(const PbdSettings& s) {
   if (s.method != Method::Xpbd && s.xpbd_damping > 0) throw InvalidArgument("xpbd_damping applies to XPBD only");
   if (s.method != Method::Jakobsen && s.sqrt_approximation)
     throw InvalidArgument("sqrt_approximation is part of Jakobsen's method only");
+  if (s.threads < 0)
+    throw InvalidArgument("threads must be >= 0 (0: automatic, from the free cores), got " + std::to_string(s.threads));
 }
 
 Real corrected_stiffness(Real k, int iterations) {
@@ -161,6 +169,8 @@ void PbdStepper::prepare(const Model& model) {
   contacts_.clear();
   self_contacts_.clear();
   contact_summary_ = {};
+  coloured_.model_id = 0;  // the coloured batches follow in step()
+  lambda_stale_ = false;
   model_id_ = model.id;
 }
 
@@ -194,6 +204,21 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     }
     grab_lambda_.assign(grabs_.size(), 0);
   }
+  if (settings_.ordering == Ordering::Coloured) {
+    // The coloured batches carry the inverse masses: rebuilt for a new model or when the
+    // particles held kinematically (w = 0 while held) change.
+    std::vector<Index> kinematic;
+    for (const Grab& g : grabs_)
+      if (g.compliance == 0) kinematic.push_back(g.particle);
+    std::sort(kinematic.begin(), kinematic.end());
+    if (coloured_.model_id != model.id || kinematic != coloured_.kinematic) {
+      build_coloured(model, grabs_.empty() ? model.inv_mass.data() : w_.data());
+      coloured_.kinematic = std::move(kinematic);
+    }
+    threads_used_ = resolve_threads(model);
+  } else {
+    threads_used_ = 1;
+  }
   if (verlet) {  // the Verlet front end keeps the previous positions instead of the velocity
     Real* xp = x_prev_.data();
     for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
@@ -202,7 +227,12 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     for (int sub = 0; sub < settings_.substeps; ++sub) {
       predict(model, state, h);
       if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
-      if (settings_.method == Method::Xpbd) {
+      if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
+        for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
+                        &coloured_.attachments.lambda, &lambda_.balloon})
+          std::fill(l->begin(), l->end(), 0.0);
+        lambda_stale_ = true;
+      } else if (settings_.method == Method::Xpbd) {
         std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
         std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
         std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
@@ -380,7 +410,7 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
   }
 }
 
-void PbdStepper::project(const Model& model, const Positions& x_start) {
+void PbdStepper::project_sequential(const Model& model, const Positions& x_start) {
   const Solver solver = settings_.solver;
   const bool jacobi = solver != Solver::GaussSeidel;
   const Index n = model.num_particles();
@@ -427,6 +457,615 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
     }
     project_grabs(x_start);
   }
+}
+
+// ------------------------------------------------------------------------------ coloured sweep
+//
+// Issue 7. Each batch is projected colour by colour (Model's `colours`); the constraints of one
+// colour share no particle, so within a colour
+//  - a range of constraints is a loop whose iterations are independent: `omp simd` lets the
+//    compiler put one constraint in each SIMD lane (the kernels below are branch-free in the
+//    common case: masks instead of early returns, coefficients precomputed in ColouredBatches);
+//  - threads take ranges of a fixed size (`kChunk`) from the colour dynamically, so a thread
+//    that is slowed down (a busy core) takes fewer of them; an implicit barrier ends the colour.
+// Every constraint is computed by the same instructions whatever the thread count or the range
+// it falls in (IEEE +, -, *, / and sqrt give the same bits in a SIMD lane and in a scalar
+// register; no FMA contraction), and no two writes of one colour touch the same particle, so the
+// result does not depend on the number of threads. The overflow colour (constraints that may
+// share particles) is projected by one thread in its order. Jacobi reads the sweep's start and
+// adds each correction to the particle's sum: within a colour each particle receives at most
+// one, so the sums are added colour by colour in a fixed order (no atomics on floats).
+//
+// Kernels read positions from r and apply corrections to o: Gauss-Seidel r = o = p, Jacobi
+// r = the positions at the sweep's start, o = the correction sums.
+
+// With gather and scatter instructions (AVX-512, -march=native) the compiler vectorises the plain
+// loop over a colour; without them (the portable x86-64 build) the blocked loop gathers by hand.
+#if defined(__AVX512F__)
+#define CSB_GATHER_SIMD 1
+#else
+#define CSB_GATHER_SIMD 0
+#endif
+
+#if defined(__GNUC__)
+#define CSB_INLINE inline __attribute__((always_inline))
+#else
+#define CSB_INLINE inline
+#endif
+
+namespace {
+
+// PBD (Müller 2007 §3.3) and Jakobsen: Δp_i = -c_i s d, Δp_j = +c_j s d, d = p_i - p_j, with
+// s = C/|d| (C the violation, see constraints/distance.hpp) or, with Jakobsen's square-root
+// approximation, s = (d·d - r²)/(d·d + r²); c = k w/(w_i + w_j) precomputed.
+template <bool Approx>
+CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, Real* o) {
+  const Index i = 3 * b.i[c], j = 3 * b.j[c];
+  const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
+  const Real dd = dx * dx + dy * dy + dz * dz;
+  const Real rest = b.rest[c];
+  const Real sense = b.sense[c];
+  Real s;
+  if constexpr (Approx) {
+    const Real r2 = rest * rest;
+    const Real cj = (dd - r2) / (2 * rest);
+    const Real violation = cj - sense * std::max(sense * cj, Real(0));
+    const Real den = dd + r2;  // selects on values, then an unconditional division: no branch
+    s = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+  } else {
+    const Real len = std::sqrt(dd);
+    const Real cl = len - rest;
+    const Real violation = cl - sense * std::max(sense * cl, Real(0));
+    s = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+  }
+  const Real si = b.ci[c] * s, sj = b.cj[c] * s;
+  o[i] -= si * dx;
+  o[i + 1] -= si * dy;
+  o[i + 2] -= si * dz;
+  o[j] += sj * dx;
+  o[j + 1] += sj * dy;
+  o[j + 2] += sj * dz;
+}
+
+// The same over the independent constraints [begin, end) of one colour, in blocks: positions
+// gathered into small arrays one constraint at a time, the arithmetic in a loop the compiler runs
+// in SIMD lanes (SSE2 in the portable build, which has no gather instruction to vectorise the
+// plain loop with), the corrections scattered back. Per constraint the same operations in the
+// same order as distance_pbd, so the same bits.
+template <bool Approx>
+inline void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
+  constexpr Index B = 32;
+  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0);
+    for (Index k = 0; k < m; ++k) {
+      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+      dx[k] = r[i] - r[j];
+      dy[k] = r[i + 1] - r[j + 1];
+      dz[k] = r[i + 2] - r[j + 2];
+    }
+    const Real* rest = b.rest.data() + c0;
+    const std::int8_t* sense = b.sense.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      const Real dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
+      const Real sn = sense[k];
+      if constexpr (Approx) {
+        const Real r2 = rest[k] * rest[k];
+        const Real cj = (dd - r2) / (2 * rest[k]);
+        const Real violation = cj - sn * std::max(sn * cj, Real(0));
+        const Real den = dd + r2;
+        s[k] = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+      } else {
+        const Real len = std::sqrt(dd);
+        const Real cl = len - rest[k];
+        const Real violation = cl - sn * std::max(sn * cl, Real(0));
+        s[k] = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+      }
+    }
+    for (Index k = 0; k < m; ++k) {
+      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+      const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
+      o[i] -= si * dx[k];
+      o[i + 1] -= si * dy[k];
+      o[i + 2] -= si * dz[k];
+      o[j] += sj * dx[k];
+      o[j + 1] += sj * dy[k];
+      o[j + 2] += sj * dz[k];
+    }
+  }
+}
+
+// XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
+CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x) {
+  const Index i = 3 * b.i[c], j = 3 * b.j[c];
+  const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
+  const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
+  const Real nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
+  const Real cl = len - b.rest[c];
+  const Real g = b.gamma[c];
+  const Real along = nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
+                     nz * ((r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]));
+  const Real moved = g == 0 ? Real(0) : along;
+  const Real lambda = b.lambda[c];
+  Real dl = (-cl - b.alpha[c] * lambda - g * moved) * b.inv_den[c];
+  const Real sense = b.sense[c];
+  const Real next = lambda + dl;
+  const Real clamped = sense > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
+  dl = sense == 0 ? dl : clamped - lambda;
+  dl = len > 0 ? dl : Real(0);
+  b.lambda[c] = lambda + dl;
+  const Real di = b.ci[c] * dl, dj = b.cj[c] * dl;
+  o[i] += di * nx;
+  o[i + 1] += di * ny;
+  o[i + 2] += di * nz;
+  o[j] -= dj * nx;
+  o[j + 1] -= dj * ny;
+  o[j + 2] -= dj * nz;
+}
+
+// Dihedral bending (constraints/bending.hpp: the signed angle, Bridson et al.'s gradient) written
+// out on scalars, with a degenerate pair masked instead of returned from: its gradient is set to
+// zero, so its correction is zero.
+template <Method M>
+CSB_INLINE void bending_one(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x) {
+  const auto& q = b.q[k];
+  const Index ia = 3 * q[0], ib = 3 * q[1], ic = 3 * q[2], id = 3 * q[3];
+  const Real ax = r[ia], ay = r[ia + 1], az = r[ia + 2];
+  const Real bx = r[ib], by = r[ib + 1], bz = r[ib + 2];
+  const Real cx = r[ic], cy = r[ic + 1], cz = r[ic + 2];
+  const Real dx = r[id], dy = r[id + 1], dz = r[id + 2];
+  const Real ex = bx - ax, ey = by - ay, ez = bz - az;
+  const Real cax = cx - ax, cay = cy - ay, caz = cz - az, cbx = cx - bx, cby = cy - by, cbz = cz - bz;
+  const Real dax = dx - ax, day = dy - ay, daz = dz - az, dbx = dx - bx, dby = dy - by, dbz = dz - bz;
+  // N1 = (c - a) x (c - b), N2 = (d - b) x (d - a)
+  const Real n1x = cay * cbz - caz * cby, n1y = caz * cbx - cax * cbz, n1z = cax * cby - cay * cbx;
+  const Real n2x = dby * daz - dbz * day, n2y = dbz * dax - dbx * daz, n2z = dbx * day - dby * dax;
+  const Real e2 = ex * ex + ey * ey + ez * ez;
+  const Real n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
+  const bool ok = e2 > 0 && n1 > 0 && n2 > 0;
+  const Real elen = std::sqrt(e2);
+  const Real sin_part = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
+  const Real cos_part = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
+  const Real theta = std::atan2(sin_part, cos_part);
+  const Real one = ok ? 1 : 0;
+  const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
+  const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
+  const Real tcb = (cbx * ex + cby * ey + cbz * ez) * ie, tdb = (dbx * ex + dby * ey + dbz * ez) * ie;
+  const Real tca = (cax * ex + cay * ey + caz * ez) * ie, tda = (dax * ex + day * ey + daz * ez) * ie;
+  const Real el = ok ? elen : Real(0);
+  const Real gax = -(tcb * g1x + tdb * g2x), gay = -(tcb * g1y + tdb * g2y), gaz = -(tcb * g1z + tdb * g2z);
+  const Real gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
+  const Real gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
+  const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
+  Real violation = theta - b.rest[k];
+  violation = violation > kPi ? violation - 2 * kPi : violation;
+  violation = violation <= -kPi ? violation + 2 * kPi : violation;
+  const auto& w = b.w[k];
+  const Real wgrad = w[0] * (gax * gax + gay * gay + gaz * gaz) + w[1] * (gbx * gbx + gby * gby + gbz * gbz) +
+                     w[2] * (gcx * gcx + gcy * gcy + gcz * gcz) + w[3] * (gdx * gdx + gdy * gdy + gdz * gdz);
+  Real s;  // Δp_i = s w_i ∇_i C
+  if constexpr (M == Method::Xpbd) {
+    const Real g = b.gamma[k];
+    const Real moved = g == 0 ? Real(0)
+                              : gax * (ax - x[ia]) + gay * (ay - x[ia + 1]) + gaz * (az - x[ia + 2]) + gbx * (bx - x[ib]) +
+                                    gby * (by - x[ib + 1]) + gbz * (bz - x[ib + 2]) + gcx * (cx - x[ic]) +
+                                    gcy * (cy - x[ic + 1]) + gcz * (cz - x[ic + 2]) + gdx * (dx - x[id]) +
+                                    gdy * (dy - x[id + 1]) + gdz * (dz - x[id + 2]);
+    const Real lambda = b.lambda[k];
+    const Real dl = (-violation - b.alpha[k] * lambda - g * moved) / ((1 + g) * wgrad + b.alpha[k]);
+    s = wgrad > 0 ? dl : Real(0);
+    b.lambda[k] = lambda + s;
+  } else {
+    s = wgrad > 0 ? -b.k[k] * violation / wgrad : Real(0);
+  }
+  const Real sa = s * w[0], sb = s * w[1], sc = s * w[2], sd = s * w[3];
+  o[ia] += sa * gax;
+  o[ia + 1] += sa * gay;
+  o[ia + 2] += sa * gaz;
+  o[ib] += sb * gbx;
+  o[ib + 1] += sb * gby;
+  o[ib + 2] += sb * gbz;
+  o[ic] += sc * gcx;
+  o[ic + 1] += sc * gcy;
+  o[ic + 2] += sc * gcz;
+  o[id] += sd * gdx;
+  o[id + 1] += sd * gdy;
+  o[id + 2] += sd * gdz;
+}
+
+// Tet volume: the kernels of constraints/volume.hpp, on local copies for Jacobi.
+template <Method M, bool Jacobi>
+CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x) {
+  const auto& q = b.q[k];
+  const auto& w = b.w[k];
+  Real local[4][3];
+  Real* at[4];
+  for (int s = 0; s < 4; ++s) {
+    if constexpr (Jacobi) {
+      for (int e = 0; e < 3; ++e) local[s][e] = r[3 * q[s] + e];
+      at[s] = local[s];
+    } else {
+      at[s] = o + 3 * q[s];
+    }
+  }
+  if constexpr (M == Method::Xpbd)
+    project_volume_xpbd(at[0], at[1], at[2], at[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3], w[0], w[1],
+                        w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
+  else
+    project_volume(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
+  if constexpr (Jacobi)
+    for (int s = 0; s < 4; ++s)
+      for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += local[s][e] - r[3 * q[s] + e];
+}
+
+template <Method M, bool Jacobi>
+CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, Real* o, const Real* x) {
+  const Index i = b.i[k];
+  Real local[3];
+  Real* at = o + 3 * i;
+  if constexpr (Jacobi) {
+    for (int e = 0; e < 3; ++e) local[e] = r[3 * i + e];
+    at = local;
+  }
+  if constexpr (M == Method::Xpbd)
+    project_attachment_xpbd(at, x + 3 * i, b.w[k], b.target[k].data(), b.alpha[k], b.gamma[k], b.lambda[k]);
+  else
+    project_attachment(at, b.w[k], b.target[k].data(), b.k[k]);
+  if constexpr (Jacobi)
+    for (int e = 0; e < 3; ++e) o[3 * i + e] += local[e] - r[3 * i + e];
+}
+
+// Constraints per dynamically scheduled range: a few microseconds of work, so that taking a
+// range costs little beside it; fixed, so that ranges do not depend on the thread count.
+constexpr Index kChunkDistance = 256, kChunkFour = 64, kChunkAttachment = 256;
+
+// Runs `kernel(begin, end, independent)` over every colour of `colours` in order, inside a
+// parallel region (or alone): ranges of a colour shared by the team, the overflow colour by one
+// thread. Each colour ends at a barrier.
+template <class Kernel>
+void for_each_colour(const Colouring& colours, Index chunk, Kernel&& kernel) {
+  for (Index k = 0; k < colours.num_colours(); ++k) {
+    const Index begin = colours.colour_offsets[k], end = colours.colour_offsets[k + 1];
+    if (colours.serial(k)) {
+#pragma omp single
+      kernel(begin, end, false);
+    } else {
+      const Index ranges = (end - begin + chunk - 1) / chunk;
+#pragma omp for schedule(dynamic, 1)
+      for (Index g = 0; g < ranges; ++g) kernel(begin + g * chunk, std::min(end, begin + (g + 1) * chunk), true);
+    }
+  }
+}
+
+// One coloured sweep over distance, bending, volume and attachment constraints.
+template <Method M, bool Jacobi>
+void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o, const Real* x) {
+  ColouredDistance& d = cb.distance;
+  for_each_colour(model.distance.colours, kChunkDistance, [&](Index begin, Index end, bool independent) {
+    if constexpr (M == Method::Xpbd) {
+      if (independent) {
+#pragma omp simd
+        for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
+      } else {
+        for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
+      }
+    } else if (approx) {
+      if (independent) {
+#pragma omp simd
+        for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
+      } else {
+        for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
+      }
+    } else {
+      if (independent) {
+#if CSB_GATHER_SIMD
+#pragma omp simd
+        for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
+#else
+        distance_pbd_blocks<false>(d, begin, end, r, o);
+#endif
+      } else {
+        for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
+      }
+    }
+  });
+  ColouredFour& bend = cb.bending;
+  for_each_colour(model.bending.colours, kChunkFour, [&](Index begin, Index end, bool independent) {
+    if (independent) {
+#pragma omp simd
+      for (Index c = begin; c < end; ++c) bending_one<M>(bend, c, r, o, x);
+    } else {
+      for (Index c = begin; c < end; ++c) bending_one<M>(bend, c, r, o, x);
+    }
+  });
+  ColouredFour& vol = cb.volume;
+  for_each_colour(model.volume.colours, kChunkFour, [&](Index begin, Index end, bool) {
+    for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x);
+  });
+  ColouredAttachments& att = cb.attachments;
+  for_each_colour(model.attachments.colours, kChunkAttachment, [&](Index begin, Index end, bool) {
+    for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x);
+  });
+}
+
+#if defined(__linux__)
+// Cores not busy with other runnable tasks now: /proc/loadavg's fourth field is
+// "runnable/total" scheduling entities, the caller's thread included.
+int free_cores(int cores) {
+  std::FILE* f = std::fopen("/proc/loadavg", "r");
+  if (!f) return cores;
+  double l1, l5, l15;
+  int running = 1, total = 0;
+  const int got = std::fscanf(f, "%lf %lf %lf %d/%d", &l1, &l5, &l15, &running, &total);
+  std::fclose(f);
+  if (got != 5) return cores;
+  return std::max(1, std::min(cores, cores - (running - 1)));
+}
+#else
+int free_cores(int cores) { return cores; }
+#endif
+
+template <class T>
+std::size_t capacity_bytes(const std::vector<T>& v) {
+  return v.capacity() * sizeof(T);
+}
+
+}  // namespace
+
+std::size_t ColouredBatches::bytes() const {
+  const auto& d = distance;
+  std::size_t s = capacity_bytes(kinematic) + capacity_bytes(count) + capacity_bytes(d.i) + capacity_bytes(d.j) +
+                  capacity_bytes(d.rest) + capacity_bytes(d.sense) + capacity_bytes(d.ci) + capacity_bytes(d.cj) +
+                  capacity_bytes(d.alpha) + capacity_bytes(d.gamma) + capacity_bytes(d.inv_den) + capacity_bytes(d.lambda);
+  for (const ColouredFour* f : {&bending, &volume})
+    s += capacity_bytes(f->q) + capacity_bytes(f->rest) + capacity_bytes(f->w) + capacity_bytes(f->k) +
+         capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda);
+  const auto& a = attachments;
+  s += capacity_bytes(a.i) + capacity_bytes(a.target) + capacity_bytes(a.w) + capacity_bytes(a.k) +
+       capacity_bytes(a.alpha) + capacity_bytes(a.gamma) + capacity_bytes(a.lambda);
+  return s;
+}
+
+void PbdStepper::build_coloured(const Model& model, const Real* w) {
+  ColouredBatches& cb = coloured_;
+  const bool xpbd = settings_.method == Method::Xpbd;
+  const auto fill = [xpbd](std::vector<Real>& out, const std::vector<Real>& from, const std::vector<Index>& order) {
+    out.clear();
+    if (!xpbd) return;
+    out.resize(order.size());
+    for (std::size_t c = 0; c < order.size(); ++c) out[c] = from[order[c]];
+  };
+  {
+    const DistanceBatch& b = model.distance;
+    const auto& order = b.colours.order;
+    ColouredDistance& d = cb.distance;
+    const std::size_t m = order.size();
+    d.i.resize(m);
+    d.j.resize(m);
+    d.rest.resize(m);
+    d.sense.resize(m);
+    d.ci.resize(m);
+    d.cj.resize(m);
+    d.inv_den.assign(xpbd ? m : 0, 0);
+    fill(d.alpha, a_distance_, order);
+    fill(d.gamma, g_distance_, order);
+    d.lambda.assign(xpbd ? m : 0, 0);
+    for (std::size_t c = 0; c < m; ++c) {
+      const Index o = order[c], i = b.particles[o][0], j = b.particles[o][1];
+      const Real wsum = w[i] + w[j];
+      d.i[c] = i;
+      d.j[c] = j;
+      d.rest[c] = b.rest_length[o];
+      d.sense[c] = b.sense[o];
+      if (xpbd) {
+        d.ci[c] = w[i];
+        d.cj[c] = w[j];
+        d.inv_den[c] = wsum > 0 ? 1 / ((1 + d.gamma[c]) * wsum + d.alpha[c]) : 0;
+      } else {
+        d.ci[c] = wsum > 0 ? k_distance_[o] * w[i] / wsum : 0;
+        d.cj[c] = wsum > 0 ? k_distance_[o] * w[j] / wsum : 0;
+      }
+    }
+  }
+  const auto four = [&](ColouredFour& f, const std::vector<std::array<Index, 4>>& particles, const std::vector<Real>& rest,
+                        const Colouring& colours, const std::vector<Real>& k, const std::vector<Real>& a,
+                        const std::vector<Real>& g) {
+    const auto& order = colours.order;
+    const std::size_t m = order.size();
+    f.q.resize(m);
+    f.rest.resize(m);
+    f.w.resize(m);
+    f.k.resize(xpbd ? 0 : m);
+    fill(f.alpha, a, order);
+    fill(f.gamma, g, order);
+    f.lambda.assign(xpbd ? m : 0, 0);
+    for (std::size_t c = 0; c < m; ++c) {
+      const Index o = order[c];
+      f.q[c] = particles[o];
+      f.rest[c] = rest[o];
+      for (int s = 0; s < 4; ++s) f.w[c][s] = w[particles[o][s]];
+      if (!xpbd) f.k[c] = k[o];
+    }
+  };
+  four(cb.bending, model.bending.particles, model.bending.rest_angle, model.bending.colours, k_bending_, a_bending_,
+       g_bending_);
+  four(cb.volume, model.volume.particles, model.volume.rest_volume, model.volume.colours, k_volume_, a_volume_, g_volume_);
+  {
+    const AttachmentBatch& b = model.attachments;
+    const auto& order = b.colours.order;
+    ColouredAttachments& a = cb.attachments;
+    const std::size_t m = order.size();
+    a.i.resize(m);
+    a.target.resize(m);
+    a.w.resize(m);
+    a.k.resize(xpbd ? 0 : m);
+    fill(a.alpha, a_attachment_, order);
+    fill(a.gamma, g_attachment_, order);
+    a.lambda.assign(xpbd ? m : 0, 0);
+    for (std::size_t c = 0; c < m; ++c) {
+      const Index o = order[c];
+      a.i[c] = b.particle[o];
+      for (int e = 0; e < 3; ++e) a.target[c][e] = b.target(e, o);
+      a.w[c] = w[b.particle[o]];
+      if (!xpbd) a.k[c] = k_attachment_[o];
+    }
+  }
+  // Jacobi: how many projections reach each particle in one sweep (the averaging's divisor);
+  // contacts add theirs as they are projected.
+  cb.count.clear();
+  if (settings_.solver != Solver::GaussSeidel) {
+    cb.count.assign(model.num_particles(), 0);
+    for (const auto& e : model.distance.particles)
+      for (Index i : e) cb.count[i] += 1;
+    for (const auto& q : model.bending.particles)
+      for (Index i : q) cb.count[i] += 1;
+    for (const auto& q : model.volume.particles)
+      for (Index i : q) cb.count[i] += 1;
+    for (Index i : model.balloons.particles) cb.count[i] += 1;
+    for (Index i : model.attachments.particle) cb.count[i] += 1;
+  }
+  if (xpbd) {
+    coloured_order_.distance = model.distance.colours.order;
+    coloured_order_.bending = model.bending.colours.order;
+    coloured_order_.volume = model.volume.colours.order;
+    coloured_order_.attachment = model.attachments.colours.order;
+  }
+  cb.model_id = model.id;
+}
+
+int PbdStepper::resolve_threads(const Model& model) const {
+#ifdef _OPENMP
+  if (settings_.ordering == Ordering::Sequential) return 1;
+  if (settings_.threads > 0) return settings_.threads;
+  if (model.num_constraints() < 8192) return 1;  // a parallel colour would cost more than it saves
+  const int cores = std::max(1, omp_get_num_procs());
+  return free_cores(cores);
+#else
+  (void)model;
+  return 1;
+#endif
+}
+
+const Multipliers& PbdStepper::multipliers() const {
+  if (lambda_stale_) {
+    // The coloured batches keep their multipliers in colour order; put them in the model's.
+    const auto scatter = [](std::vector<Real>& out, const std::vector<Real>& in, const std::vector<Index>& order) {
+      out.resize(in.size());
+      for (std::size_t c = 0; c < in.size(); ++c) out[order[c]] = in[c];
+    };
+    scatter(lambda_.distance, coloured_.distance.lambda, coloured_order_.distance);
+    scatter(lambda_.bending, coloured_.bending.lambda, coloured_order_.bending);
+    scatter(lambda_.volume, coloured_.volume.lambda, coloured_order_.volume);
+    scatter(lambda_.attachment, coloured_.attachments.lambda, coloured_order_.attachment);
+    lambda_stale_ = false;
+  }
+  return lambda_;
+}
+
+template <Method M, bool Jacobi>
+void PbdStepper::project_coloured(const Model& model, const Positions& x_start) {
+  const Index n = model.num_particles();
+  const int threads = threads_used_;
+  Real* p = p_.data();
+  Real* ps = Jacobi ? p_start_.data() : nullptr;
+  Real* delta = Jacobi ? delta_.data() : nullptr;
+  Real* count = Jacobi ? count_.data() : nullptr;
+  const Real* count0 = Jacobi ? coloured_.count.data() : nullptr;
+  const Real* r = Jacobi ? ps : p;
+  Real* o = Jacobi ? delta : p;
+  const Real* x = x_start.data();
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  const bool contacts = !contacts_.empty() || !self_contacts_.empty();
+  const bool tail = model.balloons.size() > 0 || contacts;
+  bool compliant_grabs = false;
+  for (const Grab& g : grabs_) compliant_grabs = compliant_grabs || g.compliance > 0;
+  const bool average = settings_.solver == Solver::Jacobi;
+  const bool approx = settings_.sqrt_approximation;
+  const auto& bal = model.balloons;
+  const int iterations = settings_.iterations;
+#pragma omp parallel num_threads(threads) if (threads > 1)
+  {
+    for (int it = 0; it < iterations; ++it) {
+      if constexpr (Jacobi) {
+#pragma omp for schedule(static)
+        for (Index i = 0; i < n; ++i) {
+          for (int e = 0; e < 3; ++e) {
+            ps[3 * i + e] = p[3 * i + e];
+            delta[3 * i + e] = 0;
+          }
+          count[i] = count0[i];
+        }
+      }
+      sweep_coloured<M, Jacobi>(model, coloured_, approx, r, o, x);
+      if (tail) {
+#pragma omp single
+        {
+          // Balloons: one constraint over many particles each, serial (see sweep_batches).
+          for (Index c = 0; c < bal.size(); ++c) {
+            const Index* ids = bal.particles.data() + bal.particle_offsets[c];
+            const Triangle* tris = bal.triangles.data() + bal.triangle_offsets[c];
+            const Real target = bal.pressure[c] * bal.rest_volume[c];
+            if constexpr (M == Method::Xpbd)
+              project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0, x,
+                              a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data());
+            else
+              project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
+                              k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
+          }
+          if (contacts) project_contacts(model, Jacobi);
+        }
+      }
+      if constexpr (Jacobi) {
+        // Averaged Jacobi moves each particle by the mean of its corrections, summed Jacobi by their sum.
+#pragma omp for schedule(static)
+        for (Index i = 0; i < n; ++i) {
+          const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
+          for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
+        }
+      }
+      if (compliant_grabs) {
+#pragma omp single
+        project_grabs(x_start);
+      }
+    }
+  }
+}
+
+void PbdStepper::project(const Model& model, const Positions& x_start) {
+  if (settings_.ordering == Ordering::Sequential) {
+    project_sequential(model, x_start);
+    return;
+  }
+  const bool jacobi = settings_.solver != Solver::GaussSeidel;
+  switch (settings_.method) {
+    case Method::Pbd:
+      jacobi ? project_coloured<Method::Pbd, true>(model, x_start) : project_coloured<Method::Pbd, false>(model, x_start);
+      break;
+    case Method::Xpbd:
+      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start) : project_coloured<Method::Xpbd, false>(model, x_start);
+      break;
+    case Method::Jakobsen:
+      jacobi ? project_coloured<Method::Jakobsen, true>(model, x_start)
+             : project_coloured<Method::Jakobsen, false>(model, x_start);
+      break;
+  }
+}
+
+std::size_t PbdStepper::workspace_bytes() const {
+  const auto positions = [](const Positions& q) { return sizeof(Real) * static_cast<std::size_t>(q.size()); };
+  std::size_t s = positions(p_) + positions(x_prev_) + positions(p_start_) + positions(delta_) +
+                  capacity_bytes(count_) + capacity_bytes(w_) + capacity_bytes(balloon_grad_);
+  for (const auto* v : {&k_distance_, &k_bending_, &k_attachment_, &a_distance_, &a_bending_, &a_attachment_,
+                        &g_distance_, &g_bending_, &g_attachment_, &k_volume_, &a_volume_, &g_volume_, &k_balloon_,
+                        &a_balloon_, &g_balloon_})
+    s += capacity_bytes(*v);
+  for (const auto* v : {&lambda_.distance, &lambda_.bending, &lambda_.attachment, &lambda_.volume, &lambda_.balloon})
+    s += capacity_bytes(*v);
+  s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.bending) +
+       capacity_bytes(coloured_order_.volume) + capacity_bytes(coloured_order_.attachment);
+  return s + coloured_.bytes();
 }
 
 // ---------------------------------------------------------------------------------- interaction
@@ -904,6 +1543,42 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
   }
   t.identical = a.size() == b.size() && std::memcmp(a.data(), b.data(), sizeof(Real) * a.size()) == 0;
   return t;
+}
+
+std::vector<double> benchmark_plain_distance(const Model& model, const Positions& positions, int sweeps, int repeats) {
+  if (positions.cols() != model.num_particles()) throw InvalidArgument("positions do not match the model");
+  if (sweeps < 1 || repeats < 1) throw InvalidArgument("sweeps and repeats must be >= 1");
+  const auto& d = model.distance;
+  const Index m = d.size();
+  if (m == 0) throw InvalidArgument("the model has no distance constraints");
+  const Real* w = model.inv_mass.data();
+  std::vector<double> ns;
+  Positions a;
+  for (int r = 0; r < repeats; ++r) {
+    a = positions;
+    Real* p = a.data();
+    const auto t0 = std::chrono::steady_clock::now();
+    for (int s = 0; s < sweeps; ++s)
+      for (Index c = 0; c < m; ++c) {
+        const Index i = d.particles[c][0], j = d.particles[c][1];
+        Real* pi = p + 3 * i;
+        Real* pj = p + 3 * j;
+        const Real dx = pi[0] - pj[0], dy = pi[1] - pj[1], dz = pi[2] - pj[2];
+        const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const Real wsum = w[i] + w[j];
+        if (wsum <= 0 || len <= 0) continue;
+        const Real f = (len - d.rest_length[c]) / (wsum * len);
+        pi[0] -= w[i] * f * dx;
+        pi[1] -= w[i] * f * dy;
+        pi[2] -= w[i] * f * dz;
+        pj[0] += w[j] * f * dx;
+        pj[1] += w[j] * f * dy;
+        pj[2] += w[j] * f * dz;
+      }
+    const auto t1 = std::chrono::steady_clock::now();
+    ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / (static_cast<double>(sweeps) * m));
+  }
+  return ns;
 }
 
 }  // namespace csb

@@ -179,6 +179,7 @@ TearResult tear(const Model& model, State& state, Real max_strain, Index max_tea
   }
   if (result.torn == 0) return result;
   rebuild_groups(*torn);
+  colour_batches(*torn);  // constraints were added, dropped and renamed: colour them afresh
   torn->id = next_model_id();
   result.model = torn;
   return result;

@@ -16,6 +16,7 @@
 #include <pybind11/stl.h>
 
 #include <cstring>
+#include <chrono>
 #include <sstream>
 
 namespace py = pybind11;
@@ -249,6 +250,8 @@ PYBIND11_MODULE(_core, m) {
     d["sundials"] = b.sundials_version;
     d["sundials_klu"] = b.sundials_klu;
     d["compiler"] = b.compiler;
+    d["simd"] = b.simd;
+    d["openmp"] = b.openmp;
 #ifdef CSB_HAS_VIEWER
     d["viewer"] = "built";
 #else
@@ -443,6 +446,35 @@ PYBIND11_MODULE(_core, m) {
         d["sense"] = view(b.sense.data(), {c}, self, false);
         return d;
       }, "distance batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N), sense (0: ==, +1: >=, -1: <=)")
+      .def("colouring", [](py::object self, const std::string& batch) {
+        const Model& s = self.cast<const Model&>();
+        const Colouring* c = batch == "distance" ? &s.distance.colours
+                             : batch == "bending" ? &s.bending.colours
+                             : batch == "volume" ? &s.volume.colours
+                             : batch == "attachments" ? &s.attachments.colours : nullptr;
+        if (!c) throw InvalidArgument("batch must be 'distance', 'bending', 'volume' or 'attachments', got '" + batch + "'");
+        py::dict d;
+        d["order"] = view(c->order.data(), {static_cast<py::ssize_t>(c->order.size())}, self, false);
+        d["colour_offsets"] = view(c->colour_offsets.data(), {static_cast<py::ssize_t>(c->colour_offsets.size())}, self, false);
+        d["overflow"] = c->overflow;
+        return d;
+      }, py::arg("batch"),
+         "The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is "
+         "order[offsets[k]:offsets[k+1]]), overflow (the last colour's constraints may share particles and are "
+         "projected serially)")
+      .def_property_readonly("memory", [](const Model& s) {
+        const ModelMemory r = model_memory(s);
+        py::dict d;
+        d["particles"] = r.particles;
+        d["distance"] = r.distance;
+        d["bending"] = r.bending;
+        d["volume"] = r.volume;
+        d["balloons"] = r.balloons;
+        d["attachments"] = r.attachments;
+        d["other"] = r.other;
+        d["total"] = r.total();
+        return d;
+      }, "bytes the model's arrays hold (from their capacities), per part")
       .def_property_readonly("bending", [](py::object self) {
         const Model& s = self.cast<const Model&>();
         const auto& b = s.bending;
@@ -686,6 +718,10 @@ PYBIND11_MODULE(_core, m) {
       .def_readonly("xpbd_damping", &PbdSettings::xpbd_damping, "XPBD constraint damping β, N s/m")
       .def_readonly("verlet_drag", &PbdSettings::verlet_drag, "Jakobsen's drag d in [0, 1)")
       .def_readonly("sqrt_approximation", &PbdSettings::sqrt_approximation)
+      .def_property_readonly("ordering", [](const PbdSettings& s) {
+        return s.ordering == Ordering::Coloured ? "coloured" : "sequential";
+      })
+      .def_readonly("threads", &PbdSettings::threads, "threads per colour; 0: automatic")
       .def("__repr__", [](const PbdSettings& s) {
         std::ostringstream o;
         o << "PbdSettings(method=" << (s.method == Method::Pbd ? "'pbd'" : s.method == Method::Xpbd ? "'xpbd'" : "'jakobsen'")
@@ -695,7 +731,8 @@ PYBIND11_MODULE(_core, m) {
           << (s.front_end == FrontEnd::Euler ? "euler" : "verlet") << "', solver='"
           << (s.solver == Solver::GaussSeidel ? "gauss-seidel" : s.solver == Solver::Jacobi ? "jacobi" : "jacobi-summed")
           << "', xpbd_damping=" << s.xpbd_damping << ", verlet_drag=" << s.verlet_drag
-          << ", sqrt_approximation=" << (s.sqrt_approximation ? "True" : "False") << ")";
+          << ", sqrt_approximation=" << (s.sqrt_approximation ? "True" : "False") << ", ordering='"
+          << (s.ordering == Ordering::Coloured ? "coloured" : "sequential") << "', threads=" << s.threads << ")";
         return o.str();
       });
 
@@ -703,7 +740,8 @@ PYBIND11_MODULE(_core, m) {
       "Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.")
       .def(py::init([](const std::string& method, double dt, int substeps, int iterations, py::handle gravity,
                        double damping, bool stiffness_correction, const std::string& front_end,
-                       const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation) {
+                       const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation,
+                       const std::string& ordering, int threads) {
              PbdSettings s;
              if (method == "pbd") s.method = Method::Pbd;
              else if (method == "xpbd") s.method = Method::Xpbd;
@@ -726,21 +764,30 @@ PYBIND11_MODULE(_core, m) {
              s.xpbd_damping = xpbd_damping;
              s.verlet_drag = verlet_drag;
              s.sqrt_approximation = sqrt_approximation;
+             if (ordering == "coloured") s.ordering = Ordering::Coloured;
+             else if (ordering == "sequential") s.ordering = Ordering::Sequential;
+             else throw InvalidArgument("ordering must be 'coloured' or 'sequential', got '" + ordering + "'");
+             s.threads = threads;
              return PbdStepper(s);
            }),
            py::kw_only(), py::arg("method") = "pbd", py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1,
            py::arg("iterations") = 10, py::arg("gravity") = std::vector<double>{0, -9.81, 0},
            py::arg("damping") = 0.0, py::arg("stiffness_correction") = true, py::arg("front_end") = "auto",
            py::arg("solver") = "gauss-seidel", py::arg("xpbd_damping") = 0.0, py::arg("verlet_drag") = 0.0,
-           py::arg("sqrt_approximation") = false,
+           py::arg("sqrt_approximation") = false, py::arg("ordering") = "coloured", py::arg("threads") = 0,
            "method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: "
            "sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: "
            "Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's "
            "k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' "
            "(Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: "
            "β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation "
-           "without square roots.")
+           "without square roots. ordering: 'coloured' (each batch colour by colour, data-parallel) or 'sequential' "
+           "(as built, one thread). threads: threads per colour, >= 0 (0: the free cores; the result does not "
+           "depend on it).")
       .def_property_readonly("settings", &PbdStepper::settings)
+      .def_property_readonly("threads_used", &PbdStepper::threads_used, "threads the last step used")
+      .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,
+                             "bytes of the stepper's per-model workspace (from the vectors' capacities)")
       .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
       .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
         py::gil_scoped_release release;
@@ -896,6 +943,50 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("model"), py::arg("positions"), py::arg("sweeps"), py::arg("repeats"),
      "Gauss-Seidel sweeps through the batched kernels and through one virtual Constraint object per constraint: "
      "ns per projection of each repeat, and whether the results agree bit for bit.");
+
+  m.def("colour_constraints", [](py::array_t<Index, py::array::c_style | py::array::forcecast> particles,
+                                 Index num_particles, Index min_colour_size) {
+    if (particles.ndim() != 2 || particles.shape(1) < 1)
+      throw InvalidArgument("particles must have shape (M, k), k >= 1");
+    for (py::ssize_t e = 0; e < particles.size(); ++e)
+      if (particles.data()[e] < 0 || particles.data()[e] >= num_particles)
+        throw InvalidArgument("particle index " + std::to_string(particles.data()[e]) + " out of range");
+    const Colouring c = colour_constraints(particles.data(), static_cast<int>(particles.shape(1)),
+                                           static_cast<Index>(particles.shape(0)), num_particles, min_colour_size);
+    py::dict d;
+    d["order"] = py::array_t<Index>(static_cast<py::ssize_t>(c.order.size()), c.order.data());
+    d["colour_offsets"] = py::array_t<Index>(static_cast<py::ssize_t>(c.colour_offsets.size()), c.colour_offsets.data());
+    d["overflow"] = c.overflow;
+    return d;
+  }, py::arg("particles"), py::arg("num_particles"), py::arg("min_colour_size") = kMinColourSize,
+     "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
+  m.attr("MAX_COLOURS") = kMaxColours;
+  m.attr("MIN_COLOUR_SIZE") = kMinColourSize;
+
+  m.def("benchmark_plain_distance", [](const Model& model, py::handle positions, int sweeps, int repeats) {
+    const Positions x = to_positions(positions, "positions");
+    std::vector<double> ns;
+    {
+      py::gil_scoped_release release;
+      ns = benchmark_plain_distance(model, x, sweeps, repeats);
+    }
+    return ns;
+  }, py::arg("model"), py::arg("positions"), py::arg("sweeps"), py::arg("repeats"),
+     "The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in "
+     "double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.");
+  m.def("benchmark_jacobian", [](const SpringNetwork& net, const State& state, int repeats) {
+    std::vector<double> y(net.size()), values(net.jacobian_row_indices().size());
+    net.pack(state, y.data());
+    std::vector<double> ms;
+    py::gil_scoped_release release;
+    for (int r = 0; r < repeats; ++r) {
+      const auto t0 = std::chrono::steady_clock::now();
+      net.jacobian(y.data(), values.data());
+      ms.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+    }
+    return ms;
+  }, py::arg("network"), py::arg("state"), py::arg("repeats"),
+     "ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.");
 
   m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
         "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");

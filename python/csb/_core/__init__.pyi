@@ -11,174 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
-class Camera:
-    """
-    The viewer's orbit camera (m, rad; pixels from the top-left corner).
-    """
-    def orbit(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def pan(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def project(self, point: typing.Any) -> tuple[float, float, float]:
-        """
-        (x, y, depth): where a world point (m) lands in the image, in pixels, and its depth (m) in front of the eye
-        """
-    def ray(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]]:
-        """
-        (origin, unit direction) of the ray through pixel (x, y)
-        """
-    def zoom(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def distance(self) -> float:
-        """
-        m, from the eye to the target
-        """
-    @distance.setter
-    def distance(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def eye(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        ...
-    @property
-    def forward(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        ...
-    @property
-    def fov_y(self) -> float:
-        """
-        rad, vertical field of view
-        """
-    @fov_y.setter
-    def fov_y(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def height(self) -> int:
-        ...
-    @property
-    def pitch(self) -> float:
-        """
-        rad above the horizon
-        """
-    @pitch.setter
-    def pitch(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def target(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        """
-        m, the point looked at
-        """
-    @target.setter
-    def target(self, arg1: typing.Any) -> None:
-        ...
-    @property
-    def width(self) -> int:
-        ...
-    @property
-    def yaw(self) -> float:
-        """
-        rad about +y; 0 looks along -z
-        """
-    @yaw.setter
-    def yaw(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-class Viewer:
-    """
-    Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().
-    """
-    grid: bool
-    method: str
-    particles: bool
-    paused: bool
-    wireframe: bool
-    def __enter__(self) -> Viewer:
-        ...
-    def __exit__(self, *args) -> None:
-        ...
-    def __init__(self, model: ..., state: ..., settings: ..., *, width: typing.SupportsInt | typing.SupportsIndex = 1280, height: typing.SupportsInt | typing.SupportsIndex = 800, offscreen: bool = False, title: str = 'csb', samples: typing.SupportsInt | typing.SupportsIndex = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: typing.SupportsInt | typing.SupportsIndex = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
-        """
-        Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).
-        """
-    def capture(self, *, frames: typing.SupportsInt | typing.SupportsIndex, directory: str, every: typing.SupportsInt | typing.SupportsIndex = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
-        """
-        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
-        """
-    def close(self) -> None:
-        """
-        Releases the window (or offscreen context) now; frame() then returns False.
-        """
-    def frame(self) -> bool:
-        """
-        One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.
-        """
-    def frame_scene(self) -> None:
-        ...
-    def key(self, name: str) -> None:
-        """
-        A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.
-        """
-    def mouse_button(self, button: typing.SupportsInt | typing.SupportsIndex, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
-        """
-        A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.
-        """
-    def mouse_move(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def redraw(self) -> None:
-        """
-        Draws the current state again without stepping.
-        """
-    def reset(self) -> None:
-        ...
-    def run(self, max_frames: typing.SupportsInt | typing.SupportsIndex = 0) -> int:
-        """
-        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released meanwhile.
-        """
-    def save_png(self, path: str) -> None:
-        ...
-    def screenshot(self) -> numpy.typing.NDArray[numpy.uint8]:
-        """
-        The last frame drawn as an (height, width, 3) uint8 array, top row first.
-        """
-    def scroll(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def set_overlay(self, on: bool) -> None:
-        ...
-    def single_step(self) -> None:
-        ...
-    @property
-    def camera(self) -> Camera:
-        ...
-    @property
-    def closed(self) -> bool:
-        """
-        The window was asked to close, or close() was called.
-        """
-    @property
-    def held_particle(self) -> int:
-        """
-        The particle under the mouse's grab, or -1.
-        """
-    @property
-    def model(self) -> ...:
-        """
-        A copy of the model being simulated (a tear makes a new one).
-        """
-    @property
-    def settings(self) -> ...:
-        ...
-    @property
-    def state(self) -> ...:
-        """
-        The live state (positions and velocities as numpy views).
-        """
-    @property
-    def stats(self) -> dict:
-        """
-        What the overlay shows: fps, ms per frame, per step and to draw (wall clock, smoothed), energies (J).
-        """
-    @property
-    def steps_per_frame(self) -> int:
-        ...
+__all__: list[str] = ['Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -298,6 +131,10 @@ class Model:
     """
     def __repr__(self) -> str:
         ...
+    def colouring(self, batch: str) -> dict:
+        """
+        The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is order[offsets[k]:offsets[k+1]]), overflow (the last colour's constraints may share particles and are projected serially)
+        """
     def initial_state(self) -> State:
         """
         A new State at the rest positions with zero velocities and t = 0.
@@ -344,6 +181,11 @@ class Model:
     def mass(self) -> numpy.ndarray:
         """
         (N,) masses, kg (kept for pinned particles)
+        """
+    @property
+    def memory(self) -> dict:
+        """
+        bytes the model's arrays hold (from their capacities), per part
         """
     @property
     def num_constraints(self) -> int:
@@ -485,6 +327,9 @@ class PbdSettings:
     def method(self) -> str:
         ...
     @property
+    def ordering(self) -> str:
+        ...
+    @property
     def solver(self) -> str:
         ...
     @property
@@ -496,6 +341,11 @@ class PbdSettings:
     @property
     def substeps(self) -> int:
         ...
+    @property
+    def threads(self) -> int:
+        """
+        threads per colour; 0: automatic
+        """
     @property
     def verlet_drag(self) -> float:
         """
@@ -510,9 +360,9 @@ class PbdStepper:
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0) -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots.
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (each batch colour by colour, data-parallel) or 'sequential' (as built, one thread). threads: threads per colour, >= 0 (0: the free cores; the result does not depend on it).
         """
     def contacts(self) -> dict:
         """
@@ -552,6 +402,16 @@ class PbdStepper:
     def substep_size(self) -> float:
         """
         h = dt/substeps, s
+        """
+    @property
+    def threads_used(self) -> int:
+        """
+        threads the last step used
+        """
+    @property
+    def workspace_bytes(self) -> int:
+        """
+        bytes of the stepper's per-model workspace (from the vectors' capacities)
         """
 class Pick:
     """
@@ -617,13 +477,21 @@ def benchmark_dispatch(model: Model, positions: typing.Any, sweeps: typing.Suppo
     """
     Gauss-Seidel sweeps through the batched kernels and through one virtual Constraint object per constraint: ns per projection of each repeat, and whether the results agree bit for bit.
     """
+def benchmark_jacobian(network: ..., state: State, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+    """
+    ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.
+    """
+def benchmark_plain_distance(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+    """
+    The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.
+    """
 def bending_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
     Violation θ - θ0 of every bending constraint, rad.
     """
 def build_info() -> dict:
     """
-    Versions of csb and of the libraries it was built against, and whether the viewer was built.
+    Versions of csb and of the libraries it was built against.
     """
 def chain(links: typing.SupportsInt | typing.SupportsIndex, link_length: typing.SupportsFloat | typing.SupportsIndex, start: typing.Any = [0.0, 0.0, 0.0], direction: typing.Any = [1.0, 0.0, 0.0]) -> Mesh:
     """
@@ -636,6 +504,10 @@ def check_obj(path: str) -> None:
 def cloth_grid(width: typing.SupportsFloat | typing.SupportsIndex, height: typing.SupportsFloat | typing.SupportsIndex, nx: typing.SupportsInt | typing.SupportsIndex, ny: typing.SupportsInt | typing.SupportsIndex, plane: str = 'xz', center: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
     """
     Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).
+    """
+def colour_constraints(particles: typing.Annotated[numpy.typing.ArrayLike, numpy.int32], num_particles: typing.SupportsInt | typing.SupportsIndex, min_colour_size: typing.SupportsInt | typing.SupportsIndex = 64) -> dict:
+    """
+    The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).
     """
 def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, iterations: typing.SupportsInt | typing.SupportsIndex) -> float:
     """
@@ -687,3 +559,5 @@ def volume_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.
     """
     Violation V - V0 of every tetrahedral volume constraint, m³.
     """
+MAX_COLOURS: int = 64
+MIN_COLOUR_SIZE: int = 64

@@ -1,0 +1,58 @@
+// csb — the stepper's copy of a model's constraint batches in colour order (issue 7).
+//
+// Model::distance.colours (and the others) say in which order to project; this workspace holds
+// each batch permuted into that order as plain arrays (structure of arrays), with what the
+// method needs per constraint computed once: the rest value, the inverse masses of its
+// particles (kinematic grabs at 0), PBD's share of the correction k w_i / Σw, XPBD's α̃ = α/h²,
+// γ = α β / h and 1 / ((1 + γ) Σw + α̃). A kernel over a range of one colour then reads
+// contiguous arrays and gathers only the positions, and its iterations are independent: the
+// loop vectorises (SIMD lanes are constraints) and threads share a colour's ranges.
+//
+// Position c of a coloured batch is constraint colours.order[c] of the model's batch; XPBD
+// multipliers live here in colour order and are put back in the model's order on request.
+#pragma once
+
+#include "csb/types.hpp"
+
+#include <array>
+#include <cstdint>
+#include <vector>
+
+namespace csb {
+
+struct ColouredDistance {
+  std::vector<Index> i, j;
+  std::vector<Real> rest;            // m
+  std::vector<std::int8_t> sense;
+  std::vector<Real> ci, cj;          // PBD, Jakobsen: k w_i/(w_i + w_j), k w_j/(w_i + w_j); XPBD: w_i, w_j
+  std::vector<Real> alpha, gamma, inv_den;  // XPBD: α̃, γ, 1/((1 + γ)(w_i + w_j) + α̃) (0: not projected)
+  std::vector<Real> lambda;          // XPBD
+};
+
+// Bending (a, b, c, d) or tet volume (p0, p1, p2, p3).
+struct ColouredFour {
+  std::vector<std::array<Index, 4>> q;
+  std::vector<Real> rest;            // rad or m³
+  std::vector<std::array<Real, 4>> w;
+  std::vector<Real> k;               // PBD, Jakobsen
+  std::vector<Real> alpha, gamma;    // XPBD
+  std::vector<Real> lambda;
+};
+
+struct ColouredAttachments {
+  std::vector<Index> i;
+  std::vector<std::array<Real, 3>> target;  // m
+  std::vector<Real> w, k, alpha, gamma, lambda;
+};
+
+struct ColouredBatches {
+  std::uint64_t model_id = 0;        // the model they were built from
+  std::vector<Index> kinematic;      // the particles held kinematically when built (w = 0)
+  ColouredDistance distance;
+  ColouredFour bending, volume;
+  ColouredAttachments attachments;
+  std::vector<Real> count;           // Jacobi: projections that touch each particle in one sweep (contacts aside)
+  std::size_t bytes() const;
+};
+
+}  // namespace csb

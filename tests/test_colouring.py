@@ -1,0 +1,202 @@
+"""Issue 7: graph colouring of the constraint batches, the coloured sweep on several threads,
+and the memory report. Timings are the benchmark's business (`csb bench`), never asserted here."""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+import pytest
+
+import csb
+from csb import _core
+from csb.scene import SceneError
+
+EPS = np.finfo(float).eps
+
+
+def mixed_model(n: int = 40, cells: int = 6, compliance: float = 0.0):
+    """A cloth (stretch and shear edges, dihedral bending, two attachments) beside a tet box
+    (edges and volumes) and a balloon: every batch, and colours larger than the overflow
+    threshold, so that two threads really share them."""
+    b = csb.ModelBuilder()
+    cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.5, bending_stiffness=0.5,
+                       stretch_compliance=compliance, bending_compliance=compliance)
+    for corner in (0, n - 1):
+        b.attach(cloth.first_particle + corner, b.position(cloth.first_particle + corner), stiffness=0.9,
+                 compliance=compliance)
+    b.add_tet_mesh(csb.tet_box((0.4, 0.4, 0.4), (cells, cells, cells), center=(0, -1, 0)), mass=1.0,
+                   stretch_compliance=compliance, volume_compliance=compliance)
+    ball = b.add_mesh(_octahedron(), mass=0.2, stretch_compliance=compliance)
+    b.add_balloon(ball.triangles, pressure=1.2, compliance=compliance)
+    return b.build()
+
+
+def _octahedron() -> csb.Mesh:
+    v = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float) * 0.2 + [0, -2, 0]
+    f = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
+    return csb.Mesh(v, f, name="ball")
+
+
+def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _core.MIN_COLOUR_SIZE) -> None:
+    """Every constraint exactly once; within a colour (the overflow colour aside) no particle
+    twice and the constraints in increasing order."""
+    order = np.asarray(colouring["order"])
+    offsets = np.asarray(colouring["colour_offsets"])
+    assert offsets[0] == 0 and offsets[-1] == len(particles) and np.all(np.diff(offsets) > 0)
+    assert np.array_equal(np.sort(order), np.arange(len(particles)))
+    colours = len(offsets) - 1
+    for k in range(colours):
+        members = order[offsets[k]:offsets[k + 1]]
+        assert np.all(np.diff(members) > 0)
+        if colouring["overflow"] and k == colours - 1:
+            continue
+        used = particles[members].ravel()
+        assert len(np.unique(used)) == len(used), f"colour {k} has constraints sharing a particle"
+        assert len(members) >= min_size
+
+
+def test_every_batch_is_coloured_validly():
+    model = mixed_model()
+    for batch, key in (("distance", "particles"), ("bending", "particles"), ("volume", "particles")):
+        particles = np.asarray(getattr(model, batch)[key])
+        c = model.colouring(batch)
+        check_colouring(particles, c)
+        assert len(c["colour_offsets"]) > 2  # really coloured, not one overflow colour
+    check_colouring(np.asarray(model.attachments["particle"])[:, None], model.colouring("attachments"))
+    with pytest.raises(csb.ParameterError, match="batch must be"):
+        model.colouring("balloons")
+
+
+def test_the_greedy_colouring_is_first_fit_in_constraint_order():
+    # A path 0-1-2-3-4: edges alternate between two colours.
+    c = _core.colour_constraints(np.array([[0, 1], [1, 2], [2, 3], [3, 4]]), 5, 1)
+    assert list(c["order"]) == [0, 2, 1, 3] and list(c["colour_offsets"]) == [0, 2, 4] and not c["overflow"]
+
+
+def test_small_colours_and_colours_past_the_limit_go_to_the_overflow_colour():
+    # A star: every constraint shares particle 0, so each needs its own colour; the first
+    # MAX_COLOURS get one, the rest (none free) go to the overflow colour.
+    m = _core.MAX_COLOURS + 6
+    star = np.stack([np.zeros(m, int), np.arange(1, m + 1)], axis=1)
+    c = _core.colour_constraints(star, m + 1, 1)
+    offsets = np.asarray(c["colour_offsets"])
+    assert c["overflow"] and len(offsets) - 1 == _core.MAX_COLOURS + 1
+    assert np.array_equal(np.diff(offsets), [1] * _core.MAX_COLOURS + [6])
+    assert list(c["order"][-6:]) == list(range(_core.MAX_COLOURS, m))
+    check_colouring(star, c, min_size=1)
+    # With the default threshold every one of those colours is too small: all overflow, in order.
+    c = _core.colour_constraints(star, m + 1)
+    assert c["overflow"] and list(c["colour_offsets"]) == [0, m] and list(c["order"]) == list(range(m))
+
+
+def test_a_small_model_is_one_overflow_colour_in_build_order():
+    b = csb.ModelBuilder()
+    g = b.add_group("chain")
+    for k in range(11):
+        b.add_particle([k * 0.1, 0, 0], 0.1, g)
+    for k in range(10):
+        b.add_distance(k, k + 1)
+    c = b.build().colouring("distance")
+    assert c["overflow"] and list(c["colour_offsets"]) == [0, 10] and list(c["order"]) == list(range(10))
+
+
+def test_a_torn_model_is_coloured_again():
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 20, 20), mass=0.5, bending_stiffness=0.5)
+    model = b.build()
+    state = model.initial_state()
+    x = np.asarray(state.x)
+    x[:, 0] *= np.where(x[:, 0] > 0, 1.5, 1.0)  # stretch the right half
+    torn = csb.tear(model, state, max_strain=0.2, max_tears=5)
+    assert torn["torn"] > 0
+    for batch in ("distance", "bending"):
+        check_colouring(np.asarray(getattr(torn["model"], batch)["particles"]), torn["model"].colouring(batch))
+
+
+def state_hash(state) -> str:
+    return hashlib.sha256(np.ascontiguousarray(state.x).tobytes() + np.ascontiguousarray(state.v).tobytes()).hexdigest()
+
+
+@pytest.mark.parametrize("method, solver", [("pbd", "gauss-seidel"), ("xpbd", "gauss-seidel"),
+                                            ("jakobsen", "gauss-seidel"), ("pbd", "jacobi"), ("xpbd", "jacobi"),
+                                            ("jakobsen", "jacobi")])
+def test_the_result_does_not_depend_on_the_thread_count(method, solver):
+    """The same bits with 1 and 2 threads, and in a second run with 2: distance, bending,
+    volume, attachment and balloon constraints, four sub-steps of three iterations."""
+    model = mixed_model(compliance=1e-6 if method == "xpbd" else 0.0)
+    hashes = []
+    for threads in (1, 2, 2):
+        state = model.initial_state()
+        stepper = csb.PbdStepper(method=method, solver=solver, dt=1 / 60, substeps=4, iterations=3, threads=threads)
+        stepper.step(model, state, 20)
+        assert stepper.threads_used == threads
+        assert np.isfinite(state.x).all()
+        hashes.append(state_hash(state))
+    assert hashes[0] == hashes[1] == hashes[2]
+
+
+def test_xpbd_multipliers_come_back_in_the_model_order():
+    """Multipliers are kept in colour order and put back in the model's. One Jacobi sweep reads
+    only the positions at its start, so each constraint's multiplier does not depend on the order:
+    the coloured and the sequential sweeps give the same, constraint by constraint, to round-off
+    (the coloured kernels multiply by precomputed reciprocals where the sequential ones divide)."""
+    model = mixed_model(compliance=1e-5)
+    out = {}
+    for ordering in ("coloured", "sequential"):
+        state = model.initial_state()
+        state.v = np.random.default_rng(1).normal(size=(model.num_particles, 3))
+        stepper = csb.PbdStepper(method="xpbd", solver="jacobi", dt=1 / 60, substeps=1, iterations=1, ordering=ordering)
+        stepper.step(model, state, 1)
+        out[ordering] = stepper.multipliers()
+    for batch in ("distance", "bending", "volume", "attachment", "balloon"):
+        a, b = out["coloured"][batch], out["sequential"][batch]
+        assert a.shape == b.shape and np.abs(a).max() > 0
+        assert np.abs(a - b).max() <= 1e-9 * np.abs(b).max(), batch
+
+
+def test_threads_and_ordering_are_validated():
+    with pytest.raises(csb.ParameterError, match=r"threads must be >= 0 .*got -1"):
+        csb.PbdStepper(threads=-1)
+    with pytest.raises(csb.ParameterError, match="ordering must be 'coloured' or 'sequential'"):
+        csb.PbdStepper(ordering="random")
+    s = csb.PbdStepper(threads=3, ordering="sequential").settings
+    assert s.threads == 3 and s.ordering == "sequential" and "threads=3" in repr(s)
+
+
+def test_the_scene_solver_table_takes_threads_and_ordering(tmp_path):
+    text = csb.bundled_scenes()["cloth_grid"].read_text().replace("[solver]", "[solver]\nthreads = 2\nordering = \"sequential\"")
+    (tmp_path / "a.toml").write_text(text)
+    stepper = csb.load_scene(tmp_path / "a.toml").build().stepper
+    assert stepper.settings.threads == 2 and stepper.settings.ordering == "sequential"
+    (tmp_path / "b.toml").write_text(text.replace("threads = 2", "threads = -1"))
+    with pytest.raises(SceneError, match=r"solver.threads: must be an integer >= 0, got -1"):
+        csb.load_scene(tmp_path / "b.toml")
+
+
+def test_memory_report_counts_the_arrays():
+    """Model.memory is the capacity of its arrays: for a freshly built model exactly the bytes
+    of the batch arrays Python sees plus the colouring; the stepper's workspace holds at least
+    its positions and the coloured batches, and both grow linearly with the cloth."""
+    per_particle = []
+    for n in (16, 32):
+        b = csb.ModelBuilder()
+        b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.5, bending_stiffness=0.5)
+        model = b.build()
+        mem = model.memory
+        for batch in ("distance", "bending"):
+            arrays = getattr(model, batch)
+            colouring = model.colouring(batch)
+            expected = sum(np.asarray(a).nbytes for a in arrays.values()) + sum(
+                np.asarray(colouring[k]).nbytes for k in ("order", "colour_offsets"))
+            assert mem[batch] == expected, batch
+        N = model.num_particles
+        assert mem["particles"] >= N * (3 * 8 + 8 + 8 + 4 + 4 + 8)
+        assert mem["total"] == sum(v for k, v in mem.items() if k != "total")
+        stepper = csb.PbdStepper()
+        stepper.step(model, model.initial_state())
+        d, bend = len(model.distance["rest_length"]), len(model.bending["rest_angle"])
+        # p (24 B/particle); distance: i, j, rest, sense, c_i, c_j; bending: q, rest, w, k
+        assert stepper.workspace_bytes >= 24 * N + d * (4 + 4 + 8 + 1 + 8 + 8) + bend * (16 + 8 + 32 + 8)
+        per_particle.append((mem["total"] + stepper.workspace_bytes) / N)
+    assert per_particle[1] == pytest.approx(per_particle[0], rel=0.1)
