@@ -11,7 +11,174 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+class Camera:
+    """
+    The viewer's orbit camera (m, rad; pixels from the top-left corner).
+    """
+    def orbit(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def pan(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def project(self, point: typing.Any) -> tuple[float, float, float]:
+        """
+        (x, y, depth): where a world point (m) lands in the image, in pixels, and its depth (m) in front of the eye
+        """
+    def ray(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]]:
+        """
+        (origin, unit direction) of the ray through pixel (x, y)
+        """
+    def zoom(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def distance(self) -> float:
+        """
+        m, from the eye to the target
+        """
+    @distance.setter
+    def distance(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def eye(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        ...
+    @property
+    def forward(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        ...
+    @property
+    def fov_y(self) -> float:
+        """
+        rad, vertical field of view
+        """
+    @fov_y.setter
+    def fov_y(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def height(self) -> int:
+        ...
+    @property
+    def pitch(self) -> float:
+        """
+        rad above the horizon
+        """
+    @pitch.setter
+    def pitch(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def target(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        """
+        m, the point looked at
+        """
+    @target.setter
+    def target(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def width(self) -> int:
+        ...
+    @property
+    def yaw(self) -> float:
+        """
+        rad about +y; 0 looks along -z
+        """
+    @yaw.setter
+    def yaw(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+class Viewer:
+    """
+    Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().
+    """
+    grid: bool
+    method: str
+    particles: bool
+    paused: bool
+    wireframe: bool
+    def __enter__(self) -> Viewer:
+        ...
+    def __exit__(self, *args) -> None:
+        ...
+    def __init__(self, model: ..., state: ..., settings: ..., *, width: typing.SupportsInt | typing.SupportsIndex = 1280, height: typing.SupportsInt | typing.SupportsIndex = 800, offscreen: bool = False, title: str = 'csb', samples: typing.SupportsInt | typing.SupportsIndex = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: typing.SupportsInt | typing.SupportsIndex = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
+        """
+        Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).
+        """
+    def capture(self, *, frames: typing.SupportsInt | typing.SupportsIndex, directory: str, every: typing.SupportsInt | typing.SupportsIndex = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
+        """
+        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
+        """
+    def close(self) -> None:
+        """
+        Releases the window (or offscreen context) now; frame() then returns False.
+        """
+    def frame(self) -> bool:
+        """
+        One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.
+        """
+    def frame_scene(self) -> None:
+        ...
+    def key(self, name: str) -> None:
+        """
+        A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.
+        """
+    def mouse_button(self, button: typing.SupportsInt | typing.SupportsIndex, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
+        """
+        A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.
+        """
+    def mouse_move(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def redraw(self) -> None:
+        """
+        Draws the current state again without stepping.
+        """
+    def reset(self) -> None:
+        ...
+    def run(self, max_frames: typing.SupportsInt | typing.SupportsIndex = 0) -> int:
+        """
+        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released meanwhile.
+        """
+    def save_png(self, path: str) -> None:
+        ...
+    def screenshot(self) -> numpy.typing.NDArray[numpy.uint8]:
+        """
+        The last frame drawn as an (height, width, 3) uint8 array, top row first.
+        """
+    def scroll(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def set_overlay(self, on: bool) -> None:
+        ...
+    def single_step(self) -> None:
+        ...
+    @property
+    def camera(self) -> Camera:
+        ...
+    @property
+    def closed(self) -> bool:
+        """
+        The window was asked to close, or close() was called.
+        """
+    @property
+    def held_particle(self) -> int:
+        """
+        The particle under the mouse's grab, or -1.
+        """
+    @property
+    def model(self) -> ...:
+        """
+        A copy of the model being simulated (a tear makes a new one).
+        """
+    @property
+    def settings(self) -> ...:
+        ...
+    @property
+    def state(self) -> ...:
+        """
+        The live state (positions and velocities as numpy views).
+        """
+    @property
+    def stats(self) -> dict:
+        """
+        What the overlay shows: fps, ms per frame, per step and to draw (wall clock, smoothed), energies (J).
+        """
+    @property
+    def steps_per_frame(self) -> int:
+        ...
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -491,7 +658,7 @@ def bending_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy
     """
 def build_info() -> dict:
     """
-    Versions of csb and of the libraries it was built against.
+    Versions of csb and of the libraries it was built against, and whether the viewer was built.
     """
 def chain(links: typing.SupportsInt | typing.SupportsIndex, link_length: typing.SupportsFloat | typing.SupportsIndex, start: typing.Any = [0.0, 0.0, 0.0], direction: typing.Any = [1.0, 0.0, 0.0]) -> Mesh:
     """
