@@ -17,7 +17,7 @@ Timing: after a warm-up, every round starts again from the cloth at rest and tim
 first ``frames`` frames of the motion on every side (so no side is timed on a cloth that has
 drifted into a different state); the figure is the median over rounds, in ms per frame. After
 the timed frames each side's cloth is checked: finite, pins where they were, fallen under
-gravity no faster than free fall, edge strain below 100 %.
+gravity no faster than free fall, mean edge strain below 10 % (the largest strain is printed).
 
 What each side projects, and the parameter mapping, is in ``papers/benchmarks.md`` ("Against the
 peers (issue 7)") and in :data:`MAPPING`.
@@ -271,7 +271,12 @@ PEER_MODULES = {"pypbd": "pypbd", "newton": "newton"}
 
 def peer_available(side: str) -> bool:
     mod = PEER_MODULES.get(side)
-    return mod is None or importlib.util.find_spec(mod) is not None
+    if mod is None:
+        return True
+    try:
+        return importlib.util.find_spec(mod) is not None
+    except (ImportError, ValueError):
+        return False
 
 
 # ---------------------------------------------------------------------------------------------
@@ -279,8 +284,8 @@ def peer_available(side: str) -> bool:
 
 
 def check_cloth(arrays: dict[str, Any], x: np.ndarray, frames: int) -> dict[str, Any]:
-    """After `frames` frames from rest: finite, pins in place, fallen (not faster than free
-    fall), edge strain below 100 %."""
+    """After `frames` frames from rest: finite, pins in place, fallen but not faster than free
+    fall, mean edge strain below 10 % (not diverging)."""
     x0, pinned = arrays["positions"], arrays["pinned"]
     free = np.setdiff1d(np.arange(len(x0)), pinned)
     finite = bool(np.isfinite(x).all())
@@ -294,8 +299,10 @@ def check_cloth(arrays: dict[str, Any], x: np.ndarray, frames: int) -> dict[str,
                mean_drop=float(drop.mean()) if finite else float("nan"),
                max_drop=float(drop.max()) if finite else float("nan"), free_fall=free_fall,
                max_strain=float(np.max(strain)), mean_strain=float(np.mean(strain)))
+    # the strain of the few edges at the pins is printed, not judged: ten projections per frame
+    # cannot carry the cloth's weight to the pins at 128² and more, on any side
     out["ok"] = bool(finite and pin_moved < 1e-5 and out["mean_drop"] > 0
-                     and out["max_drop"] <= free_fall * 1.05 + 1e-3 and out["max_strain"] < 1.0)
+                     and out["max_drop"] <= free_fall * 1.05 + 1e-3 and out["mean_strain"] < 0.1)
     return out
 
 
