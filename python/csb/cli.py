@@ -24,9 +24,16 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.peers:
+        from . import bench_peers
+
+        bench_peers.main(sizes=args.sizes or bench_peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
+                         sides=args.sides, pypbd_threads=args.pypbd_threads, newton_cold=not args.newton_cache,
+                         hold_frames=args.hold_frames)
+        return 0
     from .bench import main
 
-    main(sizes=args.sizes, iterations=args.iterations, substeps=args.substeps, steps=args.steps, rounds=args.rounds,
+    main(sizes=args.sizes or [64, 128], iterations=args.iterations, substeps=args.substeps, steps=args.steps, rounds=args.rounds,
          parts=args.parts, front_end_sizes=args.front_end_sizes)
     return 0
 
@@ -102,8 +109,10 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "
-                                     "colouring, threads, scaling, memory and the reference (prints tables)")
-    p.add_argument("--sizes", type=int, nargs="+", default=[64, 128], help="particles per side (default: 64 128)")
+                                     "colouring, threads, scaling, memory and the reference; --peers: against pypbd "
+                                     "and newton (prints tables)")
+    p.add_argument("--sizes", type=int, nargs="+", default=None,
+                   help="particles per side (default: 64 128; with --peers 32 64 128 256)")
     p.add_argument("--iterations", type=int, default=10)
     p.add_argument("--substeps", type=int, default=1)
     p.add_argument("--steps", type=int, default=10, help="steps per timed round")
@@ -119,6 +128,20 @@ def main(argv: list[str] | None = None) -> int:
                         "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size")
     p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
+    p.add_argument("--peers", action="store_true",
+                   help="instead: the same cloth in csb, pypbd and newton (CPU), 10 substeps x 1 iteration and "
+                        "1 x 10 (issue 7); a peer that is not installed is skipped (pip install 'csb[bench]')")
+    p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton"], choices=["csb", "pypbd", "newton"],
+                   help="with --peers: which sides to run")
+    p.add_argument("--pypbd-threads", type=int, nargs="+", default=[1, 2],
+                   help="with --peers: OMP_NUM_THREADS values to run pypbd with (default: 1 2)")
+    p.add_argument("--peer-frames", type=int, default=5,
+                   help="with --peers: frames per timed round, each round from rest (default: 5)")
+    p.add_argument("--hold-frames", type=int, default=0,
+                   help="with --peers: also step each cloth this many frames from rest and check it (untimed)")
+    p.add_argument("--newton-cache", action="store_true",
+                   help="with --peers: use Warp's kernel cache (default: a fresh one, so that first-use "
+                        "compilation is measured)")
     p.set_defaults(func=_cmd_bench)
 
     def view_options(p: argparse.ArgumentParser) -> None:

@@ -1,0 +1,564 @@
+"""csb against its peers (issue 7): the same square cloth in csb, Bender's PositionBasedDynamics
+(``pypbd``) and NVIDIA's Newton XPBD solver on the CPU, in one run.
+
+The cloth is the bundled scene ``cloth_grid`` at N x N particles (1 m x 1 m in the xz plane, two
+pinned corners, density 0.2 kg/m², gravity -9.81 m/s² along y, dt = 1/60 s per frame): a
+distance constraint on every unique triangle edge (structural and diagonal shear) and a dihedral
+bending constraint on every interior edge. The peers are built from csb's own arrays (positions,
+triangles, masses, pins, the distance pairs and the bending quadruples), so every side has the
+same particles and constraints; the counts in the table are read back from each peer's objects.
+
+Each side runs in its own subprocess (``python -m csb.bench_peers --worker SIDE``), so that
+OMP_NUM_THREADS reaches pypbd's OpenMP runtime before it starts and Warp's kernel cache can be
+a fresh directory; the driver interleaves them (for each cloth and case, every side in turn, a
+fresh process each), so that the sides of one row run under the same load of a shared machine. A missing peer is reported and skipped. The peers are the optional ``bench``
+extra (``pip install csb[bench]``), never a core dependency.
+
+Timing: after a warm-up, every round starts again from the cloth at rest and times the same
+first ``frames`` frames of the motion on every side (so no side is timed on a cloth that has
+drifted into a different state); the figure is the median over rounds, in ms per frame. After
+the timed frames each side's cloth is checked: finite, pins where they were, fallen under
+gravity no faster than free fall, mean edge strain below 10 % (the largest strain is printed).
+
+What each side projects, and the parameter mapping, is in ``papers/benchmarks.md`` ("Against the
+peers (issue 7)") and in :data:`MAPPING`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.util
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from typing import Any, Sequence
+
+import numpy as np
+
+CASES: tuple[tuple[int, int], ...] = ((10, 1), (1, 10))  # (substeps, iterations) per frame
+SIZES: tuple[int, ...] = (32, 64, 128, 256)
+FRAME_DT = 1.0 / 60.0
+GRAVITY = 9.81
+
+# Newton's XPBD sums the corrections of all constraints of a particle (Jacobi, no averaging) and
+# cannot take compliance 0 (a spring with ke = 0 is skipped). Its springs are given
+# ke_ij = 1 / (r (w_i + w_j) h²), i.e. α̃ = α/h² = r (w_i + w_j): each projection moves its two
+# particles by 1/(1 + r) of the full correction, the stiffest setting whose summed Jacobi stays
+# bounded on this cloth (r = 1 diverges at 32 x 32).
+NEWTON_SPRING_RELAXATION = 4.0
+
+MAPPING = {
+    "csb": "method 'pbd' (the bundled scene): stretch k = 1, bending k = 0.1, corrected per iteration "
+           "to 1 - (1 - k)^(1/iterations); Gauss-Seidel, one thread",
+    "pypbd": "DistanceConstraint (PBD, stiffness 1) on every unique edge and DihedralConstraint (PBD) on "
+             "every interior edge, from addClothConstraints(method 1) and addBendingConstraints(method 1) "
+             "on the same triangles; dihedral stiffness = csb's corrected per-projection k; "
+             "NUM_SUB_STEPS, MAX_ITERATIONS as the case, MAX_ITERATIONS_V = 0 (csb has no velocity pass)",
+    "newton": "SolverXPBD(iterations) on device 'cpu', one solver.step per substep of dt/substeps; "
+              "springs on csb's distance pairs with ke = 1/(r (w_i + w_j) h²), r = 4 (no compliance 0: "
+              "see NEWTON_SPRING_RELAXATION), kd = 0; bending edges on csb's interior edges with "
+              "ke = 1/(bending compliance) = 1e-3 N m, kd = 0; particle radius 0 (no particle contacts)",
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# The cloth, from csb
+
+
+def cloth_arrays(n: int) -> dict[str, Any]:
+    """csb's cloth_grid at n x n as plain arrays, the single source every side is built from."""
+    from .bench import cloth_simulation
+
+    sim = cloth_simulation(n)
+    m = sim.model
+    inv_mass = np.asarray(m.inv_mass, dtype=float)
+    return dict(
+        n=n,
+        positions=np.asarray(m.rest_positions, dtype=float).copy(),
+        triangles=np.asarray(m.triangles, dtype=np.int64).copy(),
+        mass=np.asarray(m.mass, dtype=float).copy(),
+        inv_mass=inv_mass.copy(),
+        pinned=np.flatnonzero(inv_mass == 0),
+        distance=np.asarray(m.distance["particles"], dtype=np.int64).copy(),
+        rest_length=np.asarray(m.distance["rest_length"], dtype=float).copy(),
+        stretch_stiffness=float(np.asarray(m.distance["stiffness"])[0]),
+        stretch_compliance=float(np.asarray(m.distance["compliance"])[0]),
+        # (a, b, c, d): the edge (a, b), c and d the opposite vertices of its two triangles
+        bending=np.asarray(m.bending["particles"], dtype=np.int64).copy(),
+        bending_stiffness=float(np.asarray(m.bending["stiffness"])[0]),
+        bending_compliance=float(np.asarray(m.bending["compliance"])[0]),
+    )
+
+
+def corrected_stiffness(k: float, iterations: int) -> float:
+    """csb's per-projection PBD stiffness (Müller 2007 §3.3), as src/csb/pbd.cpp applies it."""
+    return 1.0 if k >= 1 else 1.0 - (1.0 - k) ** (1.0 / iterations)
+
+
+# ---------------------------------------------------------------------------------------------
+# The sides. Each builds the cloth for one (substeps, iterations) case, counts what it built
+# from its own objects, steps whole frames, and resets to rest.
+
+
+class CsbSide:
+    name = "csb"
+
+    def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int):
+        from .bench import cloth_simulation
+
+        self.sim = cloth_simulation(arrays["n"], substeps=substeps, iterations=iterations)
+        self.model, self.stepper = self.sim.model, self.sim.stepper
+        self.state = self.model.initial_state()
+        m = self.model
+        self.counts = dict(particles=m.num_particles, distance=len(m.distance["rest_length"]),
+                           bending=len(m.bending["rest_angle"]), constraints=m.num_constraints,
+                           projections_per_frame=int(self.stepper.projections_per_step(m)))
+        s = self.stepper.settings
+        self.verified = dict(substeps=s.substeps, iterations=s.iterations, dt=s.dt)
+
+    def reset(self) -> None:
+        self.state = self.model.initial_state()
+
+    def frames(self, k: int) -> None:
+        self.stepper.step(self.model, self.state, k)
+
+    def positions(self) -> np.ndarray:
+        x = np.asarray(self.state.x)
+        return x.T if x.shape[0] == 3 and x.shape[1] != 3 else x
+
+
+class PypbdSide:
+    name = "pypbd"
+
+    def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int):
+        import pypbd as pbd
+
+        self.pbd = pbd
+        sim = pbd.Simulation.getCurrent()
+        if sim.getModel() is not None and len(sim.getModel().getTriangleModels()):
+            sim.getModel().cleanup()  # one cloth at a time in this process
+        sim.initDefault()
+        pbd.TimeManager.getCurrent().setTime(0.0)
+        pbd.TimeManager.getCurrent().setTimeStepSize(FRAME_DT)
+        model = sim.getModel()
+        tri_model = model.addTriangleModel(arrays["positions"], arrays["triangles"].ravel().astype(np.uint32))
+        pd = model.getParticles()
+        for i, m in enumerate(arrays["mass"]):
+            pd.setMass(i, 0.0 if arrays["inv_mass"][i] == 0 else float(m))
+        # clothMethod 1: a PBD distance constraint per unique edge (the stiffness arguments after
+        # the first belong to the FEM/strain methods and are unused here)
+        model.addClothConstraints(tri_model, 1, arrays["stretch_stiffness"], 1.0, 1.0, 1.0, 0.3, 0.3, False, False)
+        # bendingMethod 1: a PBD dihedral constraint per interior edge, with csb's per-projection k
+        model.addBendingConstraints(tri_model, 1, corrected_stiffness(arrays["bending_stiffness"], iterations))
+        ts = sim.getTimeStep()
+        C = pbd.TimeStepController
+        ts.setValueUInt(C.NUM_SUB_STEPS, substeps)
+        ts.setValueUInt(C.MAX_ITERATIONS, iterations)
+        ts.setValueUInt(C.MAX_ITERATIONS_V, 0)
+        self.sim, self.model, self.pd, self.ts = sim, model, pd, ts
+        self.x0 = arrays["positions"]
+        kinds: dict[str, int] = {}
+        for c in model.getConstraints():
+            kinds[type(c).__name__] = kinds.get(type(c).__name__, 0) + 1
+        n_constraints = sum(kinds.values())
+        self.kinds = kinds
+        self.counts = dict(particles=int(pd.size()), distance=kinds.get("DistanceConstraint", 0),
+                           bending=kinds.get("DihedralConstraint", 0), constraints=n_constraints,
+                           projections_per_frame=substeps * iterations * n_constraints)
+        self.verified = dict(substeps=ts.getValueUInt(C.NUM_SUB_STEPS), iterations=ts.getValueUInt(C.MAX_ITERATIONS),
+                             velocity_iterations=ts.getValueUInt(C.MAX_ITERATIONS_V),
+                             dt=pbd.TimeManager.getCurrent().getTimeStepSize(),
+                             other_constraints={k: v for k, v in kinds.items()
+                                                if k not in ("DistanceConstraint", "DihedralConstraint")})
+
+    def reset(self) -> None:
+        zero = np.zeros(3)
+        for i, x in enumerate(self.x0):
+            self.pd.setPosition(i, x)
+            self.pd.setVelocity(i, zero)
+        self.pbd.TimeManager.getCurrent().setTime(0.0)
+
+    def frames(self, k: int) -> None:
+        for _ in range(k):
+            self.ts.step(self.model)
+
+    def positions(self) -> np.ndarray:
+        return np.array([self.pd.getPosition(i) for i in range(self.pd.size())])
+
+
+class NewtonSide:
+    name = "newton"
+
+    def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int,
+                 relaxation: float = NEWTON_SPRING_RELAXATION, graph: bool | None = None):
+        import newton
+        import warp as wp
+
+        self.wp = wp
+        x, w = arrays["positions"], arrays["inv_mass"]
+        mass = np.where(w == 0, 0.0, arrays["mass"])  # mass 0: a kinematic (pinned) particle
+        d, b = arrays["distance"], arrays["bending"]
+        self.h = FRAME_DT / substeps
+        ke = 1.0 / (relaxation * (w[d[:, 0]] + w[d[:, 1]]) * self.h * self.h)
+        builder = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=(0.0, -GRAVITY, 0.0))
+        builder.add_particles(x.tolist(), [(0.0, 0.0, 0.0)] * len(x), mass.tolist(), radius=[0.0] * len(x))
+        t = arrays["triangles"]
+        builder.add_triangles(t[:, 0].tolist(), t[:, 1].tolist(), t[:, 2].tolist())
+        for (i, j), k in zip(d.tolist(), ke.tolist()):
+            builder.add_spring(i, j, k, 0.0, 0.0)
+        # newton's edge is (i, j, k, l): k-l the shared edge, i and j the opposite vertices
+        bend_ke = 1.0 / arrays["bending_compliance"] if arrays["bending_compliance"] > 0 else 1e-3
+        builder.add_edges(b[:, 2].tolist(), b[:, 3].tolist(), b[:, 0].tolist(), b[:, 1].tolist(),
+                          edge_ke=[bend_ke] * len(b), edge_kd=[0.0] * len(b))
+        self.model = model = builder.finalize(device="cpu")
+        self.solver = newton.solvers.SolverXPBD(model, iterations=iterations)
+        self.s0, self.s1 = model.state(), model.state()
+        self.substeps = substeps
+        self.x0 = x.astype(np.float32)
+        # A frame replayed as a CPU graph (wp.ScopedCapture, as Newton's own examples do), which
+        # leaves out Python's cost of launching each kernel; CSB_NEWTON_GRAPH=0 launches them.
+        self.use_graph = (os.environ.get("CSB_NEWTON_GRAPH", "1") != "0") if graph is None else graph
+        self.graph = None
+        n_constraints = int(model.spring_count + model.edge_count)
+        self.counts = dict(particles=int(model.particle_count), distance=int(model.spring_count),
+                           bending=int(model.edge_count), constraints=n_constraints,
+                           projections_per_frame=substeps * iterations * n_constraints)
+        self.verified = dict(substeps=substeps, iterations=self.solver.iterations, dt=self.h * substeps,
+                             triangles_not_projected=int(model.tri_count),
+                             particle_max_radius=float(model.particle_max_radius),
+                             spring_ke=(float(ke.min()), float(ke.max())), bending_ke=bend_ke,
+                             device=str(model.device), graph=self.use_graph)
+
+    def reset(self) -> None:
+        for s in (self.s0, self.s1):
+            s.particle_q.assign(self.x0)
+            s.particle_qd.zero_()
+
+    def _frame(self) -> None:
+        start = self.s0
+        for _ in range(self.substeps):
+            self.solver.step(self.s0, self.s1, None, None, self.h)
+            self.s0, self.s1 = self.s1, self.s0
+        if self.use_graph and self.s0 is not start:  # an odd number of steps: a graph must end where it began
+            self.wp.copy(start.particle_q, self.s0.particle_q)
+            self.wp.copy(start.particle_qd, self.s0.particle_qd)
+            self.s0, self.s1 = start, self.s0
+
+    def frames(self, k: int) -> None:
+        wp = self.wp
+        if self.use_graph and self.graph is None:
+            with wp.ScopedCapture(device="cpu") as capture:
+                self._frame()
+            self.graph = capture.graph
+        for _ in range(k):
+            if self.graph is not None:
+                wp.capture_launch(self.graph)
+            else:
+                self._frame()
+        wp.synchronize()
+
+    def positions(self) -> np.ndarray:
+        return self.s0.particle_q.numpy().astype(float)
+
+
+SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide}
+PEER_MODULES = {"pypbd": "pypbd", "newton": "newton"}
+
+
+def peer_available(side: str) -> bool:
+    mod = PEER_MODULES.get(side)
+    if mod is None:
+        return True
+    try:
+        return importlib.util.find_spec(mod) is not None
+    except (ImportError, ValueError):
+        return False
+
+
+# ---------------------------------------------------------------------------------------------
+# Check and timing
+
+
+def check_cloth(arrays: dict[str, Any], x: np.ndarray, frames: int) -> dict[str, Any]:
+    """After `frames` frames from rest: finite, pins in place, fallen but not faster than free
+    fall, mean edge strain below 10 % (not diverging)."""
+    x0, pinned = arrays["positions"], arrays["pinned"]
+    free = np.setdiff1d(np.arange(len(x0)), pinned)
+    finite = bool(np.isfinite(x).all())
+    pin_moved = float(np.abs(x[pinned] - x0[pinned]).max()) if finite else float("inf")
+    drop = x0[free, 1] - x[free, 1]
+    d = arrays["distance"]
+    strain = np.abs(np.linalg.norm(x[d[:, 0]] - x[d[:, 1]], axis=1) / arrays["rest_length"] - 1) if finite else [np.inf]
+    # semi-implicit Euler with one substep falls g h² K(K+1)/2 in K frames; substeps fall less
+    free_fall = GRAVITY * FRAME_DT**2 * frames * (frames + 1) / 2
+    out = dict(frames=frames, finite=finite, pin_moved=pin_moved,
+               mean_drop=float(drop.mean()) if finite else float("nan"),
+               max_drop=float(drop.max()) if finite else float("nan"), free_fall=free_fall,
+               max_strain=float(np.max(strain)), mean_strain=float(np.mean(strain)))
+    # the strain of the few edges at the pins is printed, not judged: ten projections per frame
+    # cannot carry the cloth's weight to the pins at 128² and more, on any side
+    out["ok"] = bool(finite and pin_moved < 1e-5 and out["mean_drop"] > 0
+                     and out["max_drop"] <= free_fall * 1.05 + 1e-3 and out["mean_strain"] < 0.1)
+    return out
+
+
+def time_side(side: Any, frames: int, rounds: int, warmup: int) -> dict[str, Any]:
+    """Median ms per frame over rounds that each start from rest and step `frames` frames."""
+    side.reset()
+    side.frames(warmup)
+    times = []
+    for _ in range(rounds):
+        side.reset()
+        t0 = time.perf_counter()
+        side.frames(frames)
+        times.append((time.perf_counter() - t0) / frames * 1e3)
+    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=rounds)
+
+
+def run_worker(side_name: str, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int, rounds: int,
+               warmup: int, hold_frames: int = 0) -> dict[str, Any]:
+    """Everything one side does, in this process: returns JSON-able results."""
+    out: dict[str, Any] = dict(side=side_name, rows=[], threads=os.environ.get("OMP_NUM_THREADS"))
+    t0 = time.perf_counter()
+    if side_name == "newton":
+        import warp as wp
+
+        wp.config.quiet = True
+        import newton
+
+        out["versions"] = dict(newton=newton.__version__, warp=wp.__version__)
+        out["kernel_cache"] = wp.config.kernel_cache_dir
+    elif side_name == "pypbd":
+        from importlib.metadata import version
+
+        import pypbd  # noqa: F401
+
+        out["versions"] = dict(pypbd=version("pypbd"))
+    else:
+        from . import _core
+
+        out["versions"] = dict(csb=_core.build_info()["csb"])
+    out["import_s"] = time.perf_counter() - t0
+    for n in sizes:
+        arrays = cloth_arrays(n)
+        for substeps, iterations in cases:
+            t_build = time.perf_counter()
+            side = SIDE_CLASSES[side_name](arrays, substeps, iterations)
+            build_s = time.perf_counter() - t_build
+            t_first = time.perf_counter()
+            side.frames(1)  # the first frame: Newton compiles its kernels here
+            first_frame_s = time.perf_counter() - t_first
+            timing = time_side(side, frames, rounds, warmup)
+            check = check_cloth(arrays, side.positions(), frames)
+            hold = None
+            if hold_frames > 0:  # longer: does the cloth hang, or fall, or diverge?
+                side.reset()
+                side.frames(hold_frames)
+                hold = check_cloth(arrays, side.positions(), hold_frames)
+            out["rows"].append(dict(n=n, substeps=substeps, iterations=iterations, counts=side.counts,
+                                    verified=side.verified, build_s=build_s, first_frame_s=first_frame_s,
+                                    check=check, hold=hold, **timing))
+            del side
+    return out
+
+
+def _worker_main(argv: Sequence[str]) -> int:
+    p = argparse.ArgumentParser(prog="python -m csb.bench_peers")
+    p.add_argument("--worker", required=True, choices=sorted(SIDE_CLASSES))
+    p.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
+    p.add_argument("--cases", nargs="+", default=[f"{s}x{i}" for s, i in CASES])
+    p.add_argument("--frames", type=int, default=5)
+    p.add_argument("--rounds", type=int, default=7)
+    p.add_argument("--warmup", type=int, default=2)
+    p.add_argument("--hold-frames", type=int, default=0)
+    a = p.parse_args(argv)
+    cases = [tuple(int(v) for v in c.split("x")) for c in a.cases]
+    result = run_worker(a.worker, a.sizes, cases, a.frames, a.rounds, a.warmup, a.hold_frames)
+    print("CSB_PEERS_JSON " + json.dumps(result))
+    return 0
+
+
+# ---------------------------------------------------------------------------------------------
+# The driver: one subprocess per side (and per thread count for pypbd)
+
+
+@dataclass
+class Run:
+    label: str                      # "csb", "pypbd (1 thread)", ...
+    side: str
+    env: dict[str, str] = field(default_factory=dict)
+    result: dict[str, Any] | None = None
+    error: str | None = None
+    wall_s: float = 0.0
+
+
+def run_side_subprocess(run: Run, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int,
+                        rounds: int, warmup: int, hold_frames: int = 0, timeout: float = 7200) -> Run:
+    cmd = [sys.executable, "-m", "csb.bench_peers", "--worker", run.side, "--sizes", *map(str, sizes),
+           "--cases", *[f"{s}x{i}" for s, i in cases], "--frames", str(frames), "--rounds", str(rounds),
+           "--warmup", str(warmup), "--hold-frames", str(hold_frames)]
+    env = {**os.environ, **run.env}
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
+    run.wall_s = time.perf_counter() - t0
+    for line in r.stdout.splitlines():
+        if line.startswith("CSB_PEERS_JSON "):
+            run.result = json.loads(line[len("CSB_PEERS_JSON "):])
+    if r.returncode != 0 or run.result is None:
+        tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
+        run.error = f"exit {r.returncode}: " + " | ".join(tail)
+    return run
+
+
+def plan_runs(sides: Sequence[str], pypbd_threads: Sequence[int], newton_cold: bool,
+              cache_dir: str | None = None, newton_launches: bool = False) -> tuple[list[Run], list[str]]:
+    runs, skipped = [], []
+    for side in sides:
+        if not peer_available(side):
+            skipped.append(f"{side}: not installed (pip install 'csb[bench]'), skipped")
+            continue
+        if side == "pypbd":
+            for t in pypbd_threads:
+                runs.append(Run(f"pypbd {t}T", "pypbd", {"OMP_NUM_THREADS": str(t)}))
+        elif side == "newton":
+            env = {"OMP_NUM_THREADS": "1"}
+            if newton_cold and cache_dir is not None:
+                env["WARP_CACHE_PATH"] = cache_dir  # a fresh kernel cache: first use compiles
+            runs.append(Run("newton", "newton", env))
+            if newton_launches:
+                runs.append(Run("newton nograph", "newton", {**env, "CSB_NEWTON_GRAPH": "0"}))
+        else:
+            runs.append(Run("csb", "csb", {"OMP_NUM_THREADS": "1"}))
+    return runs, skipped
+
+
+def format_peer_table(runs: Sequence[Run]) -> str:
+    done = [r for r in runs if r.result is not None]
+    csb = next((r for r in done if r.side == "csb"), None)
+    csb_ms = {(row["n"], row["substeps"], row["iterations"]): row["ms_per_frame"]
+              for row in (csb.result["rows"] if csb else [])}
+    head = (f"{'cloth':>9} {'sub x it':>8} {'side':>14} {'particles':>9} {'distance':>8} {'bending':>8} "
+            f"{'proj/frame':>10} {'ms/frame':>9} {'(min-max)':>17} {'Mproj/s':>8} {'/ csb':>7} "
+            f"{'check after the timed frames':<40}")
+    lines = [head, "-" * len(head)]
+    keys = sorted({(row["n"], -row["substeps"], row["iterations"]) for r in done for row in r.result["rows"]})
+    for n, msub, it in keys:
+        for r in done:
+            for row in r.result["rows"]:
+                if (row["n"], -row["substeps"], row["iterations"]) != (n, msub, it):
+                    continue
+                c, ch = row["counts"], row["check"]
+                ms = row["ms_per_frame"]
+                ref = csb_ms.get((n, -msub, it))
+                ratio = f"{ms / ref:7.1f}" if ref else f"{'-':>7}"
+                mproj = c["projections_per_frame"] / (ms * 1e-3) / 1e6
+                spread = f"({row['ms_min']:.3f}-{row['ms_max']:.3f})"
+                verdict = "ok" if ch["ok"] else "FAILED"
+                note = (f"{verdict}: drop {1e3 * ch['mean_drop']:.0f} mm (free fall {1e3 * ch['free_fall']:.0f}), "
+                        f"strain max {100 * ch['max_strain']:.0f}% mean {100 * ch['mean_strain']:.1f}%, "
+                        f"pins {ch['pin_moved']:.0e} m" if ch["finite"] else f"{verdict}: not finite")
+                lines.append(
+                    f"{n:>4}x{n:<4} {-msub:>3} x {it:<3} {r.label:>14} {c['particles']:>9} {c['distance']:>8} "
+                    f"{c['bending']:>8} {c['projections_per_frame']:>10} {ms:>9.3f} "
+                    f"{spread:>17} {mproj:>8.1f} {ratio} {note}")
+    return "\n".join(lines)
+
+
+def format_hold_table(runs: Sequence[Run]) -> str:
+    """The longer check (--hold-frames): where each side's cloth is after that many frames."""
+    lines = []
+    for r in runs:
+        for row in (r.result or {}).get("rows", []):
+            h = row.get("hold")
+            if not h:
+                continue
+            state = (f"{'ok' if h['ok'] else 'FAILED'}: drop mean {h['mean_drop']:.3g} m max {h['max_drop']:.3g} m "
+                     f"(free fall {h['free_fall']:.3g} m), strain max {100 * h['max_strain']:.3g}% "
+                     f"mean {100 * h['mean_strain']:.3g}%, pins {h['pin_moved']:.0e} m"
+                     if h["finite"] else "FAILED: not finite")
+            lines.append(f"{row['n']:>4}x{row['n']:<4} {row['substeps']:>3} x {row['iterations']:<3} {r.label:>14}  {state}")
+    if not lines:
+        return ""
+    frames = next(row["hold"]["frames"] for r in runs for row in (r.result or {}).get("rows", []) if row.get("hold"))
+    return f"\nAfter {frames} frames ({frames / 60:.2f} s) from rest, untimed:\n" + "\n".join(lines)
+
+
+def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int) -> str:
+    versions: dict[str, str] = {}
+    for r in runs:
+        if r.result:
+            versions.update(r.result.get("versions", {}))
+    info = ", ".join(f"{k} {v}" for k, v in versions.items())
+    return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame; "
+            f"each round starts at rest and times frames 1-{frames} (after {warmup} warm-up frames); "
+            f"median of {rounds} rounds. '/ csb': ms/frame over csb's. {info}")
+
+
+def format_notes(runs: Sequence[Run]) -> str:
+    lines = []
+    for r in runs:
+        if r.error:
+            lines.append(f"{r.label}: FAILED to run: {r.error}")
+            continue
+        res = r.result
+        if r.side == "newton":
+            firsts = [row["first_frame_s"] for row in res["rows"]]  # one process per row: [0] is the first use
+            fresh = r.env.get("WARP_CACHE_PATH") and r.env.get("CSB_NEWTON_GRAPH") != "0"
+            how = ("kernel compilation into a fresh cache" if fresh else
+                   "kernels loaded from the cache" + (" the run above compiled" if r.env.get("WARP_CACHE_PATH") else ""))
+            lines.append(f"{r.label}: import {res['import_s']:.1f} s; first frame of its first process ({how}) "
+                         f"{firsts[0]:.1f} s, of the later processes (kernels from that cache) "
+                         f"{min(firsts[1:], default=0):.2f}-{max(firsts[1:], default=0):.2f} s; "
+                         f"none of it is in ms/frame")
+        mismatched = []
+        for row in res["rows"]:
+            v = row["verified"]
+            if v.get("substeps") != row["substeps"] or v.get("iterations") != row["iterations"]:
+                mismatched.append(f"{row['n']} {row['substeps']}x{row['iterations']}: peer reports {v}")
+        if mismatched:
+            lines.append(f"{r.label}: substeps/iterations NOT as asked: " + "; ".join(mismatched))
+        else:
+            lines.append(f"{r.label}: substeps and iterations read back from the peer as asked "
+                         f"({', '.join(f'{k}={v}' for k, v in res['rows'][0]['verified'].items() if k not in ('substeps', 'iterations'))})")
+    return "\n".join(lines)
+
+
+def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES, frames: int = 5, rounds: int = 7,
+         warmup: int = 2, sides: Sequence[str] = ("csb", "pypbd", "newton"), pypbd_threads: Sequence[int] = (1, 2),
+         newton_cold: bool = True, hold_frames: int = 0, newton_launches: bool = True) -> list[Run]:
+    with tempfile.TemporaryDirectory(prefix="csb-warp-cache-") as cache:
+        runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches)
+        for s in skipped:
+            print(s)
+        # Interleaved: for each cloth and case every side in turn, each in a fresh subprocess, so
+        # that the sides of one row are timed minutes apart at most, under the same load.
+        for n in sizes:
+            for case in cases:
+                for run in runs:
+                    print(f"running {run.label} {n}x{n} {case[0]}x{case[1]} ...", file=sys.stderr, flush=True)
+                    part = run_side_subprocess(Run(run.label, run.side, run.env), [n], [case], frames, rounds,
+                                               warmup, hold_frames)
+                    run.wall_s += part.wall_s
+                    if part.error:
+                        run.error = (run.error + "; " if run.error else "") + f"{n} {case}: {part.error}"
+                    elif run.result is None:
+                        run.result = part.result
+                        run.result["first_frame_first_run_s"] = part.result["rows"][0]["first_frame_s"]
+                    else:
+                        run.result["rows"].extend(part.result["rows"])
+    print(format_header(runs, frames, rounds, warmup))
+    print(format_peer_table(runs))
+    print(format_notes(runs))
+    hold = format_hold_table(runs)
+    if hold:
+        print(hold)
+    return runs
+
+
+if __name__ == "__main__":
+    sys.exit(_worker_main(sys.argv[1:]))

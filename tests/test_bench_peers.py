@@ -1,0 +1,120 @@
+"""The peer comparison (`csb bench --peers`, issue 7) builds the same cloth on every side and
+counts it correctly; its timings are printed, never asserted. The peers are the optional `bench`
+extra: without it, their tests skip and the command says it skipped them."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from csb import bench_peers
+from csb.bench_peers import CsbSide, check_cloth, cloth_arrays, corrected_stiffness
+
+N = 8  # 64 particles, 161 distance constraints (112 structural + 49 diagonal), 133 interior edges
+
+
+@pytest.fixture(scope="module")
+def arrays():
+    return cloth_arrays(N)
+
+
+def test_the_cloth_arrays_are_cloth_grid(arrays):
+    assert arrays["positions"].shape == (64, 3) and arrays["triangles"].shape == (2 * 7 * 7, 3)
+    assert len(arrays["pinned"]) == 2 and np.allclose(arrays["positions"][arrays["pinned"]][:, 2], -0.5)
+    assert len(arrays["distance"]) == 2 * N * (N - 1) + (N - 1) ** 2 == 161
+    assert len(arrays["bending"]) == 161 - 4 * (N - 1) == 133  # every edge but the 28 on the boundary
+    assert np.isclose(arrays["mass"].sum(), 0.2)  # 0.2 kg/m² over 1 m²
+    assert arrays["stretch_stiffness"] == 1.0 and arrays["bending_stiffness"] == 0.1
+    assert corrected_stiffness(1.0, 10) == 1.0 and np.isclose(1 - (1 - corrected_stiffness(0.1, 10)) ** 10, 0.1)
+
+
+def test_the_csb_side_counts_what_it_steps(arrays):
+    side = CsbSide(arrays, 2, 3)
+    assert side.counts == dict(particles=64, distance=161, bending=133, constraints=294,
+                               projections_per_frame=2 * 3 * 294)
+    assert side.verified["substeps"] == 2 and side.verified["iterations"] == 3
+    side.frames(3)
+    check = check_cloth(arrays, side.positions(), 3)
+    assert check["ok"] and check["pin_moved"] == 0 and 0 < check["mean_drop"] <= check["free_fall"]
+    side.reset()
+    assert np.array_equal(side.positions(), arrays["positions"])
+
+
+def test_the_check_catches_a_broken_cloth(arrays):
+    x = arrays["positions"].copy()
+    assert not check_cloth(arrays, x, 3)["ok"]  # did not fall
+    x[:, 1] -= 0.01
+    assert not check_cloth(arrays, x, 3)["ok"]  # the pins moved
+    x[arrays["pinned"], 1] += 0.01
+    assert check_cloth(arrays, x, 3)["ok"]
+    x[5, 1] = np.nan
+    assert not check_cloth(arrays, x, 3)["ok"]
+
+
+def _same_fall_as_csb(arrays, side, frames=3):
+    ref = CsbSide(arrays, side.verified["substeps"], side.verified["iterations"])
+    ref.frames(frames)
+    side.frames(frames)
+    mine, theirs = check_cloth(arrays, side.positions(), frames), check_cloth(arrays, ref.positions(), frames)
+    assert mine["ok"], mine
+    return mine, theirs
+
+
+@pytest.mark.parametrize("substeps, iterations", [(10, 1), (1, 10)])
+def test_pypbd_builds_the_same_cloth_and_it_falls(arrays, substeps, iterations):
+    pytest.importorskip("pypbd")
+    side = bench_peers.PypbdSide(arrays, substeps, iterations)
+    assert side.counts == CsbSide(arrays, substeps, iterations).counts
+    assert side.verified["substeps"] == substeps and side.verified["iterations"] == iterations
+    assert side.verified["velocity_iterations"] == 0 and side.verified["other_constraints"] == {}
+    mine, theirs = _same_fall_as_csb(arrays, side)
+    # the same PBD on the same cloth: the same fall to a few parts in a thousand
+    assert mine["mean_drop"] == pytest.approx(theirs["mean_drop"], rel=5e-3)
+
+
+@pytest.mark.parametrize("substeps, iterations", [(10, 1), (1, 10)])
+def test_newton_builds_the_same_cloth_and_it_falls(arrays, substeps, iterations):
+    pytest.importorskip("newton")
+    pytest.importorskip("warp")
+    side = bench_peers.NewtonSide(arrays, substeps, iterations, graph=True)
+    assert side.counts == CsbSide(arrays, substeps, iterations).counts
+    assert side.verified["iterations"] == iterations and side.verified["particle_max_radius"] == 0
+    mine, theirs = _same_fall_as_csb(arrays, side)
+    assert mine["mean_drop"] == pytest.approx(theirs["mean_drop"], rel=0.1)  # XPBD, softer springs
+    # the replayed graph steps exactly as the launched kernels do
+    launched = bench_peers.NewtonSide(arrays, substeps, iterations, graph=False)
+    launched.frames(3)
+    assert np.array_equal(launched.positions(), side.positions())
+
+
+def test_a_missing_peer_is_skipped_and_said(monkeypatch):
+    monkeypatch.setattr(bench_peers, "peer_available", lambda side: side == "csb")
+    runs, skipped = bench_peers.plan_runs(["csb", "pypbd", "newton"], [1, 2], newton_cold=False)
+    assert [r.label for r in runs] == ["csb"]
+    assert skipped == ["pypbd: not installed (pip install 'csb[bench]'), skipped",
+                       "newton: not installed (pip install 'csb[bench]'), skipped"]
+
+
+def test_the_peers_are_an_optional_extra_only():
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())["project"]
+    extra = " ".join(project["optional-dependencies"]["bench"])
+    assert all(p in extra for p in ("pypbd", "newton", "warp-lang"))
+    assert not any(p in " ".join(project["dependencies"]) for p in ("pypbd", "newton", "warp"))
+
+
+def test_bench_peers_command_prints_a_table():
+    r = subprocess.run([sys.executable, "-m", "csb.cli", "bench", "--peers", "--sides", "csb", "--sizes", "8",
+                        "--rounds", "2", "--peer-frames", "2", "--hold-frames", "4"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    rows = [line.split() for line in r.stdout.splitlines() if line.strip().startswith("8x8")]
+    assert len(rows) == 4  # two timed cases, then the two untimed holds
+    assert [row[:9] for row in rows[:2]] == [["8x8", "10", "x", "1", "csb", "64", "161", "133", "2940"],
+                                             ["8x8", "1", "x", "10", "csb", "64", "161", "133", "2940"]]
+    assert all("ok:" in row for row in rows)
+    assert "substeps and iterations read back from the peer as asked" in r.stdout
