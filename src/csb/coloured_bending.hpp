@@ -32,10 +32,15 @@ constexpr Index kBendingBlock = 32;
 template <bool Xpbd>
 inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
   constexpr Index B = kBendingBlock;
-  // P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint c0 + k; W[s][k] its
-  // inverse mass; X: XPBD's p - x; D: the corrections.
-  alignas(64) Real P[12][B], W[4][B], D[12][B];
+  // P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint c0 + k, then (in place)
+  // ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x. Three short loops rather than one long
+  // one: the angle hangs on a chain of sqrt, two divisions and the polynomials (~100 cycles of
+  // latency), and only a short loop body lets the processor overlap that chain across
+  // iterations (in a micro-benchmark one fused loop ran at 1.25x the old scalar kernel, the
+  // split one at 1.7x).
+  alignas(64) Real P[12][B], W[4][B];
   alignas(64) Real X[Xpbd ? 12 : 1][B];
+  alignas(64) Real Sin[B], Cos[B], Wgrad[B], S[B];
   for (Index k = 0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     const auto& w = b.w[c0 + k];
@@ -52,11 +57,7 @@ inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Rea
       }
     }
   }
-  const Real* rest = b.rest.data() + c0;
-  const Real* kk = Xpbd ? nullptr : b.k.data() + c0;
-  const Real* alpha = Xpbd ? b.alpha.data() + c0 : nullptr;
-  const Real* gamma = Xpbd ? b.gamma.data() + c0 : nullptr;
-  Real* lambda = Xpbd ? b.lambda.data() + c0 : nullptr;
+  // 1. Geometry: the angle's two arguments, the gradient (over the positions) and Σ w |∇C|².
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
     const Real ax = P[0][k], ay = P[1][k], az = P[2][k];
@@ -73,9 +74,8 @@ inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Rea
     const Real n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
     const bool ok = e2 > 0 && n1 > 0 && n2 > 0;
     const Real elen = std::sqrt(e2);
-    const Real sin_part = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
-    const Real cos_part = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
-    const Real theta = atan2_rational(sin_part, cos_part);
+    Sin[k] = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
+    Cos[k] = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
     const Real one = ok ? Real(1) : Real(0);
     const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
     const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
@@ -86,50 +86,60 @@ inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Rea
     const Real gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
     const Real gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
     const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
-    Real violation = theta - rest[k];
-    violation = violation > kPi ? violation - 2 * kPi : violation;
-    violation = violation <= -kPi ? violation + 2 * kPi : violation;
-    const Real wa = W[0][k], wb = W[1][k], wc = W[2][k], wd = W[3][k];
-    const Real wgrad = wa * (gax * gax + gay * gay + gaz * gaz) + wb * (gbx * gbx + gby * gby + gbz * gbz) +
-                       wc * (gcx * gcx + gcy * gcy + gcz * gcz) + wd * (gdx * gdx + gdy * gdy + gdz * gdz);
-    const bool move = wgrad > 0;
-    Real s;  // Δp_i = s w_i ∇_i C
-    if constexpr (Xpbd) {
+    Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
+               W[2][k] * (gcx * gcx + gcy * gcy + gcz * gcz) + W[3][k] * (gdx * gdx + gdy * gdy + gdz * gdz);
+    P[0][k] = gax, P[1][k] = gay, P[2][k] = gaz, P[3][k] = gbx, P[4][k] = gby, P[5][k] = gbz;
+    P[6][k] = gcx, P[7][k] = gcy, P[8][k] = gcz, P[9][k] = gdx, P[10][k] = gdy, P[11][k] = gdz;
+  }
+  // 2. The angle, in a loop of its own (its latency chain is the longest), then the violation
+  // and the multiplier: Δp_i = S w_i ∇_i C.
+#pragma omp simd
+  for (Index k = 0; k < m; ++k) Sin[k] = atan2_rational(Sin[k], Cos[k]);  // θ
+  const Real* rest = b.rest.data() + c0;
+  if constexpr (Xpbd) {
+    const Real* alpha = b.alpha.data() + c0;
+    const Real* gamma = b.gamma.data() + c0;
+    Real* lambda = b.lambda.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      Real violation = Sin[k] - rest[k];
+      violation = violation > kPi ? violation - 2 * kPi : violation;
+      violation = violation <= -kPi ? violation + 2 * kPi : violation;
+      const Real wgrad = Wgrad[k];
+      const bool move = wgrad > 0;
       const Real g = gamma[k];
-      const Real along = gax * X[0][k] + gay * X[1][k] + gaz * X[2][k] + gbx * X[3][k] + gby * X[4][k] +
-                         gbz * X[5][k] + gcx * X[6][k] + gcy * X[7][k] + gcz * X[8][k] + gdx * X[9][k] +
-                         gdy * X[10][k] + gdz * X[11][k];
+      const Real along = P[0][k] * X[0][k] + P[1][k] * X[1][k] + P[2][k] * X[2][k] + P[3][k] * X[3][k] +
+                         P[4][k] * X[4][k] + P[5][k] * X[5][k] + P[6][k] * X[6][k] + P[7][k] * X[7][k] +
+                         P[8][k] * X[8][k] + P[9][k] * X[9][k] + P[10][k] * X[10][k] + P[11][k] * X[11][k];
       const Real moved = g == 0 ? Real(0) : along;
       const Real l = lambda[k];
       const Real den = (1 + g) * wgrad + alpha[k];
       const Real dl = (-violation - alpha[k] * l - g * moved) / (move ? den : Real(1));
-      s = move ? dl : Real(0);
-      lambda[k] = l + s;
-    } else {
-      const Real stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow
-      s = (move ? -stiffness * violation : Real(0)) / (move ? wgrad : Real(1));
+      S[k] = move ? dl : Real(0);
+      lambda[k] = l + S[k];
     }
-    const Real sa = s * wa, sb = s * wb, sc = s * wc, sd = s * wd;
-    D[0][k] = sa * gax;
-    D[1][k] = sa * gay;
-    D[2][k] = sa * gaz;
-    D[3][k] = sb * gbx;
-    D[4][k] = sb * gby;
-    D[5][k] = sb * gbz;
-    D[6][k] = sc * gcx;
-    D[7][k] = sc * gcy;
-    D[8][k] = sc * gcz;
-    D[9][k] = sd * gdx;
-    D[10][k] = sd * gdy;
-    D[11][k] = sd * gdz;
+  } else {
+    const Real* kk = b.k.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      Real violation = Sin[k] - rest[k];
+      violation = violation > kPi ? violation - 2 * kPi : violation;
+      violation = violation <= -kPi ? violation + 2 * kPi : violation;
+      const Real wgrad = Wgrad[k];
+      const bool move = wgrad > 0;
+      const Real stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow
+      S[k] = (move ? -stiffness * violation : Real(0)) / (move ? wgrad : Real(1));
+    }
   }
+  // 3. Scatter the corrections.
   for (Index k = 0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
+      const Real ws = S[k] * W[s][k];
       const Index i = 3 * q[s];
-      o[i] += D[3 * s][k];
-      o[i + 1] += D[3 * s + 1][k];
-      o[i + 2] += D[3 * s + 2][k];
+      o[i] += ws * P[3 * s][k];
+      o[i + 1] += ws * P[3 * s + 1][k];
+      o[i + 2] += ws * P[3 * s + 2][k];
     }
   }
 }
