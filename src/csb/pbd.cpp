@@ -1,4 +1,5 @@
 #include "csb/pbd.hpp"
+#include "csb/coloured_bending.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/format.hpp"
 
@@ -605,75 +606,7 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
   o[j + 2] -= dj * nz;
 }
 
-// Dihedral bending (constraints/bending.hpp: the signed angle, Bridson et al.'s gradient) written
-// out on scalars, with a degenerate pair masked instead of returned from: its gradient is set to
-// zero, so its correction is zero.
-template <Method M>
-CSB_INLINE void bending_one(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x) {
-  const auto& q = b.q[k];
-  const Index ia = 3 * q[0], ib = 3 * q[1], ic = 3 * q[2], id = 3 * q[3];
-  const Real ax = r[ia], ay = r[ia + 1], az = r[ia + 2];
-  const Real bx = r[ib], by = r[ib + 1], bz = r[ib + 2];
-  const Real cx = r[ic], cy = r[ic + 1], cz = r[ic + 2];
-  const Real dx = r[id], dy = r[id + 1], dz = r[id + 2];
-  const Real ex = bx - ax, ey = by - ay, ez = bz - az;
-  const Real cax = cx - ax, cay = cy - ay, caz = cz - az, cbx = cx - bx, cby = cy - by, cbz = cz - bz;
-  const Real dax = dx - ax, day = dy - ay, daz = dz - az, dbx = dx - bx, dby = dy - by, dbz = dz - bz;
-  // N1 = (c - a) x (c - b), N2 = (d - b) x (d - a)
-  const Real n1x = cay * cbz - caz * cby, n1y = caz * cbx - cax * cbz, n1z = cax * cby - cay * cbx;
-  const Real n2x = dby * daz - dbz * day, n2y = dbz * dax - dbx * daz, n2z = dbx * day - dby * dax;
-  const Real e2 = ex * ex + ey * ey + ez * ez;
-  const Real n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
-  const bool ok = e2 > 0 && n1 > 0 && n2 > 0;
-  const Real elen = std::sqrt(e2);
-  const Real sin_part = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
-  const Real cos_part = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
-  const Real theta = std::atan2(sin_part, cos_part);
-  const Real one = ok ? 1 : 0;
-  const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
-  const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
-  const Real tcb = (cbx * ex + cby * ey + cbz * ez) * ie, tdb = (dbx * ex + dby * ey + dbz * ez) * ie;
-  const Real tca = (cax * ex + cay * ey + caz * ez) * ie, tda = (dax * ex + day * ey + daz * ez) * ie;
-  const Real el = ok ? elen : Real(0);
-  const Real gax = -(tcb * g1x + tdb * g2x), gay = -(tcb * g1y + tdb * g2y), gaz = -(tcb * g1z + tdb * g2z);
-  const Real gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
-  const Real gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
-  const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
-  Real violation = theta - b.rest[k];
-  violation = violation > kPi ? violation - 2 * kPi : violation;
-  violation = violation <= -kPi ? violation + 2 * kPi : violation;
-  const auto& w = b.w[k];
-  const Real wgrad = w[0] * (gax * gax + gay * gay + gaz * gaz) + w[1] * (gbx * gbx + gby * gby + gbz * gbz) +
-                     w[2] * (gcx * gcx + gcy * gcy + gcz * gcz) + w[3] * (gdx * gdx + gdy * gdy + gdz * gdz);
-  Real s;  // Δp_i = s w_i ∇_i C
-  if constexpr (M == Method::Xpbd) {
-    const Real g = b.gamma[k];
-    const Real moved = g == 0 ? Real(0)
-                              : gax * (ax - x[ia]) + gay * (ay - x[ia + 1]) + gaz * (az - x[ia + 2]) + gbx * (bx - x[ib]) +
-                                    gby * (by - x[ib + 1]) + gbz * (bz - x[ib + 2]) + gcx * (cx - x[ic]) +
-                                    gcy * (cy - x[ic + 1]) + gcz * (cz - x[ic + 2]) + gdx * (dx - x[id]) +
-                                    gdy * (dy - x[id + 1]) + gdz * (dz - x[id + 2]);
-    const Real lambda = b.lambda[k];
-    const Real dl = (-violation - b.alpha[k] * lambda - g * moved) / ((1 + g) * wgrad + b.alpha[k]);
-    s = wgrad > 0 ? dl : Real(0);
-    b.lambda[k] = lambda + s;
-  } else {
-    s = wgrad > 0 ? -b.k[k] * violation / wgrad : Real(0);
-  }
-  const Real sa = s * w[0], sb = s * w[1], sc = s * w[2], sd = s * w[3];
-  o[ia] += sa * gax;
-  o[ia + 1] += sa * gay;
-  o[ia + 2] += sa * gaz;
-  o[ib] += sb * gbx;
-  o[ib + 1] += sb * gby;
-  o[ib + 2] += sb * gbz;
-  o[ic] += sc * gcx;
-  o[ic + 1] += sc * gcy;
-  o[ic + 2] += sc * gcz;
-  o[id] += sd * gdx;
-  o[id + 1] += sd * gdy;
-  o[id + 2] += sd * gdz;
-}
+// Dihedral bending: csb/coloured_bending.hpp (SIMD blocks, polynomial atan2).
 
 // Tet volume: the kernels of constraints/volume.hpp, on local copies for Jacobi.
 template <Method M, bool Jacobi>
@@ -773,12 +706,7 @@ void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const 
   });
   ColouredFour& bend = cb.bending;
   for_each_colour(model.bending.colours, kChunkFour, [&](Index begin, Index end, bool independent) {
-    if (independent) {
-#pragma omp simd
-      for (Index c = begin; c < end; ++c) bending_one<M>(bend, c, r, o, x);
-    } else {
-      for (Index c = begin; c < end; ++c) bending_one<M>(bend, c, r, o, x);
-    }
+    project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, r, o, x);
   });
   ColouredFour& vol = cb.volume;
   for_each_colour(model.volume.colours, kChunkFour, [&](Index begin, Index end, bool) {
@@ -1579,6 +1507,19 @@ std::vector<double> benchmark_plain_distance(const Model& model, const Positions
     ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / (static_cast<double>(sweeps) * m));
   }
   return ns;
+}
+
+void project_bending_coloured(ColouredFour& b, bool xpbd, bool independent, Real* p, const Real* x) {
+  const Index m = static_cast<Index>(b.q.size());
+  if (xpbd)
+    project_bending_range<true>(b, 0, m, independent, p, p, x);
+  else
+    project_bending_range<false>(b, 0, m, independent, p, p, x);
+}
+
+void atan2_rational_array(const Real* y, const Real* x, Real* out, Index n) {
+#pragma omp simd
+  for (Index i = 0; i < n; ++i) out[i] = atan2_rational(y[i], x[i]);
 }
 
 }  // namespace csb

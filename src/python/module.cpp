@@ -6,6 +6,7 @@
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
+#include "csb/coloured_bending.hpp"
 #ifdef CSB_HAS_VIEWER
 #include "viewer.hpp"
 #endif
@@ -1211,6 +1212,66 @@ PYBIND11_MODULE(_core, m) {
     return py::make_tuple(out, v);
   }, py::arg("points"), py::arg("triangles"), py::arg("inv_mass"), py::arg("target_volume"), py::arg("stiffness") = 1.0,
      "PBD balloon projection of a closed surface: returns (points', violation V - target before projection, m³).");
+  k.def("atan2", [](py::handle y, py::handle x) {
+    using A = py::array_t<double, py::array::c_style | py::array::forcecast>;
+    const A ya = A::ensure(y), xa = A::ensure(x);
+    if (!ya || !xa || ya.ndim() != 1 || xa.ndim() != 1 || ya.shape(0) != xa.shape(0))
+      throw InvalidArgument("y and x must be 1-D arrays of one length");
+    py::array_t<double> out(ya.shape(0));
+    atan2_rational_array(ya.data(), xa.data(), out.mutable_data(), static_cast<Index>(ya.shape(0)));
+    return out;
+  }, py::arg("y"), py::arg("x"),
+     "The coloured bending kernel's branch-free rational atan2 (csb/atan2.hpp), elementwise, rad.");
+  k.def("project_bending_coloured", [](py::handle points, py::handle quads, py::handle inv_mass, py::handle rest_angle,
+                                       py::handle stiffness, py::handle alpha_tilde, py::handle gamma, py::handle lambda_,
+                                       py::handle start, bool independent) -> py::tuple {
+    using A = py::array_t<double, py::array::c_style | py::array::forcecast>;
+    Positions x = to_positions(points, "points");
+    const Index n = static_cast<Index>(x.cols());
+    ColouredFour b;
+    b.q = to_index_rows<4>(quads, "quads");
+    const std::size_t m = b.q.size();
+    for (const auto& q : b.q)
+      for (Index i : q)
+        if (i < 0 || i >= n) throw InvalidArgument("quads: index " + std::to_string(i) + " out of range");
+    const auto column = [m](py::handle h, const char* what) {
+      const A a = A::ensure(h);
+      if (!a || a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != m)
+        throw InvalidArgument(std::string(what) + " must have shape (" + std::to_string(m) + ",)");
+      return std::vector<Real>(a.data(), a.data() + m);
+    };
+    const A w = A::ensure(inv_mass);
+    if (!w || w.ndim() != 2 || static_cast<std::size_t>(w.shape(0)) != m || w.shape(1) != 4)
+      throw InvalidArgument("inv_mass must have shape (" + std::to_string(m) + ", 4)");
+    b.w.resize(m);
+    for (std::size_t c = 0; c < m; ++c)
+      for (int s = 0; s < 4; ++s) b.w[c][s] = w.at(c, s);
+    b.rest = column(rest_angle, "rest_angle");
+    const bool xpbd = !alpha_tilde.is_none();
+    Positions x0 = x;
+    if (xpbd) {
+      b.alpha = column(alpha_tilde, "alpha_tilde");
+      b.gamma = gamma.is_none() ? std::vector<Real>(m, 0) : column(gamma, "gamma");
+      b.lambda = lambda_.is_none() ? std::vector<Real>(m, 0) : column(lambda_, "lambda_");
+      if (!start.is_none()) {
+        x0 = to_positions(start, "start");
+        if (x0.cols() != x.cols()) throw InvalidArgument("start must have the shape of points");
+      }
+    } else {
+      b.k = stiffness.is_none() ? std::vector<Real>(m, 1) : column(stiffness, "stiffness");
+    }
+    project_bending_coloured(b, xpbd, independent, x.data(), x0.data());
+    py::array_t<double> out({static_cast<py::ssize_t>(n), py::ssize_t(3)});
+    if (n) std::memcpy(out.mutable_data(), x.data(), sizeof(double) * 3 * n);
+    if (!xpbd) return py::make_tuple(out, py::none());
+    return py::make_tuple(out, py::array_t<double>(static_cast<py::ssize_t>(m), b.lambda.data()));
+  }, py::arg("points"), py::arg("quads"), py::arg("inv_mass"), py::arg("rest_angle"), py::arg("stiffness") = py::none(),
+     py::arg("alpha_tilde") = py::none(), py::arg("gamma") = py::none(), py::arg("lambda_") = py::none(),
+     py::arg("start") = py::none(), py::arg("independent") = true,
+     "The stepper's coloured bending projection (csb/coloured_bending.hpp) over quads (a, b, c, d) in order, "
+     "Gauss-Seidel in place: SIMD blocks if independent (the quads must then share no point), else one at a time. "
+     "PBD with stiffness (default 1), or XPBD if alpha_tilde is given (gamma, lambda_, start: damping, multipliers, "
+     "sub-step start positions). Returns (points', lambda' or None).");
   k.def("dihedral_angle", [](py::handle a, py::handle b, py::handle c, py::handle d) {
     return dihedral_angle(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"));
   }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed dihedral angle across edge (a, b), rad.");
