@@ -6,7 +6,11 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'project_attachment', 'project_balloon', 'project_bending', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
+__all__: list[str] = ['atan2', 'dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'project_attachment', 'project_balloon', 'project_bending', 'project_bending_coloured', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
+def atan2(y: typing.Any, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+    """
+    The coloured bending kernel's branch-free rational atan2 (csb/atan2.hpp), elementwise, rad.
+    """
 def dihedral_angle(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any) -> float:
     """
     Signed dihedral angle across edge (a, b), rad.
@@ -28,6 +32,10 @@ def project_balloon(points: typing.Any, triangles: typing.Any, inv_mass: typing.
 def project_bending(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, inv_mass: typing.Annotated[collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], "FixedSize(4)"], rest_angle: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, numpy.ndarray, numpy.ndarray, numpy.ndarray, float]:
     """
     Returns (a', b', c', d', violation before projection).
+    """
+def project_bending_coloured(points: typing.Any, quads: typing.Any, inv_mass: typing.Any, rest_angle: typing.Any, stiffness: typing.Any = None, alpha_tilde: typing.Any = None, gamma: typing.Any = None, lambda_: typing.Any = None, start: typing.Any = None, independent: bool = True) -> tuple:
+    """
+    The stepper's coloured bending projection (csb/coloured_bending.hpp) over quads (a, b, c, d) in order, Gauss-Seidel in place: SIMD blocks if independent (the quads must then share no point), else one at a time. PBD with stiffness (default 1), or XPBD if alpha_tilde is given (gamma, lambda_, start: damping, multipliers, sub-step start positions). Returns (points', lambda' or None).
     """
 def project_distance(p1: typing.Any, p2: typing.Any, w1: typing.SupportsFloat | typing.SupportsIndex, w2: typing.SupportsFloat | typing.SupportsIndex, rest_length: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, sense: str = '==') -> tuple[numpy.ndarray, numpy.ndarray, float]:
     """
