@@ -104,6 +104,18 @@ void Mesh::attribute(int k, int components, const float* data, std::size_t verti
   vertices_ = vertices;
 }
 
+void Mesh::share(int k, const Mesh& source, int source_k, int components) {
+  if (!vao_) {
+    glGenVertexArrays(1, &vao_);
+    glGenBuffers(4, buffers_);
+  }
+  glBindVertexArray(vao_);
+  glBindBuffer(GL_ARRAY_BUFFER, source.buffers_[source_k]);
+  glEnableVertexAttribArray(k);
+  glVertexAttribPointer(k, components, GL_FLOAT, GL_FALSE, 0, nullptr);
+  glBindVertexArray(0);
+}
+
 void Mesh::indices(const unsigned* data, std::size_t count, GLenum usage) {
   if (!vao_) {
     glGenVertexArrays(1, &vao_);

@@ -40,6 +40,10 @@ class Mesh {
 
   // Creates the vertex array on first use; `components` floats per vertex in attribute k.
   void attribute(int k, int components, const float* data, std::size_t vertices, GLenum usage = GL_DYNAMIC_DRAW);
+  // Attribute k reads buffer `source_k` of `source` (shared, not copied), so that data several
+  // vertex arrays draw, such as the particles' positions, is uploaded once. `source` must have
+  // had that attribute set and must outlive this mesh's draws.
+  void share(int k, const Mesh& source, int source_k, int components);
   void indices(const unsigned* data, std::size_t count, GLenum usage = GL_STATIC_DRAW);
   void draw(GLenum mode) const;  // indexed if indices were given, else all vertices
   std::size_t vertices() const { return vertices_; }

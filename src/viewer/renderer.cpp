@@ -193,6 +193,13 @@ void Renderer::set_model(const Model& model) {
     std::copy(c.begin(), c.end(), g.color.begin() + 3 * i);
   }
   g.cloth.attribute(2, 3, g.color.data(), n, GL_STATIC_DRAW);
+  // The positions live in the surface's buffer, uploaded once per frame; the wireframe, the
+  // chains and the particles read them from there.
+  g.position.assign(3 * static_cast<std::size_t>(n), 0.0f);
+  g.cloth.attribute(0, 3, g.position.data(), n);
+  g.wire.share(0, g.cloth, 0, 3);
+  g.chain.share(0, g.cloth, 0, 3);
+  g.dots.share(0, g.cloth, 0, 3);
   std::vector<unsigned> tri;
   tri.reserve(3 * g.triangles.size());
   g.in_triangle.assign(static_cast<std::size_t>(n), 0);
@@ -307,12 +314,12 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
   for (Index i = 0; i < n; ++i)
     for (int k = 0; k < 3; ++k) g.position[3 * i + k] = static_cast<float>(state.x(k, i));
   vertex_normals(state.x, g.triangles, g.normal);
+  g.cloth.attribute(0, 3, g.position.data(), n);
 
   g.surface.use();
   glUniformMatrix4fv(g.surface.uniform("view"), 1, GL_FALSE, view.data());
   glUniformMatrix4fv(g.surface.uniform("view_projection"), 1, GL_FALSE, vp.data());
   if (!g.triangles.empty()) {
-    g.cloth.attribute(0, 3, g.position.data(), n);
     g.cloth.attribute(1, 3, g.normal.data(), n);
     glUniform3f(g.surface.uniform("back_tint"), 0.55f, 0.62f, 0.70f);
     glUniform1f(g.surface.uniform("specular"), 0.12f);
@@ -334,10 +341,8 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
   if (options.grid) g.grid.draw(GL_LINES);
   glUniform1f(g.lines.uniform("depth_bias"), 2e-5f);
   if (options.wireframe && g.wire.index_count()) {
-    g.wire.attribute(0, 3, g.position.data(), n);
     g.wire.draw(GL_LINES);
   } else if (g.has_chain) {
-    g.chain.attribute(0, 3, g.position.data(), n);
     g.chain.draw(GL_LINES);
   }
 
@@ -366,7 +371,6 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
     const double particles_on_screen = std::sqrt(static_cast<double>(std::max<Index>(n, 1)));
     glUniform1f(g.points.uniform("point_size"),
                 static_cast<float>(std::clamp(0.25 * camera.height / particles_on_screen, 3.0, 9.0)));
-    g.dots.attribute(0, 3, g.position.data(), n);
     g.dots.attribute(1, 4, g.dot_color.data(), n);
     glDepthMask(GL_FALSE);
     g.dots.draw(GL_POINTS);

@@ -55,6 +55,14 @@ std::string egl_error(const char* what) {
   return buffer;
 }
 
+// Framebuffer pixels per window coordinate (1 on X11; 2 on a HiDPI display that scales).
+double pixels_per_point(GLFWwindow* w) {
+  int ww = 0, wh = 0, fw = 0, fh = 0;
+  glfwGetWindowSize(w, &ww, &wh);
+  glfwGetFramebufferSize(w, &fw, &fh);
+  return ww > 0 ? double(fw) / ww : 1.0;
+}
+
 int live_glfw_windows = 0;  // glfwInit/glfwTerminate around the windows that are open
 
 }  // namespace
@@ -172,19 +180,16 @@ struct Viewer::Context {
     }
   }
 
-  // Pixels of the image; the window's framebuffer may differ from its coordinates on HiDPI.
-  void size(const ViewerOptions& o, int& width, int& height, double& pixels_per_point) const {
+  // Pixels of the image: the window's framebuffer (which differs from its coordinates on
+  // HiDPI displays), or the offscreen size asked for.
+  void size(const ViewerOptions& o, int& width, int& height) const {
     if (window) {
-      int w = 0, h = 0, fw = 0, fh = 0;
-      glfwGetWindowSize(window, &w, &h);
-      glfwGetFramebufferSize(window, &fw, &fh);
-      width = std::max(fw, 1);
-      height = std::max(fh, 1);
-      pixels_per_point = w > 0 ? double(fw) / w : 1.0;
+      glfwGetFramebufferSize(window, &width, &height);
+      width = std::max(width, 1);
+      height = std::max(height, 1);
     } else {
       width = o.width;
       height = o.height;
-      pixels_per_point = 1;
     }
   }
 };
@@ -241,20 +246,13 @@ Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settin
         if (action == GLFW_PRESS && ImGui::GetIO().WantCaptureMouse) return;
         double x = 0, y = 0;
         glfwGetCursorPos(w, &x, &y);
-        int ww = 0, fw = 0, h = 0;
-        glfwGetWindowSize(w, &ww, &h);
-        glfwGetFramebufferSize(w, &fw, &h);
-        const double s = ww > 0 ? double(fw) / ww : 1.0;
+        const double s = pixels_per_point(w);
         const int b = button == GLFW_MOUSE_BUTTON_LEFT ? 0 : button == GLFW_MOUSE_BUTTON_RIGHT ? 1 : 2;
         v->mouse_button(b, action == GLFW_PRESS, s * x, s * y, (mods & GLFW_MOD_SHIFT) != 0);
       });
       glfwSetCursorPosCallback(c.window, [](GLFWwindow* w, double x, double y) {
-        auto* v = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
-        int ww = 0, fw = 0, h = 0;
-        glfwGetWindowSize(w, &ww, &h);
-        glfwGetFramebufferSize(w, &fw, &h);
-        const double s = ww > 0 ? double(fw) / ww : 1.0;
-        v->mouse_move(s * x, s * y);
+        const double s = pixels_per_point(w);
+        static_cast<Viewer*>(glfwGetWindowUserPointer(w))->mouse_move(s * x, s * y);
       });
       glfwSetScrollCallback(c.window, [](GLFWwindow* w, double, double dy) {
         if (ImGui::GetIO().WantCaptureMouse) return;
@@ -273,8 +271,7 @@ Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settin
     throw;
   }
   int w = 0, h = 0;
-  double s = 1;
-  c.size(options_, w, h, s);
+  c.size(options_, w, h);
   camera_.width = w;
   camera_.height = h;
   frame_scene();
@@ -523,8 +520,7 @@ int key_code(const std::string& name) {
 void Viewer::draw() {
   Context& c = *context_;
   int w = 0, h = 0;
-  double pixels_per_point = 1;
-  c.size(options_, w, h, pixels_per_point);
+  c.size(options_, w, h);
   camera_.width = w;
   camera_.height = h;
   const double t0 = now();
