@@ -92,9 +92,7 @@ class ModelBuilder(_core.ModelBuilder):
             bending_compliance=bending_compliance,
             thickness=thickness,
         )
-        report = MeshReport._from_core(d.pop("report"))
-        report._emit()
-        return MeshInstance(**d, report=report, vertices=mesh.vertices)
+        return _instance(d, mesh.vertices)
 
     def add_tet_mesh(
         self,
@@ -136,9 +134,7 @@ class ModelBuilder(_core.ModelBuilder):
             volume_stiffness=volume_stiffness,
             volume_compliance=volume_compliance,
         )
-        report = MeshReport._from_core(d.pop("report"))
-        report._emit()
-        return MeshInstance(**d, report=report, vertices=mesh.points)
+        return _instance(d, mesh.points)
 
     def add_balloon(
         self,
@@ -160,3 +156,10 @@ class ModelBuilder(_core.ModelBuilder):
         """
         triangles = surface.triangles if isinstance(surface, MeshInstance) else surface
         return int(self._add_balloon(np.asarray(triangles), pressure=pressure, stiffness=stiffness, compliance=compliance))
+
+
+def _instance(d: dict, vertices: np.ndarray) -> MeshInstance:
+    """A MeshInstance from the builder's result dict, its report's warnings emitted."""
+    report = MeshReport._from_core(d.pop("report"))
+    report._emit()
+    return MeshInstance(**d, report=report, vertices=vertices)
