@@ -15,10 +15,12 @@ from csb.scene import SceneError
 EPS = np.finfo(float).eps
 
 
-def mixed_model(n: int = 40, cells: int = 6, compliance: float = 0.0):
+def mixed_model(n: int = 96, cells: int = 6, compliance: float = 0.0):
     """A cloth (stretch and shear edges, dihedral bending, two attachments) beside a tet box
-    (edges and volumes) and a balloon: every batch, and colours larger than the overflow
-    threshold, so that two threads really share them."""
+    (edges and volumes), a balloon and a spring between opposite corners of the cloth:
+    every batch, over 8192 particles so that they fall into four parts whose interiors and
+    interfaces two threads really share, and a constraint across parts that are not neighbours
+    (the groups' rest, shared colour by colour)."""
     b = csb.ModelBuilder()
     cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.5, bending_stiffness=0.5,
                        stretch_compliance=compliance, bending_compliance=compliance)
@@ -29,6 +31,7 @@ def mixed_model(n: int = 40, cells: int = 6, compliance: float = 0.0):
                    stretch_compliance=compliance, volume_compliance=compliance)
     ball = b.add_mesh(_octahedron(), mass=0.2, stretch_compliance=compliance)
     b.add_balloon(ball.triangles, pressure=1.2, compliance=compliance)
+    b.add_distance(cloth.first_particle, cloth.first_particle + n * n - 1, compliance=compliance)
     return b.build()
 
 
@@ -39,8 +42,8 @@ def _octahedron() -> csb.Mesh:
 
 
 def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _core.MIN_COLOUR_SIZE) -> None:
-    """Every constraint exactly once; within a colour (the overflow colour aside) no particle
-    twice and the constraints in increasing order."""
+    """Every constraint exactly once; within a colour (serial colours aside) no particle twice
+    and the constraints in increasing order; at most one serial colour per group, its last."""
     order = np.asarray(colouring["order"])
     offsets = np.asarray(colouring["colour_offsets"])
     assert offsets[0] == 0 and offsets[-1] == len(particles) and np.all(np.diff(offsets) > 0)
@@ -49,7 +52,7 @@ def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _cor
     for k in range(colours):
         members = order[offsets[k]:offsets[k + 1]]
         assert np.all(np.diff(members) > 0)
-        if colouring["overflow"] and k == colours - 1:
+        if colouring["serial"][k]:
             continue
         used = particles[members].ravel()
         assert len(np.unique(used)) == len(used), f"colour {k} has constraints sharing a particle"
@@ -68,10 +71,67 @@ def test_every_batch_is_coloured_validly():
         model.colouring("balloons")
 
 
+def _group_particles(model, g: int) -> np.ndarray:
+    """The particles that group g's constraints touch, over every batch."""
+    out = []
+    for batch, key in (("distance", "particles"), ("bending", "particles"), ("volume", "particles"),
+                       ("attachments", "particle")):
+        particles = np.asarray(getattr(model, batch)[key]).reshape(len(np.asarray(getattr(model, batch)[key])), -1)
+        c = model.colouring(batch)
+        offsets, groups = np.asarray(c["colour_offsets"]), np.asarray(c["group_colours"])
+        members = np.asarray(c["order"])[offsets[groups[g]]:offsets[groups[g + 1]]]
+        out.append(particles[members].ravel())
+    return np.unique(np.concatenate(out))
+
+
+def test_the_groups_that_threads_sweep_at_once_share_no_particle():
+    """The schedule of the threads (see Colouring): the parts' interiors share no particle, nor
+    do the interfaces of one phase; every constraint is in exactly one group; the cloth's parts
+    are thicker than its elements, so its interfaces make one phase and nothing is left over but
+    the spring across the model."""
+    model = mixed_model()
+    parts = model.num_parts
+    assert parts == 4
+    interiors = [_group_particles(model, g) for g in range(parts)]
+    for a in range(parts):
+        for b in range(a + 1, parts):
+            assert len(np.intersect1d(interiors[a], interiors[b])) == 0, (a, b)
+    phases = model.interface_phases
+    assert sorted(i for phase in phases for i in phase) == list(range(parts - 1)) and len(phases) == 1
+    for phase in phases:
+        touched = [_group_particles(model, parts + i) for i in phase]
+        assert len(np.unique(np.concatenate(touched))) == sum(len(t) for t in touched)
+    # Each constraint is in the group its particles' parts say; the spring across the cloth in the rest.
+    part = np.asarray(model.particle_parts)
+    for batch, key in (("distance", "particles"), ("bending", "particles"), ("volume", "particles")):
+        particles = np.asarray(getattr(model, batch)[key])
+        c = model.colouring(batch)
+        offsets, groups = np.asarray(c["colour_offsets"]), np.asarray(c["group_colours"])
+        assert len(groups) == 2 * parts + 1
+        group = np.empty(len(particles), int)
+        for g in range(2 * parts):
+            group[np.asarray(c["order"])[offsets[groups[g]]:offsets[groups[g + 1]]]] = g
+        lo, hi = part[particles].min(axis=1), part[particles].max(axis=1)
+        expected = np.where(lo == hi, lo, np.where(hi == lo + 1, parts + lo, 2 * parts - 1))
+        assert np.array_equal(group, expected), batch
+    spring = len(np.asarray(model.distance["particles"])) - 1
+    assert group_of_distance(model, spring) == 2 * parts - 1
+    sizes = np.bincount(part, minlength=parts)
+    assert len(sizes) == parts and sizes.max() - sizes.min() <= 1  # parts of equal count
+
+
+def group_of_distance(model, c: int) -> int:
+    col = model.colouring("distance")
+    offsets, groups = np.asarray(col["colour_offsets"]), np.asarray(col["group_colours"])
+    at = int(np.nonzero(np.asarray(col["order"]) == c)[0][0])
+    colour = int(np.searchsorted(offsets, at, side="right") - 1)
+    return int(np.searchsorted(groups, colour, side="right") - 1)
+
+
 def test_the_greedy_colouring_is_first_fit_in_constraint_order():
     # A path 0-1-2-3-4: edges alternate between two colours.
     c = _core.colour_constraints(np.array([[0, 1], [1, 2], [2, 3], [3, 4]]), 5, 1)
-    assert list(c["order"]) == [0, 2, 1, 3] and list(c["colour_offsets"]) == [0, 2, 4] and not c["overflow"]
+    assert list(c["order"]) == [0, 2, 1, 3] and list(c["colour_offsets"]) == [0, 2, 4] and not any(c["serial"])
 
 
 def test_small_colours_and_colours_past_the_limit_go_to_the_overflow_colour():
@@ -81,13 +141,13 @@ def test_small_colours_and_colours_past_the_limit_go_to_the_overflow_colour():
     star = np.stack([np.zeros(m, int), np.arange(1, m + 1)], axis=1)
     c = _core.colour_constraints(star, m + 1, 1)
     offsets = np.asarray(c["colour_offsets"])
-    assert c["overflow"] and len(offsets) - 1 == _core.MAX_COLOURS + 1
+    assert list(c["serial"]) == [False] * _core.MAX_COLOURS + [True]
     assert np.array_equal(np.diff(offsets), [1] * _core.MAX_COLOURS + [6])
     assert list(c["order"][-6:]) == list(range(_core.MAX_COLOURS, m))
     check_colouring(star, c, min_size=1)
     # With the default threshold every one of those colours is too small: all overflow, in order.
     c = _core.colour_constraints(star, m + 1)
-    assert c["overflow"] and list(c["colour_offsets"]) == [0, m] and list(c["order"]) == list(range(m))
+    assert list(c["serial"]) == [True] and list(c["colour_offsets"]) == [0, m] and list(c["order"]) == list(range(m))
 
 
 def test_a_small_model_is_one_overflow_colour_in_build_order():
@@ -97,8 +157,10 @@ def test_a_small_model_is_one_overflow_colour_in_build_order():
         b.add_particle([k * 0.1, 0, 0], 0.1, g)
     for k in range(10):
         b.add_distance(k, k + 1)
-    c = b.build().colouring("distance")
-    assert c["overflow"] and list(c["colour_offsets"]) == [0, 10] and list(c["order"]) == list(range(10))
+    model = b.build()
+    c = model.colouring("distance")
+    assert model.num_parts == 1 and list(c["group_colours"]) == [0, 1, 1]  # the interior, an empty rest
+    assert list(c["serial"]) == [True] and list(c["colour_offsets"]) == [0, 10] and list(c["order"]) == list(range(10))
 
 
 def test_a_torn_model_is_coloured_again():
@@ -188,7 +250,7 @@ def test_memory_report_counts_the_arrays():
             arrays = getattr(model, batch)
             colouring = model.colouring(batch)
             expected = sum(np.asarray(a).nbytes for a in arrays.values()) + sum(
-                np.asarray(colouring[k]).nbytes for k in ("order", "colour_offsets"))
+                np.asarray(colouring[k]).nbytes for k in ("order", "colour_offsets", "serial", "group_colours"))
             assert mem[batch] == expected, batch
         N = model.num_particles
         assert mem["particles"] >= N * (3 * 8 + 8 + 8 + 4 + 4 + 8)

@@ -19,17 +19,8 @@ Units are SI throughout: m, kg, s, rad; time step (dt), substeps and iterations 
 
 from __future__ import annotations
 
-import os as _os
-
-# The threads of a constraint colour meet at a barrier after it (issue 7). libgomp's default
-# spins there before sleeping, and on a machine whose cores are busy with other work a spinning
-# thread keeps a core from the thread that is late: two threads then run slower than one (see
-# papers/benchmarks.md). Passive waiting sleeps at once and lets the late thread run. libgomp
-# reads this when it is loaded (with _core, just below); a value the user set wins.
-_os.environ.setdefault("OMP_WAIT_POLICY", "passive")
-
-from . import _core  # noqa: E402, F401  (csb._core, the compiled module)
-from ._core import (  # noqa: E402
+from . import _core  # noqa: F401  (csb._core, the compiled module)
+from ._core import (
     Error,
     ForceStepper,
     MeshError,

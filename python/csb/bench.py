@@ -348,10 +348,12 @@ def _busy_loop(core: int):
 
 
 def thread_scaling(n: int = 128, *, substeps: int = 10, iterations: int = 1, rounds: int = 5, busy: bool = False,
-                   wait_policy: str | None = None) -> dict:
+                   wait: str = "adaptive") -> dict:
     """ms per frame of the n x n cloth with 1, 2 and automatic threads, measured in one run
     (interleaved rounds, so that the machine's load affects all alike), optionally with another
-    process keeping core 1 busy; in a fresh interpreter so that OMP_WAIT_POLICY can be set."""
+    process keeping core 1 busy; in a fresh interpreter. wait: how the team's threads wait at a
+    barrier (CSB_WAIT): 'adaptive' (csb's default: spin briefly while every thread has a free
+    core, else sleep at once), 'spin' or 'sleep'."""
     import json
     import os
     import subprocess
@@ -375,8 +377,9 @@ def thread_scaling(n: int = 128, *, substeps: int = 10, iterations: int = 1, rou
         "print(json.dumps({str(t): [statistics.median(v[2]), v[1].threads_used] for t, v in runs.items()}))\n"
     )
     env = dict(os.environ)
-    if wait_policy:
-        env["OMP_WAIT_POLICY"] = wait_policy
+    env.pop("CSB_WAIT", None)
+    if wait != "adaptive":
+        env["CSB_WAIT"] = wait
     busy_proc = _busy_loop(1) if busy else None
     try:
         time.sleep(0.2 if busy else 0)
@@ -389,18 +392,18 @@ def thread_scaling(n: int = 128, *, substeps: int = 10, iterations: int = 1, rou
     with open("/proc/loadavg") if os.path.exists("/proc/loadavg") else open(os.devnull) as f:
         load = f.read().split()[:1]
     return dict(n=n, substeps=substeps, iterations=iterations, busy=busy,
-                wait_policy=wait_policy or os.environ.get("OMP_WAIT_POLICY", "passive"),
+                wait=wait,
                 ms1=res["1"][0], ms2=res["2"][0], ms_auto=res["0"][0], auto_threads=res["0"][1],
                 load=float(load[0]) if load else float("nan"))
 
 
 def format_thread_scaling(rows: Sequence[dict]) -> str:
-    head = (f"{'cloth':>9} {'sub x it':>8} {'busy core':>9} {'OMP_WAIT_POLICY':>15} {'1 thread':>9} {'2 threads':>9} "
+    head = (f"{'cloth':>9} {'sub x it':>8} {'busy core':>9} {'waiting':>9} {'1 thread':>9} {'2 threads':>9} "
             f"{'2 vs 1':>7} {'auto':>9} {'(threads)':>9} {'load':>5}")
     lines = [head, "-" * len(head)]
     for r in rows:
         lines.append(f"{r['n']:>4}x{r['n']:<4} {r['substeps']:>3} x {r['iterations']:<2} {'yes' if r['busy'] else 'no':>9} "
-                     f"{r['wait_policy']:>15} {r['ms1']:>9.2f} {r['ms2']:>9.2f} {r['ms2'] / r['ms1']:>7.2f} "
+                     f"{r['wait']:>9} {r['ms1']:>9.2f} {r['ms2']:>9.2f} {r['ms2'] / r['ms1']:>7.2f} "
                      f"{r['ms_auto']:>9.2f} {r['auto_threads']:>9} {r['load']:>5.2f}")
     return "\n".join(lines)
 
@@ -545,9 +548,8 @@ def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
 
     info = _core.build_info()
     out: dict = {}
-    print(f"\ncsb {info['csb']} issue 7 benchmarks ({info['compiler']}, {info['simd']} build, OpenMP "
-          f"{info['openmp'] or 'off'}, {os.cpu_count()} cores, OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}); "
-          f"medians of {rounds} rounds")
+    print(f"\ncsb {info['csb']} issue 7 benchmarks ({info['compiler']}, {info['simd']} build, "
+          f"{os.cpu_count()} cores, CSB_WAIT={os.environ.get('CSB_WAIT', 'adaptive')}); medians of {rounds} rounds")
     if "fps" in parts:
         print("\ncloth_grid (stretch + shear + bending, 2 pinned corners), dt = 1/60 s: ms per frame and frames per second")
         out["fps"] = fps_table(rounds=rounds)
@@ -564,9 +566,10 @@ def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
         rows = []
         if "threads" in parts:
             rows.append(thread_scaling(rounds=rounds))
+            rows.append(thread_scaling(rounds=rounds, wait="sleep"))
         if "busy" in parts:
             rows.append(thread_scaling(rounds=rounds, busy=True))
-            rows.append(thread_scaling(rounds=rounds, busy=True, wait_policy="active"))
+            rows.append(thread_scaling(rounds=rounds, busy=True, wait="spin"))
         out["threads"] = rows
         print(format_thread_scaling(rows))
     if "particles" in parts:

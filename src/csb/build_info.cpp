@@ -39,9 +39,6 @@ BuildInfo build_info() {
 #else
   info.simd = "scalar";
 #endif
-#ifdef _OPENMP
-  info.openmp = _OPENMP;
-#endif
   return info;
 }
 

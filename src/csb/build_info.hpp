@@ -13,7 +13,6 @@ struct BuildInfo {
   bool sundials_klu = false;  // SUNDIALS was built with the KLU sparse direct solver
   std::string compiler;
   std::string simd;       // widest vector instructions the build targets: "SSE2" (portable), "AVX2", "AVX-512"
-  int openmp = 0;         // OpenMP version (yyyymm), 0: built without OpenMP (serial)
 };
 
 BuildInfo build_info();

@@ -24,13 +24,14 @@
 #include "csb/constraints/bending.hpp"
 
 #include <algorithm>
+#include <string>
 
 namespace csb {
 
 constexpr Index kBendingBlock = 32;
 
 template <bool Xpbd>
-inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
+CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
   constexpr Index B = kBendingBlock;
   // P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint c0 + k, then (in place)
   // ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x. Three short loops rather than one long
@@ -144,18 +145,32 @@ inline void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Rea
   }
 }
 
+// The blocks of constraints [begin, end) of one colour (they share no particle). Defined in
+// coloured_bending.cpp: on x86-64 compiled twice, for SSE2 and for AVX2, the second taken when
+// the processor has it (same bits: IEEE operations give the same results in any lane width, and
+// neither build contracts to FMA).
+void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x);
+
 // Constraints [begin, end) of one colour. independent: they share no particle (blocks);
 // otherwise one at a time, in order.
 template <bool Xpbd>
 inline void project_bending_range(ColouredFour& b, Index begin, Index end, bool independent, const Real* r, Real* o,
                                   const Real* x) {
   if (independent) {
-    for (Index c0 = begin; c0 < end; c0 += kBendingBlock)
-      bending_block<Xpbd>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
+    bending_blocks(b, Xpbd, begin, end, r, o, x);
   } else {
     for (Index c = begin; c < end; ++c) bending_block<Xpbd>(b, c, 1, r, o, x);
   }
 }
+
+// The instruction set the blocked kernels (bending_blocks, and the coloured PBD distance blocks
+// in pbd.cpp) run: "avx2" or "sse2" in the portable x86-64 build, "native" in a native build
+// (compiled for its machine) or elsewhere. set_kernel_isa("sse2") makes an AVX2 machine run
+// the SSE2 code (for measurements and tests), "auto" undoes it.
+std::string kernel_isa();
+void set_kernel_isa(const std::string& isa);
+// Whether the blocked kernels take their AVX2 copies now.
+bool kernels_use_avx2();
 
 // For tests (the Python `csb.kernels`): the same projection over all of `b` as one range, with
 // positions p read and written in place (Gauss-Seidel); x: start positions (XPBD). Defined in

@@ -29,25 +29,41 @@ namespace csb {
 // particle, so that a Gauss-Seidel sweep may project them in any order, or at once (SIMD lanes,
 // threads), with the same result. Computed when the Model is built; the batch's arrays stay in
 // the order the constraints were added (every index into a batch is that order's), `order`
-// lists them colour by colour. Colours smaller than kMinColourSize, and constraints that find
-// no free colour among the first kMaxColours, go to a last, overflow colour whose constraints
-// may share particles and are projected one after the other, in `order`. A small model (a
-// chain, a pendulum) is then a single overflow colour: the sequential order as built.
+// lists them colour by colour. Within a group (below), colours smaller than kMinColourSize and
+// constraints that find no free colour among the first kMaxColours go to a last, serial colour
+// whose constraints may share particles and are projected one after the other, in `order`. A
+// small model (a chain, a pendulum) is then a single serial colour: the sequential order as built.
+//
+// Groups (the sweep's schedule, see colour_batches): the colours are grouped, group g owning
+// colours [group_colours[g], group_colours[g + 1]). A model's particles are split into
+// `Model::num_parts` slabs; for P parts every batch has 2P groups:
+//   g in [0, P)       constraints whose particles all lie in part g (the part's interior);
+//   g = P + i, i < P-1 constraints between parts i and i + 1 (interface i);
+//   g = 2P - 1        the rest (particles in non-adjacent parts, or more than two parts).
+// Interiors share no particle with each other, nor do interfaces of the same parity, so one
+// thread can sweep a whole group (every batch's colours of it) while another sweeps another:
+// three barriers per sweep instead of one per colour.
 struct Colouring {
-  std::vector<Index> order;              // constraint indices, colour by colour, increasing within a colour
-  std::vector<Index> colour_offsets{0};  // colour k is order[colour_offsets[k] .. [k+1])
-  bool overflow = false;                 // the last colour is the overflow colour
+  std::vector<Index> order;                  // constraint indices, colour by colour, increasing within a colour
+  std::vector<Index> colour_offsets{0};      // colour k is order[colour_offsets[k] .. [k+1])
+  std::vector<std::uint8_t> serial_colours;  // 1: colour k's constraints may share particles (projected in order)
+  std::vector<Index> group_colours{0, 0};    // group g's colours: [group_colours[g], group_colours[g + 1])
   Index num_colours() const { return static_cast<Index>(colour_offsets.size()) - 1; }
-  // Whether colour k's constraints may share particles (projected serially).
-  bool serial(Index k) const { return overflow && k == num_colours() - 1; }
+  Index num_groups() const { return static_cast<Index>(group_colours.size()) - 1; }
+  bool serial(Index k) const { return serial_colours[static_cast<std::size_t>(k)] != 0; }
 };
 
 constexpr Index kMaxColours = 64;
 constexpr Index kMinColourSize = 64;
+// Parts of a model: one per kParticlesPerPart particles, at most kMaxParts. Fixed by the model,
+// never by the thread count, so that the projection order (and the result) is the same with
+// any number of threads; 8 parts keep up to 8 threads busy on the interiors.
+constexpr Index kParticlesPerPart = 2048;
+constexpr Index kMaxParts = 8;
 
 // Greedy first-fit colouring in constraint order (deterministic): constraint c of `count`, with
 // particles particles[arity c .. arity c + arity), takes the lowest colour none of its particles
-// has yet. Then colours under min_colour_size merge into the overflow colour.
+// has yet. Then colours under min_colour_size merge into the serial colour. One group.
 Colouring colour_constraints(const Index* particles, int arity, Index count, Index num_particles,
                              Index min_colour_size = kMinColourSize);
 
@@ -130,6 +146,11 @@ class Model {
   State initial_state() const;
 
   std::uint64_t id = 0;              // unique per built model; lets steppers cache per-model data
+  Index num_parts = 1;               // parts of the particles the batches' colourings are grouped by (Colouring)
+  std::vector<Index> part;           // part of each particle
+  // The interfaces (i: between parts i and i + 1) in phases: no two interfaces of one phase
+  // share a particle, so threads may sweep them at once (slabs thicker than an element: one phase).
+  std::vector<std::vector<Index>> interface_phases;
   Positions rest_positions;          // m, 3 x N
   std::vector<Real> mass;            // kg, > 0 (kept for pinned particles too)
   std::vector<Real> inv_mass;        // 1/kg; 0 for a pinned particle
@@ -153,8 +174,10 @@ class Model {
 // A fresh Model::id, for every model built or derived (e.g. by tearing).
 std::uint64_t next_model_id();
 
-// (Re)computes the colouring of every batch of `model` (distance, bending, volume, attachments;
-// balloons are one constraint each and stay serial). ModelBuilder::build and tear call it.
+// (Re)computes the parts and the colouring of every batch of `model` (distance, bending, volume,
+// attachments; balloons are one constraint each and stay serial). The parts are slabs of equal
+// particle count along the longest side of the rest positions' bounding box (ties: by index).
+// ModelBuilder::build and tear call it.
 void colour_batches(Model& model);
 
 // Bytes the model's arrays hold (from their capacities), split into what belongs to the

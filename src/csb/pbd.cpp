@@ -2,6 +2,7 @@
 #include "csb/coloured_bending.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/format.hpp"
+#include "csb/team.hpp"
 
 #include "csb/constraints/attachment.hpp"
 #include "csb/constraints/bending.hpp"
@@ -14,11 +15,10 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 
-#ifdef _OPENMP
-#include <omp.h>
-#endif
+#include <thread>
 #include <sstream>
 
 namespace csb {
@@ -463,19 +463,29 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
 // ------------------------------------------------------------------------------ coloured sweep
 //
 // Issue 7. Each batch is projected colour by colour (Model's `colours`); the constraints of one
-// colour share no particle, so within a colour
-//  - a range of constraints is a loop whose iterations are independent: `omp simd` lets the
-//    compiler put one constraint in each SIMD lane (the kernels below are branch-free in the
-//    common case: masks instead of early returns, coefficients precomputed in ColouredBatches);
-//  - threads take ranges of a fixed size (`kChunk`) from the colour dynamically, so a thread
-//    that is slowed down (a busy core) takes fewer of them; an implicit barrier ends the colour.
+// colour share no particle, so within a colour a range of constraints is a loop whose iterations
+// are independent: `omp simd` lets the compiler put one constraint in each SIMD lane (the kernels
+// below are branch-free in the common case: masks instead of early returns, coefficients
+// precomputed in ColouredBatches).
+//
+// Threads share the work by groups (see Colouring): a sweep is
+//  1. the parts' interiors, each part a task: one thread projects every batch's colours of that
+//     part (distance, then bending, volume, attachments), no barrier between colours;
+//  2. the interfaces between parts i and i + 1 for even i, each a task; 3. those for odd i;
+//  4. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
+//     after each (constraints across non-adjacent parts; usually none).
+// The tasks of one phase share no particle, and threads take them dynamically, so a thread
+// slowed by a busy core takes fewer. A sweep thus has three barriers (plus the rest's colours)
+// where colour by colour it had one per colour, 26 for a cloth; and a part's particles stay in
+// the core's cache while all of its colours are projected.
+//
 // Every constraint is computed by the same instructions whatever the thread count or the range
 // it falls in (IEEE +, -, *, / and sqrt give the same bits in a SIMD lane and in a scalar
-// register; no FMA contraction), and no two writes of one colour touch the same particle, so the
-// result does not depend on the number of threads. The overflow colour (constraints that may
-// share particles) is projected by one thread in its order. Jacobi reads the sweep's start and
-// adds each correction to the particle's sum: within a colour each particle receives at most
-// one, so the sums are added colour by colour in a fixed order (no atomics on floats).
+// register; no FMA contraction), every task runs its colours in a fixed order, and no two tasks
+// of a phase touch the same particle, so the result does not depend on the number of threads.
+// A serial colour (constraints that may share particles) is projected in its order. Jacobi reads
+// the sweep's start and adds each correction to the particle's sum: each particle receives its
+// corrections in a fixed order (no atomics on floats).
 //
 // Kernels read positions from r and apply corrections to o: Gauss-Seidel r = o = p, Jacobi
 // r = the positions at the sweep's start, o = the correction sums.
@@ -534,7 +544,7 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
 // plain loop with), the corrections scattered back. Per constraint the same operations in the
 // same order as distance_pbd, so the same bits.
 template <bool Approx>
-inline void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
+CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
   constexpr Index B = 32;
   alignas(64) Real dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
@@ -576,6 +586,15 @@ inline void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index en
     }
   }
 }
+
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+// The blocks again in AVX2 lanes, taken when the processor has it (see coloured_bending.cpp).
+__attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDistance& b, Index begin, Index end,
+                                                               const Real* r, Real* o) {
+  distance_pbd_blocks<false>(b, begin, end, r, o);
+}
+#define CSB_DISTANCE_AVX2 1
+#endif
 
 // XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
 CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x) {
@@ -654,29 +673,66 @@ CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, R
 // range costs little beside it; fixed, so that ranges do not depend on the thread count.
 constexpr Index kChunkDistance = 256, kChunkFour = 64, kChunkAttachment = 256;
 
-// Runs `kernel(begin, end, independent)` over every colour of `colours` in order, inside a
-// parallel region (or alone): ranges of a colour shared by the team, the overflow colour by one
-// thread. Each colour ends at a barrier.
+// Runs `kernel(begin, end, independent)` over the colours of group g of `colours`, in order,
+// on the calling thread.
 template <class Kernel>
-void for_each_colour(const Colouring& colours, Index chunk, Kernel&& kernel) {
-  for (Index k = 0; k < colours.num_colours(); ++k) {
+void group_colours(const Colouring& colours, Index g, Kernel&& kernel) {
+  for (Index k = colours.group_colours[g]; k < colours.group_colours[g + 1]; ++k)
+    kernel(colours.colour_offsets[k], colours.colour_offsets[k + 1], !colours.serial(k));
+}
+
+// One thread's view of the team during a projection: every thread makes the same calls in the
+// same order (the phases are counted alike on each).
+struct Share {
+  Team& team;
+  int t;                   // this thread
+  std::int64_t phase = 0;  // phases begun
+
+  // Tasks 0 .. count - 1 shared dynamically, then a barrier.
+  template <class F>
+  void tasks(Index count, F&& f) {
+    if (count <= 0) return;
+    for (int k; (k = team.take(phase)) < count;) f(static_cast<Index>(k));
+    team.barrier();
+    if (t == 0) team.reset(phase);
+    ++phase;
+  }
+  // f on thread 0 only, then a barrier.
+  template <class F>
+  void single(F&& f) {
+    if (t == 0) f();
+    team.barrier();
+  }
+  // f(begin, end) on this thread's share of [0, n) (fixed ranges), then a barrier.
+  template <class F>
+  void split(Index n, F&& f) {
+    const int threads = team.size();
+    f(static_cast<Index>(static_cast<std::int64_t>(n) * t / threads),
+      static_cast<Index>(static_cast<std::int64_t>(n) * (t + 1) / threads));
+    team.barrier();
+  }
+};
+
+// Runs `kernel(begin, end, independent)` over the colours of group g, in order, the team sharing
+// ranges of `chunk` constraints of a colour (a serial colour on one thread); a barrier after each.
+template <class Kernel>
+void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk, Kernel&& kernel) {
+  for (Index k = colours.group_colours[g]; k < colours.group_colours[g + 1]; ++k) {
     const Index begin = colours.colour_offsets[k], end = colours.colour_offsets[k + 1];
-    if (colours.serial(k)) {
-#pragma omp single
-      kernel(begin, end, false);
-    } else {
-      const Index ranges = (end - begin + chunk - 1) / chunk;
-#pragma omp for schedule(dynamic, 1)
-      for (Index g = 0; g < ranges; ++g) kernel(begin + g * chunk, std::min(end, begin + (g + 1) * chunk), true);
-    }
+    if (colours.serial(k))
+      share.single([&] { kernel(begin, end, false); });
+    else
+      share.tasks((end - begin + chunk - 1) / chunk,
+                  [&](Index r) { kernel(begin + r * chunk, std::min(end, begin + (r + 1) * chunk), true); });
   }
 }
 
 // One coloured sweep over distance, bending, volume and attachment constraints.
 template <Method M, bool Jacobi>
-void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o, const Real* x) {
+void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o,
+                    const Real* x) {
   ColouredDistance& d = cb.distance;
-  for_each_colour(model.distance.colours, kChunkDistance, [&](Index begin, Index end, bool independent) {
+  const auto distance = [&](Index begin, Index end, bool independent) {
     if constexpr (M == Method::Xpbd) {
       if (independent) {
 #pragma omp simd
@@ -696,6 +752,11 @@ void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const 
 #if CSB_GATHER_SIMD
 #pragma omp simd
         for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
+#elif defined(CSB_DISTANCE_AVX2)
+        if (kernels_use_avx2())
+          distance_pbd_blocks_avx2(d, begin, end, r, o);
+        else
+          distance_pbd_blocks<false>(d, begin, end, r, o);
 #else
         distance_pbd_blocks<false>(d, begin, end, r, o);
 #endif
@@ -703,19 +764,37 @@ void sweep_coloured(const Model& model, ColouredBatches& cb, bool approx, const 
         for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
       }
     }
-  });
+  };
   ColouredFour& bend = cb.bending;
-  for_each_colour(model.bending.colours, kChunkFour, [&](Index begin, Index end, bool independent) {
+  const auto bending = [&](Index begin, Index end, bool independent) {
     project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, r, o, x);
-  });
+  };
   ColouredFour& vol = cb.volume;
-  for_each_colour(model.volume.colours, kChunkFour, [&](Index begin, Index end, bool) {
+  const auto volume = [&](Index begin, Index end, bool) {
     for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x);
-  });
+  };
   ColouredAttachments& att = cb.attachments;
-  for_each_colour(model.attachments.colours, kChunkAttachment, [&](Index begin, Index end, bool) {
+  const auto attachment = [&](Index begin, Index end, bool) {
     for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x);
-  });
+  };
+  const auto group = [&](Index g) {
+    group_colours(model.distance.colours, g, distance);
+    group_colours(model.bending.colours, g, bending);
+    group_colours(model.volume.colours, g, volume);
+    group_colours(model.attachments.colours, g, attachment);
+  };
+  const Index parts = model.num_parts;
+  // 1. The interiors.
+  share.tasks(parts, group);
+  // 2. The interfaces, in phases whose interfaces share no particle (usually one).
+  for (const std::vector<Index>& phase : model.interface_phases)
+    share.tasks(static_cast<Index>(phase.size()), [&](Index k) { group(parts + phase[k]); });
+  // 3. The rest, colour by colour.
+  const Index rest = 2 * parts - 1;
+  shared_colours(share, model.distance.colours, rest, kChunkDistance, distance);
+  shared_colours(share, model.bending.colours, rest, kChunkFour, bending);
+  shared_colours(share, model.volume.colours, rest, kChunkFour, volume);
+  shared_colours(share, model.attachments.colours, rest, kChunkAttachment, attachment);
 }
 
 #if defined(__linux__)
@@ -729,6 +808,7 @@ int free_cores(int cores) {
   const int got = std::fscanf(f, "%lf %lf %lf %d/%d", &l1, &l5, &l15, &running, &total);
   std::fclose(f);
   if (got != 5) return cores;
+  running -= Team::idle_spinning();  // csb's own threads about to sleep
   return std::max(1, std::min(cores, cores - (running - 1)));
 }
 #else
@@ -863,17 +943,22 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   cb.model_id = model.id;
 }
 
-int PbdStepper::resolve_threads(const Model& model) const {
-#ifdef _OPENMP
+int PbdStepper::resolve_threads(const Model& model) {
+  spin_ = false;
   if (settings_.ordering == Ordering::Sequential) return 1;
-  if (settings_.threads > 0) return settings_.threads;
-  if (model.num_constraints() < 8192) return 1;  // a parallel colour would cost more than it saves
-  const int cores = std::max(1, omp_get_num_procs());
-  return free_cores(cores);
-#else
-  (void)model;
-  return 1;
-#endif
+  const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  if (settings_.threads == 1 || (settings_.threads == 0 && model.num_constraints() < 8192))
+    return 1;  // (automatic: a parallel sweep of a small model would cost more than it saves)
+  const int free = free_cores(cores);
+  const int threads = settings_.threads > 0 ? settings_.threads : free;
+  // Waiting threads may spin when every one has a core to itself (csb/team.hpp). CSB_WAIT=spin
+  // or sleep fixes the choice (for measurements, papers/benchmarks.md).
+  static const std::string wait = [] {
+    const char* v = std::getenv("CSB_WAIT");
+    return std::string(v ? v : "");
+  }();
+  spin_ = wait == "spin" || (wait != "sleep" && threads <= free);
+  return threads;
 }
 
 const Multipliers& PbdStepper::multipliers() const {
@@ -913,23 +998,23 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start) 
   const bool approx = settings_.sqrt_approximation;
   const auto& bal = model.balloons;
   const int iterations = settings_.iterations;
-#pragma omp parallel num_threads(threads) if (threads > 1)
-  {
+  team_.get().run(threads, spin_, [&](int t) {
+    Share share{team_.get(), t};
     for (int it = 0; it < iterations; ++it) {
       if constexpr (Jacobi) {
-#pragma omp for schedule(static)
-        for (Index i = 0; i < n; ++i) {
-          for (int e = 0; e < 3; ++e) {
-            ps[3 * i + e] = p[3 * i + e];
-            delta[3 * i + e] = 0;
+        share.split(n, [&](Index begin, Index end) {
+          for (Index i = begin; i < end; ++i) {
+            for (int e = 0; e < 3; ++e) {
+              ps[3 * i + e] = p[3 * i + e];
+              delta[3 * i + e] = 0;
+            }
+            count[i] = count0[i];
           }
-          count[i] = count0[i];
-        }
+        });
       }
-      sweep_coloured<M, Jacobi>(model, coloured_, approx, r, o, x);
+      sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x);
       if (tail) {
-#pragma omp single
-        {
+        share.single([&] {
           // Balloons: one constraint over many particles each, serial (see sweep_batches).
           for (Index c = 0; c < bal.size(); ++c) {
             const Index* ids = bal.particles.data() + bal.particle_offsets[c];
@@ -943,22 +1028,20 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start) 
                               k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
           }
           if (contacts) project_contacts(model, Jacobi);
-        }
+        });
       }
       if constexpr (Jacobi) {
         // Averaged Jacobi moves each particle by the mean of its corrections, summed Jacobi by their sum.
-#pragma omp for schedule(static)
-        for (Index i = 0; i < n; ++i) {
-          const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
-          for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
-        }
+        share.split(n, [&](Index begin, Index end) {
+          for (Index i = begin; i < end; ++i) {
+            const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
+            for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
+          }
+        });
       }
-      if (compliant_grabs) {
-#pragma omp single
-        project_grabs(x_start);
-      }
+      if (compliant_grabs) share.single([&] { project_grabs(x_start); });
     }
-  }
+  });
 }
 
 void PbdStepper::project(const Model& model, const Positions& x_start) {
@@ -1507,19 +1590,6 @@ std::vector<double> benchmark_plain_distance(const Model& model, const Positions
     ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / (static_cast<double>(sweeps) * m));
   }
   return ns;
-}
-
-void project_bending_coloured(ColouredFour& b, bool xpbd, bool independent, Real* p, const Real* x) {
-  const Index m = static_cast<Index>(b.q.size());
-  if (xpbd)
-    project_bending_range<true>(b, 0, m, independent, p, p, x);
-  else
-    project_bending_range<false>(b, 0, m, independent, p, p, x);
-}
-
-void atan2_rational_array(const Real* y, const Real* x, Real* out, Index n) {
-#pragma omp simd
-  for (Index i = 0; i < n; ++i) out[i] = atan2_rational(y[i], x[i]);
 }
 
 }  // namespace csb

@@ -25,6 +25,7 @@
 #include "csb/coloured.hpp"
 #include "csb/model.hpp"
 #include "csb/spatial_hash.hpp"
+#include "csb/team.hpp"
 
 #include <cstdint>
 
@@ -170,7 +171,7 @@ class PbdStepper {
   template <Method M, bool Jacobi>
   void project_coloured(const Model& model, const Positions& x_start);
   void build_coloured(const Model& model, const Real* w);
-  int resolve_threads(const Model& model) const;
+  int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
   void generate_contacts(const Model& model, const Positions& x, Real h);
   void generate_self_contacts(const Model& model, const Positions& x);
@@ -199,6 +200,8 @@ class PbdStepper {
     std::vector<Index> distance, bending, volume, attachment;
   } coloured_order_;                     // XPBD: the colourings' orders, to put multipliers back
   int threads_used_ = 1;
+  bool spin_ = false;                    // the team's threads may spin while waiting (cores are free)
+  TeamHandle team_;                      // the threads of the coloured projection
   // Interaction.
   std::vector<Grab> grabs_;
   int next_grab_ = 1;

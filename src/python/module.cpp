@@ -252,7 +252,6 @@ PYBIND11_MODULE(_core, m) {
     d["sundials_klu"] = b.sundials_klu;
     d["compiler"] = b.compiler;
     d["simd"] = b.simd;
-    d["openmp"] = b.openmp;
 #ifdef CSB_HAS_VIEWER
     d["viewer"] = "built";
 #else
@@ -457,12 +456,23 @@ PYBIND11_MODULE(_core, m) {
         py::dict d;
         d["order"] = view(c->order.data(), {static_cast<py::ssize_t>(c->order.size())}, self, false);
         d["colour_offsets"] = view(c->colour_offsets.data(), {static_cast<py::ssize_t>(c->colour_offsets.size())}, self, false);
-        d["overflow"] = c->overflow;
+        d["serial"] = py::array_t<bool>(static_cast<py::ssize_t>(c->serial_colours.size()),
+                                        reinterpret_cast<const bool*>(c->serial_colours.data()));
+        d["group_colours"] = view(c->group_colours.data(), {static_cast<py::ssize_t>(c->group_colours.size())}, self, false);
         return d;
       }, py::arg("batch"),
          "The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is "
-         "order[offsets[k]:offsets[k+1]]), overflow (the last colour's constraints may share particles and are "
-         "projected serially)")
+         "order[offsets[k]:offsets[k+1]]), serial (per colour: its constraints may share particles and are "
+         "projected in order), group_colours (group g owns colours group_colours[g]:group_colours[g+1]; with P = "
+         "num_parts, groups 0..P-1 are the parts' interiors, P+i the interface of parts i and i+1, 2P-1 the rest)")
+      .def_property_readonly("num_parts", [](const Model& s) { return s.num_parts; },
+         "Parts of the particles (runs of indices or slabs along an axis) that group the colourings for the threads")
+      .def_property_readonly("particle_parts", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        return view(s.part.data(), {static_cast<py::ssize_t>(s.part.size())}, self, false);
+      }, "The part of each particle (see num_parts)")
+      .def_property_readonly("interface_phases", [](const Model& s) { return s.interface_phases; },
+         "The interfaces between parts (i: parts i and i+1) in phases whose interfaces share no particle")
       .def_property_readonly("memory", [](const Model& s) {
         const ModelMemory r = model_memory(s);
         py::dict d;
@@ -957,7 +967,8 @@ PYBIND11_MODULE(_core, m) {
     py::dict d;
     d["order"] = py::array_t<Index>(static_cast<py::ssize_t>(c.order.size()), c.order.data());
     d["colour_offsets"] = py::array_t<Index>(static_cast<py::ssize_t>(c.colour_offsets.size()), c.colour_offsets.data());
-    d["overflow"] = c.overflow;
+    d["serial"] = py::array_t<bool>(static_cast<py::ssize_t>(c.serial_colours.size()),
+                                    reinterpret_cast<const bool*>(c.serial_colours.data()));
     return d;
   }, py::arg("particles"), py::arg("num_particles"), py::arg("min_colour_size") = kMinColourSize,
      "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
@@ -1222,6 +1233,13 @@ PYBIND11_MODULE(_core, m) {
     return out;
   }, py::arg("y"), py::arg("x"),
      "The coloured bending kernel's branch-free rational atan2 (csb/atan2.hpp), elementwise, rad.");
+  k.def("kernel_isa", [](std::optional<std::string> isa) {
+    if (isa) set_kernel_isa(*isa);
+    return kernel_isa();
+  }, py::arg("isa") = py::none(),
+     "The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx2' or 'sse2' (x86-64 portable "
+     "build, chosen from the processor), 'native' (a CSB_NATIVE build, or not x86-64). isa='sse2' forces the SSE2 copy, 'avx2' the AVX2 one, 'auto' the "
+     "processor's choice; returns the one in use.");
   k.def("project_bending_coloured", [](py::handle points, py::handle quads, py::handle inv_mass, py::handle rest_angle,
                                        py::handle stiffness, py::handle alpha_tilde, py::handle gamma, py::handle lambda_,
                                        py::handle start, bool independent) -> py::tuple {
