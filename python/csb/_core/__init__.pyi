@@ -300,7 +300,7 @@ class Model:
         ...
     def colouring(self, batch: str) -> dict:
         """
-        The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is order[offsets[k]:offsets[k+1]]), overflow (the last colour's constraints may share particles and are projected serially)
+        The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is order[offsets[k]:offsets[k+1]]), serial (per colour: its constraints may share particles and are projected in order), group_colours (group g owns colours group_colours[g]:group_colours[g+1]; with P = num_parts, groups 0..P-1 are the parts' interiors, P+i the interface of parts i and i+1, 2P-1 the rest)
         """
     def initial_state(self) -> State:
         """
@@ -340,6 +340,11 @@ class Model:
     def group_names(self) -> list[str]:
         ...
     @property
+    def interface_phases(self) -> list[list[int]]:
+        """
+        The interfaces between parts (i: parts i and i+1) in phases whose interfaces share no particle
+        """
+    @property
     def inv_mass(self) -> numpy.ndarray:
         """
         (N,) inverse masses, 1/kg; 0 for pinned particles
@@ -360,6 +365,16 @@ class Model:
     @property
     def num_particles(self) -> int:
         ...
+    @property
+    def num_parts(self) -> int:
+        """
+        Parts of the particles (runs of indices or slabs along an axis) that group the colourings for the threads
+        """
+    @property
+    def particle_parts(self) -> numpy.ndarray:
+        """
+        The part of each particle (see num_parts)
+        """
     @property
     def rest_positions(self) -> numpy.ndarray:
         """

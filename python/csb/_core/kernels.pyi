@@ -6,7 +6,7 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['atan2', 'dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'project_attachment', 'project_balloon', 'project_bending', 'project_bending_coloured', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
+__all__: list[str] = ['atan2', 'dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'kernel_isa', 'project_attachment', 'project_balloon', 'project_bending', 'project_bending_coloured', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
 def atan2(y: typing.Any, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
     """
     The coloured bending kernel's branch-free rational atan2 (csb/atan2.hpp), elementwise, rad.
@@ -22,6 +22,10 @@ def dihedral_angle_gradient(a: typing.Any, b: typing.Any, c: typing.Any, d: typi
 def enclosed_volume(points: typing.Any, triangles: typing.Any) -> float:
     """
     (1/6) Σ (p_a x p_b)·p_c over the triangles, m³.
+    """
+def kernel_isa(isa: str | None = None) -> str:
+    """
+    The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx2' or 'sse2' (x86-64 portable build, chosen from the processor), 'native' (a CSB_NATIVE build, or not x86-64). isa='sse2' forces the SSE2 copy, 'avx2' the AVX2 one, 'auto' the processor's choice; returns the one in use.
     """
 def project_attachment(p: typing.Any, w: typing.SupportsFloat | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, float]:
     ...
