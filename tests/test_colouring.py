@@ -262,3 +262,22 @@ def test_memory_report_counts_the_arrays():
         assert stepper.workspace_bytes >= 24 * N + d * (4 + 4 + 8 + 1 + 8 + 8) + bend * (16 + 8 + 32 + 8)
         per_particle.append((mem["total"] + stepper.workspace_bytes) / N)
     assert per_particle[1] == pytest.approx(per_particle[0], rel=0.1)
+
+
+def test_a_non_finite_sub_step_is_reported_alike_on_any_thread_count():
+    """Without contacts, grabs or damping the projection's threads also predict, check and update
+    (the fused sub-step): a blow-up must still name the first particle and leave the state at the
+    last finite sub-step, the same with 1 and 2 threads."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 96, 96), mass=0.5, bending_stiffness=0.5)
+    model = b.build()
+    assert model.num_parts == 4
+    out = []
+    for threads in (1, 2):
+        state = model.initial_state()
+        stepper = csb.PbdStepper(dt=0.1, gravity=(0, -1e307, 0), substeps=2, threads=threads)
+        with pytest.raises(csb.SimulationError, match=r"particle \d+ got a non-finite") as err:
+            stepper.step(model, state, 100)
+        assert np.isfinite(state.x).all() and np.isfinite(state.v).all()
+        out.append((str(err.value), state_hash(state)))
+    assert out[0] == out[1]

@@ -224,8 +224,27 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     Real* xp = x_prev_.data();
     for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
   }
+  // Without contacts, grabs or Müller damping a sub-step is element-wise but for the sweeps: the
+  // projection's threads then also predict and update (the same operations, split by particle).
+  const bool fused = settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
+                     self_groups_.empty() && (verlet || settings_.damping <= 0);
   for (std::int64_t s = 0; s < steps; ++s) {
     for (int sub = 0; sub < settings_.substeps; ++sub) {
+      if (fused) {
+        generate_contacts(model, state.x, h);  // (8): none, but the last sub-step's are cleared
+        if (settings_.method == Method::Xpbd) lambda_stale_ = true;
+        Fused f{&state, h, verlet};
+        project(model, state.x, &f);
+        if (f.bad >= 0) {
+          if (verlet) state.v = (state.x - x_prev_) / h;
+          std::ostringstream msg;
+          msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << f.bad
+              << " got a non-finite position " << str(p_.col(f.bad))
+              << "; the state is left at the end of the last finite substep";
+          throw SimulationError(msg.str());
+        }
+        continue;
+      }
       predict(model, state, h);
       if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
       if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
@@ -978,7 +997,7 @@ const Multipliers& PbdStepper::multipliers() const {
 }
 
 template <Method M, bool Jacobi>
-void PbdStepper::project_coloured(const Model& model, const Positions& x_start) {
+void PbdStepper::project_coloured(const Model& model, const Positions& x_start, Fused* fused) {
   const Index n = model.num_particles();
   const int threads = threads_used_;
   Real* p = p_.data();
@@ -998,8 +1017,45 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start) 
   const bool approx = settings_.sqrt_approximation;
   const auto& bal = model.balloons;
   const int iterations = settings_.iterations;
+  bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
+    if (fused) {
+      // (5)-(7) of Algorithm 1 (as predict()), and XPBD's multipliers set to zero.
+      const Real h = fused->h;
+      const Vec3& g = settings_.gravity;
+      Real* xs = fused->state->x.data();
+      Real* vs = fused->state->v.data();
+      const Real* wm = model.inv_mass.data();
+      const Real* xp = x_prev_.data();
+      const Real keep = 1 - settings_.verlet_drag;
+      share.split(n, [&](Index begin, Index end) {
+        if (fused->verlet) {
+          for (Index i = begin; i < end; ++i) {
+            const Real a = wm[i] > 0 ? h * h : 0;
+            for (int k = 0; k < 3; ++k)
+              p[3 * i + k] = xs[3 * i + k] + keep * (xs[3 * i + k] - xp[3 * i + k]) + a * g[k];
+          }
+        } else {
+          for (Index i = begin; i < end; ++i) {
+            const Real a = wm[i] > 0 ? h : 0;
+            for (int k = 0; k < 3; ++k) {
+              vs[3 * i + k] += a * g[k];
+              p[3 * i + k] = xs[3 * i + k] + h * vs[3 * i + k];
+            }
+          }
+        }
+        if constexpr (M == Method::Xpbd) {
+          for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
+                          &coloured_.attachments.lambda, &lambda_.balloon}) {
+            const Index m = static_cast<Index>(l->size());
+            const int threads_now = share.team.size();
+            std::fill(l->begin() + static_cast<std::int64_t>(m) * t / threads_now,
+                      l->begin() + static_cast<std::int64_t>(m) * (t + 1) / threads_now, 0.0);
+          }
+        }
+      });
+    }
     for (int it = 0; it < iterations; ++it) {
       if constexpr (Jacobi) {
         share.split(n, [&](Index begin, Index end) {
@@ -1041,10 +1097,42 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start) 
       }
       if (compliant_grabs) share.single([&] { project_grabs(x_start); });
     }
+    if (fused) {
+      // The new positions must all be finite before any is taken (else the state stays).
+      share.split(n, [&](Index begin, Index end) {
+        for (Index i = begin; i < end && bad_[t] < 0; ++i)
+          if (!std::isfinite(p[3 * i]) || !std::isfinite(p[3 * i + 1]) || !std::isfinite(p[3 * i + 2])) bad_[t] = i;
+      });
+      Index bad = -1;
+      for (const Index b : bad_)
+        if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
+      if (bad >= 0) {
+        if (t == 0) fused->bad = bad;
+        return;
+      }
+      // (12)-(15) of Algorithm 1 (as step()).
+      const Real h = fused->h;
+      Real* xs = fused->state->x.data();
+      Real* vs = fused->state->v.data();
+      Real* xp = x_prev_.data();
+      share.split(n, [&](Index begin, Index end) {
+        if (fused->verlet) {
+          for (Index k = 3 * begin; k < 3 * end; ++k) {
+            xp[k] = xs[k];
+            xs[k] = p[k];
+          }
+        } else {
+          for (Index k = 3 * begin; k < 3 * end; ++k) {
+            vs[k] = (p[k] - xs[k]) / h;
+            xs[k] = p[k];
+          }
+        }
+      });
+    }
   });
 }
 
-void PbdStepper::project(const Model& model, const Positions& x_start) {
+void PbdStepper::project(const Model& model, const Positions& x_start, Fused* fused) {
   if (settings_.ordering == Ordering::Sequential) {
     project_sequential(model, x_start);
     return;
@@ -1052,14 +1140,14 @@ void PbdStepper::project(const Model& model, const Positions& x_start) {
   const bool jacobi = settings_.solver != Solver::GaussSeidel;
   switch (settings_.method) {
     case Method::Pbd:
-      jacobi ? project_coloured<Method::Pbd, true>(model, x_start) : project_coloured<Method::Pbd, false>(model, x_start);
+      jacobi ? project_coloured<Method::Pbd, true>(model, x_start, fused) : project_coloured<Method::Pbd, false>(model, x_start, fused);
       break;
     case Method::Xpbd:
-      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start) : project_coloured<Method::Xpbd, false>(model, x_start);
+      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start, fused) : project_coloured<Method::Xpbd, false>(model, x_start, fused);
       break;
     case Method::Jakobsen:
-      jacobi ? project_coloured<Method::Jakobsen, true>(model, x_start)
-             : project_coloured<Method::Jakobsen, false>(model, x_start);
+      jacobi ? project_coloured<Method::Jakobsen, true>(model, x_start, fused)
+             : project_coloured<Method::Jakobsen, false>(model, x_start, fused);
       break;
   }
 }

@@ -166,10 +166,18 @@ class PbdStepper {
  private:
   void prepare(const Model& model);
   void predict(const Model& model, State& state, Real h);
-  void project(const Model& model, const Positions& x_start);
+  // A sub-step done entirely by the projection's threads (no contacts, grabs or Müller damping):
+  // the prediction before the sweeps, the finiteness check and the velocity update after them.
+  struct Fused {
+    State* state;
+    Real h;
+    bool verlet;
+    Index bad = -1;  // a particle whose new position is not finite (the state is then left as it was)
+  };
+  void project(const Model& model, const Positions& x_start, Fused* fused = nullptr);
   void project_sequential(const Model& model, const Positions& x_start);
   template <Method M, bool Jacobi>
-  void project_coloured(const Model& model, const Positions& x_start);
+  void project_coloured(const Model& model, const Positions& x_start, Fused* fused);
   void build_coloured(const Model& model, const Real* w);
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
@@ -200,6 +208,7 @@ class PbdStepper {
     std::vector<Index> distance, bending, volume, attachment;
   } coloured_order_;                     // XPBD: the colourings' orders, to put multipliers back
   int threads_used_ = 1;
+  std::vector<Index> bad_;               // per thread: first non-finite position of its range (Fused)
   bool spin_ = false;                    // the team's threads may spin while waiting (cores are free)
   TeamHandle team_;                      // the threads of the coloured projection
   // Interaction.
