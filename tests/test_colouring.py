@@ -61,12 +61,13 @@ def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _cor
 
 def test_every_batch_is_coloured_validly():
     model = mixed_model()
+    assert model.num_parts > 1  # colours of parts and interfaces may be as small as MIN_TASK_COLOUR_SIZE
     for batch, key in (("distance", "particles"), ("bending", "particles"), ("volume", "particles")):
         particles = np.asarray(getattr(model, batch)[key])
         c = model.colouring(batch)
-        check_colouring(particles, c)
+        check_colouring(particles, c, _core.MIN_TASK_COLOUR_SIZE)
         assert len(c["colour_offsets"]) > 2  # really coloured, not one overflow colour
-    check_colouring(np.asarray(model.attachments["particle"])[:, None], model.colouring("attachments"))
+    check_colouring(np.asarray(model.attachments["particle"])[:, None], model.colouring("attachments"), 1)
     with pytest.raises(csb.ParameterError, match="batch must be"):
         model.colouring("balloons")
 

@@ -721,7 +721,13 @@ Colouring colour_by_parts(const Index* particles, int arity, Index count, const 
     members[group_of(particles + static_cast<std::size_t>(arity) * c, arity, part, parts)].push_back(c);
   Colouring out;
   out.group_colours = {0};
-  for (const auto& group : members) colour_group(particles, arity, group, kMinColourSize, used, out);
+  for (std::size_t g = 0; g < members.size(); ++g) {
+    // A part's or an interface's colours are swept by one thread, without barriers: any colour
+    // of a few constraints is worth its SIMD blocks. A model of one part keeps kMinColourSize, so
+    // that a small chain stays one serial colour in build order; the rest is shared by threads.
+    const bool task = parts > 1 && static_cast<Index>(g) < 2 * parts - 1;
+    colour_group(particles, arity, members[g], task ? kMinTaskColourSize : kMinColourSize, used, out);
+  }
   out.colour_offsets.shrink_to_fit();
   out.serial_colours.shrink_to_fit();
   out.group_colours.shrink_to_fit();

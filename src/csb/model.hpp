@@ -29,8 +29,9 @@ namespace csb {
 // particle, so that a Gauss-Seidel sweep may project them in any order, or at once (SIMD lanes,
 // threads), with the same result. Computed when the Model is built; the batch's arrays stay in
 // the order the constraints were added (every index into a batch is that order's), `order`
-// lists them colour by colour. Within a group (below), colours smaller than kMinColourSize and
-// constraints that find no free colour among the first kMaxColours go to a last, serial colour
+// lists them colour by colour. Within a group (below), colours smaller than kMinColourSize (for
+// the parts and interfaces of a model of several parts, kMinTaskColourSize) and constraints that
+// find no free colour among the first kMaxColours go to a last, serial colour
 // whose constraints may share particles and are projected one after the other, in `order`. A
 // small model (a chain, a pendulum) is then a single serial colour: the sequential order as built.
 //
@@ -55,6 +56,7 @@ struct Colouring {
 
 constexpr Index kMaxColours = 64;
 constexpr Index kMinColourSize = 64;
+constexpr Index kMinTaskColourSize = 8;  // in a part or an interface of a model of several parts
 // Parts of a model: one per kParticlesPerPart particles, at most kMaxParts. Fixed by the model,
 // never by the thread count, so that the projection order (and the result) is the same with
 // any number of threads; 8 parts keep up to 8 threads busy on the interiors.

@@ -974,6 +974,7 @@ PYBIND11_MODULE(_core, m) {
      "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
   m.attr("MAX_COLOURS") = kMaxColours;
   m.attr("MIN_COLOUR_SIZE") = kMinColourSize;
+  m.attr("MIN_TASK_COLOUR_SIZE") = kMinTaskColourSize;
 
   m.def("benchmark_plain_distance", [](const Model& model, py::handle positions, int sweeps, int repeats) {
     const Positions x = to_positions(positions, "positions");

@@ -11,7 +11,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Camera:
     """
     The viewer's orbit camera (m, rad; pixels from the top-left corner).
@@ -743,3 +743,4 @@ def volume_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.
     """
 MAX_COLOURS: int = 64
 MIN_COLOUR_SIZE: int = 64
+MIN_TASK_COLOUR_SIZE: int = 8
