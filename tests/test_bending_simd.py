@@ -223,7 +223,7 @@ def both_isas():
 def test_the_sse2_and_avx2_kernels_give_the_same_bits(both_isas, method):
     """The portable build runs the blocked bending and distance kernels in AVX2 lanes when the
     processor has them; IEEE operations without FMA give the same bits in two lanes as in four,
-    so a falling, bending 64x64 cloth (4 parts: interiors and interfaces) ends bit for bit the same."""
+    so a falling, bending 64x64 cloth (8 parts: interiors and interfaces) ends bit for bit the same."""
     b = csb.ModelBuilder()
     cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, 64, 64), mass=0.5, bending_stiffness=0.5,
                        bending_compliance=1e-3 if method == "xpbd" else 0.0)

@@ -18,8 +18,7 @@ EPS = np.finfo(float).eps
 def mixed_model(n: int = 96, cells: int = 6, compliance: float = 0.0):
     """A cloth (stretch and shear edges, dihedral bending, two attachments) beside a tet box
     (edges and volumes), a balloon and a spring between opposite corners of the cloth:
-    every batch, over 8192 particles so that they fall into four parts whose interiors and
-    interfaces two threads really share, and a constraint across parts that are not neighbours
+    every batch, in eight parts whose interiors and interfaces two threads really share, and a constraint across parts that are not neighbours
     (the groups' rest, shared colour by colour)."""
     b = csb.ModelBuilder()
     cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.5, bending_stiffness=0.5,
@@ -92,7 +91,7 @@ def test_the_groups_that_threads_sweep_at_once_share_no_particle():
     the spring across the model."""
     model = mixed_model()
     parts = model.num_parts
-    assert parts == 4
+    assert parts == 8
     interiors = [_group_particles(model, g) for g in range(parts)]
     for a in range(parts):
         for b in range(a + 1, parts):
@@ -272,7 +271,7 @@ def test_a_non_finite_sub_step_is_reported_alike_on_any_thread_count():
     b = csb.ModelBuilder()
     b.add_mesh(csb.cloth_grid(1.0, 1.0, 96, 96), mass=0.5, bending_stiffness=0.5)
     model = b.build()
-    assert model.num_parts == 4
+    assert model.num_parts == 8
     out = []
     for threads in (1, 2):
         state = model.initial_state()
@@ -282,3 +281,24 @@ def test_a_non_finite_sub_step_is_reported_alike_on_any_thread_count():
         assert np.isfinite(state.x).all() and np.isfinite(state.v).all()
         out.append((str(err.value), state_hash(state)))
     assert out[0] == out[1]
+
+
+def test_automatic_threads_follow_the_parts():
+    """threads=0: one thread for a model of one part (its phases have one task each), else at
+    most the free cores and at most the parts."""
+    import os
+
+    small = csb.ModelBuilder()
+    small.add_mesh(csb.cloth_grid(1.0, 1.0, 16, 16), mass=0.5)
+    small = small.build()
+    assert small.num_parts == 1
+    stepper = csb.PbdStepper(threads=0)
+    stepper.step(small, small.initial_state())
+    assert stepper.threads_used == 1
+    model = csb.ModelBuilder()
+    model.add_mesh(csb.cloth_grid(1.0, 1.0, 32, 32), mass=0.5)
+    model = model.build()
+    assert model.num_parts == 2
+    stepper = csb.PbdStepper(threads=0)
+    stepper.step(model, model.initial_state())
+    assert 1 <= stepper.threads_used <= min(2, os.cpu_count() or 1)

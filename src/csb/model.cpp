@@ -721,6 +721,7 @@ Colouring colour_by_parts(const Index* particles, int arity, Index count, const 
     members[group_of(particles + static_cast<std::size_t>(arity) * c, arity, part, parts)].push_back(c);
   Colouring out;
   out.group_colours = {0};
+  out.order.reserve(static_cast<std::size_t>(count));
   for (std::size_t g = 0; g < members.size(); ++g) {
     // A part's or an interface's colours are swept by one thread, without barriers: any colour
     // of a few constraints is worth its SIMD blocks. A model of one part keeps kMinColourSize, so

@@ -956,10 +956,10 @@ int PbdStepper::resolve_threads(const Model& model) {
   spin_ = false;
   if (settings_.ordering == Ordering::Sequential) return 1;
   const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
-  if (settings_.threads == 1 || (settings_.threads == 0 && model.num_constraints() < 8192))
-    return 1;  // (automatic: a parallel sweep of a small model would cost more than it saves)
+  if (settings_.threads == 1 || (settings_.threads == 0 && model.num_parts == 1))
+    return 1;  // (automatic: a model of one part has one task per phase)
   const int free = free_cores(cores);
-  const int threads = settings_.threads > 0 ? settings_.threads : free;
+  const int threads = settings_.threads > 0 ? settings_.threads : std::min<int>(free, static_cast<int>(model.num_parts));
   // Waiting threads may spin when every one has a core to itself (csb/team.hpp). CSB_WAIT=spin
   // or sleep fixes the choice (for measurements, papers/benchmarks.md).
   static const std::string wait = [] {

@@ -61,15 +61,17 @@ struct PbdSettings {
   Real verlet_drag = 0;
   // Jakobsen's stick relaxation without square roots (see constraints/distance.hpp).
   bool sqrt_approximation = false;
-  // Coloured (default): each batch colour by colour (Model's `colours`), the constraints of one
-  // colour projected at once by SIMD lanes and threads. Sequential: every batch in the order it
+  // Coloured (default): the parts of the model and the interfaces between them as the threads'
+  // tasks, each batch of a task colour by colour (Model's `colours`), the constraints of one
+  // colour projected at once in SIMD lanes. Sequential: every batch in the order it
   // was built, one constraint after the other, on one thread (Müller's loop as written, for
   // teaching and comparison). A different order is a different Gauss-Seidel sweep: the two agree
   // to the solver's convergence, not to the bit.
   Ordering ordering = Ordering::Coloured;
-  // Threads that share the constraints of a colour (OpenMP); >= 0. 0: automatic, the cores that
-  // are free (from /proc/loadavg's runnable count), one for a model under ~8k constraints.
-  // The result does not depend on the number: the colouring fixes the order of every update.
+  // Threads that share the sweep (csb/team.hpp); >= 0. 0: automatic, the cores that are free
+  // (from /proc/loadavg's runnable count), at most the model's parts (one for a model of one
+  // part: under 1024 particles). The result does not depend on the number: the parts and their
+  // colouring fix the order of every update.
   int threads = 0;
 };
 
