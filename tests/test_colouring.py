@@ -288,17 +288,14 @@ def test_automatic_threads_follow_the_parts():
     most the free cores and at most the parts."""
     import os
 
-    small = csb.ModelBuilder()
-    small.add_mesh(csb.cloth_grid(1.0, 1.0, 16, 16), mass=0.5)
-    small = small.build()
-    assert small.num_parts == 1
-    stepper = csb.PbdStepper(threads=0)
-    stepper.step(small, small.initial_state())
-    assert stepper.threads_used == 1
-    model = csb.ModelBuilder()
-    model.add_mesh(csb.cloth_grid(1.0, 1.0, 32, 32), mass=0.5)
-    model = model.build()
-    assert model.num_parts == 2
-    stepper = csb.PbdStepper(threads=0)
-    stepper.step(model, model.initial_state())
-    assert 1 <= stepper.threads_used <= min(2, os.cpu_count() or 1)
+    def auto_threads(n: int) -> tuple[int, int]:
+        b = csb.ModelBuilder()
+        b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.5)
+        model = b.build()
+        stepper = csb.PbdStepper(threads=0)
+        stepper.step(model, model.initial_state())
+        return model.num_parts, stepper.threads_used
+
+    assert auto_threads(16) == (1, 1)
+    parts, threads = auto_threads(32)
+    assert parts == 2 and 1 <= threads <= min(2, os.cpu_count() or 1)
