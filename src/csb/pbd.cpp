@@ -490,13 +490,14 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
 // Threads share the work by groups (see Colouring): a sweep is
 //  1. the parts' interiors, each part a task: one thread projects every batch's colours of that
 //     part (distance, then bending, volume, attachments), no barrier between colours;
-//  2. the interfaces between parts i and i + 1 for even i, each a task; 3. those for odd i;
-//  4. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
+//  2. the interfaces (constraints between parts i and i + 1), each a task, in the model's
+//     interface phases, whose interfaces share no particle (one phase for a cloth);
+//  3. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
 //     after each (constraints across non-adjacent parts; usually none).
 // The tasks of one phase share no particle, and threads take them dynamically, so a thread
-// slowed by a busy core takes fewer. A sweep thus has three barriers (plus the rest's colours)
-// where colour by colour it had one per colour, 26 for a cloth; and a part's particles stay in
-// the core's cache while all of its colours are projected.
+// slowed by a busy core takes fewer. A cloth's sweep thus has two barriers where colour by
+// colour it had one per colour, 26; and a part's particles stay in the core's cache while all of
+// its colours are projected.
 //
 // Every constraint is computed by the same instructions whatever the thread count or the range
 // it falls in (IEEE +, -, *, / and sqrt give the same bits in a SIMD lane and in a scalar
@@ -553,8 +554,8 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
 // gathered into small arrays one constraint at a time, the arithmetic in a loop the compiler runs
 // in SIMD lanes, the corrections scattered back. (SSE2 has no gather instruction to vectorise
 // the plain loop with; with AVX-512's, in a native build, the plain loop ran at 7.9 ns per
-// projection against these blocks' 5.8 in AVX2: papers/benchmarks.md.) Per constraint the same operations in the
-// same order as distance_pbd, so the same bits.
+// projection against these blocks' 5.8 in AVX2: papers/benchmarks.md.) Per constraint the same
+// operations in the same order as distance_pbd, so the same bits.
 template <bool Approx>
 CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
   constexpr Index B = 32;
@@ -959,7 +960,8 @@ int PbdStepper::resolve_threads(const Model& model) {
   if (settings_.threads == 1 || (settings_.threads == 0 && model.num_parts == 1))
     return 1;  // (automatic: a model of one part has one task per phase)
   const int free = free_cores(cores);
-  const int threads = settings_.threads > 0 ? settings_.threads : std::min<int>(free, static_cast<int>(model.num_parts));
+  const int threads =
+      settings_.threads > 0 ? settings_.threads : std::min<int>(free, static_cast<int>(model.num_parts));
   // Waiting threads may spin when every one has a core to itself (csb/team.hpp). CSB_WAIT=spin
   // or sleep fixes the choice (for measurements, papers/benchmarks.md).
   static const std::string wait = [] {
@@ -1130,10 +1132,12 @@ void PbdStepper::project(const Model& model, const Positions& x_start, Fused* fu
   const bool jacobi = settings_.solver != Solver::GaussSeidel;
   switch (settings_.method) {
     case Method::Pbd:
-      jacobi ? project_coloured<Method::Pbd, true>(model, x_start, fused) : project_coloured<Method::Pbd, false>(model, x_start, fused);
+      jacobi ? project_coloured<Method::Pbd, true>(model, x_start, fused)
+             : project_coloured<Method::Pbd, false>(model, x_start, fused);
       break;
     case Method::Xpbd:
-      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start, fused) : project_coloured<Method::Xpbd, false>(model, x_start, fused);
+      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start, fused)
+             : project_coloured<Method::Xpbd, false>(model, x_start, fused);
       break;
     case Method::Jakobsen:
       jacobi ? project_coloured<Method::Jakobsen, true>(model, x_start, fused)
