@@ -143,7 +143,7 @@ class PbdStepper {
   // the model's batches.
   const Multipliers& multipliers() const;
 
-  // Threads the last step() used (1 without OpenMP).
+  // Threads the last step() used (1 for the sequential ordering).
   int threads_used() const { return threads_used_; }
   // Bytes of the per-model workspace (from the vectors' capacities): predicted and previous
   // positions, Jacobi buffers, the coloured batches and per-constraint coefficients, multipliers.

@@ -732,7 +732,7 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("ordering", [](const PbdSettings& s) {
         return s.ordering == Ordering::Coloured ? "coloured" : "sequential";
       })
-      .def_readonly("threads", &PbdSettings::threads, "threads per colour; 0: automatic")
+      .def_readonly("threads", &PbdSettings::threads, "threads that share a sweep (parts and interfaces as tasks); 0: automatic")
       .def("__repr__", [](const PbdSettings& s) {
         std::ostringstream o;
         o << "PbdSettings(method=" << (s.method == Method::Pbd ? "'pbd'" : s.method == Method::Xpbd ? "'xpbd'" : "'jakobsen'")
@@ -792,9 +792,10 @@ PYBIND11_MODULE(_core, m) {
            "k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' "
            "(Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: "
            "β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation "
-           "without square roots. ordering: 'coloured' (each batch colour by colour, data-parallel) or 'sequential' "
-           "(as built, one thread). threads: threads per colour, >= 0 (0: the free cores; the result does not "
-           "depend on it).")
+           "without square roots. ordering: 'coloured' (the model's parts and interfaces as the "
+           "threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one "
+           "thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the "
+           "result does not depend on it).")
       .def_property_readonly("settings", &PbdStepper::settings)
       .def_property_readonly("threads_used", &PbdStepper::threads_used, "threads the last step used")
       .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,

@@ -526,7 +526,7 @@ class PbdSettings:
     @property
     def threads(self) -> int:
         """
-        threads per colour; 0: automatic
+        threads that share a sweep (parts and interfaces as tasks); 0: automatic
         """
     @property
     def verlet_drag(self) -> float:
@@ -544,7 +544,7 @@ class PbdStepper:
     """
     def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0) -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (each batch colour by colour, data-parallel) or 'sequential' (as built, one thread). threads: threads per colour, >= 0 (0: the free cores; the result does not depend on it).
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the result does not depend on it).
         """
     def contacts(self) -> dict:
         """
