@@ -8,7 +8,7 @@
 // core costs tens of microseconds on a virtual machine, 20 % of a 128x128 cloth frame). The
 // team decides per step instead: it spins briefly only while the machine has a free core for
 // each of its threads (the caller reads /proc/loadavg, see free_cores in pbd.cpp), and otherwise
-// sleeps at once. A thread that spun for `spin_ns` without being released sleeps too.
+// sleeps at once. A thread that spun for kSpinNs without being released sleeps too.
 //
 // Work is shared by `take`: a counter per phase hands out task numbers, so a thread slowed by a
 // busy core takes fewer. Which thread runs a task never changes a result: the tasks of one phase
@@ -34,12 +34,13 @@ class Team {
   Team& operator=(const Team&) = delete;
 
   // Runs job(t) on `threads` threads, t = 0 (the caller) .. threads - 1, and returns when every
-  // one has returned. spin: wait by spinning (up to spin_ns) before sleeping.
+  // one has returned. spin: wait by spinning (up to kSpinNs) before sleeping.
   void run(int threads, bool spin, const std::function<void(int)>& job);
   // Within run: waits until every thread of the team has arrived.
   void barrier();
   // Within run: the next task number of `phase` (phases are counted by the caller, the same on
-  // every thread; a phase's counter is reset two barriers after it ends). Tasks past the phase's
+  // every thread; thread 0 resets a phase's counter after the barrier that ends the phase, and
+  // the counter serves again kRing phases later, several barriers on). Tasks past the phase's
   // count mean it is done.
   int take(std::int64_t phase) { return counters_[phase % kRing].value.fetch_add(1, std::memory_order_relaxed); }
   // Within run, on thread 0 after a barrier that ends `phase`: makes its counter ready for reuse.
