@@ -103,9 +103,7 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
     Real* lambda = b.lambda.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      Real violation = Sin[k] - rest[k];
-      violation = violation > kPi ? violation - 2 * kPi : violation;
-      violation = violation <= -kPi ? violation + 2 * kPi : violation;
+      const Real violation = wrap_angle(Sin[k] - rest[k]);
       const Real wgrad = Wgrad[k];
       const bool move = wgrad > 0;
       const Real g = gamma[k];
@@ -123,9 +121,7 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
     const Real* kk = b.k.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      Real violation = Sin[k] - rest[k];
-      violation = violation > kPi ? violation - 2 * kPi : violation;
-      violation = violation <= -kPi ? violation + 2 * kPi : violation;
+      const Real violation = wrap_angle(Sin[k] - rest[k]);
       const Real wgrad = Wgrad[k];
       const bool move = wgrad > 0;
       const Real stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow

@@ -46,11 +46,11 @@ inline Real dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Ve
   return std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * e.norm());
 }
 
-// Wraps an angle difference into (-π, π].
+// Wraps an angle difference into (-π, π]. Selects, not branches: the coloured bending kernel
+// calls it inside its SIMD loops (csb/coloured_bending.hpp).
 inline Real wrap_angle(Real x) {
-  if (x > kPi) x -= 2 * kPi;
-  if (x <= -kPi) x += 2 * kPi;
-  return x;
+  x = x > kPi ? x - 2 * kPi : x;
+  return x <= -kPi ? x + 2 * kPi : x;
 }
 
 // The signed dihedral angle (rad) and its gradient with respect to a, b, c, d (rad/m). Returns
