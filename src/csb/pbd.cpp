@@ -233,16 +233,9 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
       if (fused) {
         generate_contacts(model, state.x, h);  // (8): none, but the last sub-step's are cleared
         if (settings_.method == Method::Xpbd) lambda_stale_ = true;
-        Fused f{&state, h, verlet};
+        Fused f{&state, h};
         project(model, state.x, &f);
-        if (f.bad >= 0) {
-          if (verlet) state.v = (state.x - x_prev_) / h;
-          std::ostringstream msg;
-          msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << f.bad
-              << " got a non-finite position " << str(p_.col(f.bad))
-              << "; the state is left at the end of the last finite substep";
-          throw SimulationError(msg.str());
-        }
+        if (f.bad >= 0) fail_non_finite(state, sub, f.bad, h);
         continue;
       }
       predict(model, state, h);
@@ -261,29 +254,9 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
       }
       generate_contacts(model, state.x, h);  // (8)
       project(model, state.x);
-      if (const Index i = first_non_finite(p_); i >= 0) {
-        if (verlet) state.v = (state.x - x_prev_) / h;
-        std::ostringstream msg;
-        msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << i
-            << " got a non-finite position " << str(p_.col(i))
-            << "; the state is left at the end of the last finite substep";
-        throw SimulationError(msg.str());
-      }
+      if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
       if (!contacts_.empty()) apply_friction(model, state.x);
-      // (12)-(15) of Algorithm 1.
-      const Real* p = p_.data();
-      if (verlet) {
-        Real* xp = x_prev_.data();
-        for (Index k = 0; k < n3; ++k) {
-          xp[k] = x[k];
-          x[k] = p[k];
-        }
-      } else {
-        for (Index k = 0; k < n3; ++k) {
-          v[k] = (p[k] - x[k]) / h;
-          x[k] = p[k];
-        }
-      }
+      commit(state, h, 0, n);  // (12)-(15) of Algorithm 1
       if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
     }
     ++state.step;
@@ -295,37 +268,71 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
 
 void PbdStepper::predict(const Model& model, State& state, Real h) {
   const Index n = model.num_particles();
+  if (settings_.front_end == FrontEnd::Euler && settings_.damping > 0) {
+    // (5), then (6), which needs every velocity updated, then (7).
+    const Real* w = model.inv_mass.data();
+    for (Index i = 0; i < n; ++i)
+      if (w[i] > 0) state.v.col(i) += h * settings_.gravity;
+    damp_velocities(model, state);
+    const Real* x = state.x.data();
+    const Real* v = state.v.data();
+    Real* p = p_.data();
+    for (Index k = 0; k < 3 * n; ++k) p[k] = x[k] + h * v[k];
+    return;
+  }
+  predict_range(model, state, h, 0, n);
+}
+
+void PbdStepper::predict_range(const Model& model, State& state, Real h, Index begin, Index end) {
   const Real* w = model.inv_mass.data();
   const Vec3& g = settings_.gravity;
-  Real* x = state.x.data();
+  const Real* x = state.x.data();
   Real* v = state.v.data();
   Real* p = p_.data();
   if (settings_.front_end == FrontEnd::Verlet) {
     // p = x + (1 - d)(x - x*) + h² g: the velocity lives in the previous positions.
     const Real keep = 1 - settings_.verlet_drag;
     const Real* xp = x_prev_.data();
-    for (Index i = 0; i < n; ++i) {
+    for (Index i = begin; i < end; ++i) {
       const Real a = w[i] > 0 ? h * h : 0;
       for (int k = 0; k < 3; ++k) p[3 * i + k] = x[3 * i + k] + keep * (x[3 * i + k] - xp[3 * i + k]) + a * g[k];
     }
     return;
   }
-  if (settings_.damping > 0) {
-    // (5), then (6), which needs every velocity updated, then (7).
-    for (Index i = 0; i < n; ++i)
-      if (w[i] > 0) state.v.col(i) += h * g;
-    damp_velocities(model, state);
-    for (Index k = 0; k < 3 * n; ++k) p[k] = x[k] + h * v[k];
-    return;
-  }
   // (5) and (7) in one pass.
-  for (Index i = 0; i < n; ++i) {
+  for (Index i = begin; i < end; ++i) {
     const Real a = w[i] > 0 ? h : 0;
     for (int k = 0; k < 3; ++k) {
       v[3 * i + k] += a * g[k];
       p[3 * i + k] = x[3 * i + k] + h * v[3 * i + k];
     }
   }
+}
+
+void PbdStepper::commit(State& state, Real h, Index begin, Index end) {
+  Real* x = state.x.data();
+  Real* v = state.v.data();
+  const Real* p = p_.data();
+  if (settings_.front_end == FrontEnd::Verlet) {
+    Real* xp = x_prev_.data();
+    for (Index k = 3 * begin; k < 3 * end; ++k) {
+      xp[k] = x[k];
+      x[k] = p[k];
+    }
+  } else {
+    for (Index k = 3 * begin; k < 3 * end; ++k) {
+      v[k] = (p[k] - x[k]) / h;
+      x[k] = p[k];
+    }
+  }
+}
+
+void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
+  if (settings_.front_end == FrontEnd::Verlet) state.v = (state.x - x_prev_) / h;
+  std::ostringstream msg;
+  msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << i
+      << " got a non-finite position " << str(p_.col(i)) << "; the state is left at the end of the last finite substep";
+  throw SimulationError(msg.str());
 }
 
 // One sweep over all constraints, one batch at a time in model order. M picks the projection,
@@ -1013,30 +1020,9 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
     if (fused) {
-      // (5)-(7) of Algorithm 1 (as predict()), and XPBD's multipliers set to zero.
-      const Real h = fused->h;
-      const Vec3& g = settings_.gravity;
-      Real* xs = fused->state->x.data();
-      Real* vs = fused->state->v.data();
-      const Real* wm = model.inv_mass.data();
-      const Real* xp = x_prev_.data();
-      const Real keep = 1 - settings_.verlet_drag;
+      // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
       share.split(n, [&](Index begin, Index end) {
-        if (fused->verlet) {
-          for (Index i = begin; i < end; ++i) {
-            const Real a = wm[i] > 0 ? h * h : 0;
-            for (int k = 0; k < 3; ++k)
-              p[3 * i + k] = xs[3 * i + k] + keep * (xs[3 * i + k] - xp[3 * i + k]) + a * g[k];
-          }
-        } else {
-          for (Index i = begin; i < end; ++i) {
-            const Real a = wm[i] > 0 ? h : 0;
-            for (int k = 0; k < 3; ++k) {
-              vs[3 * i + k] += a * g[k];
-              p[3 * i + k] = xs[3 * i + k] + h * vs[3 * i + k];
-            }
-          }
-        }
+        predict_range(model, *fused->state, fused->h, begin, end);
         if constexpr (M == Method::Xpbd) {
           for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
                           &coloured_.attachments.lambda, &lambda_.balloon}) {
@@ -1102,24 +1088,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
         if (t == 0) fused->bad = bad;
         return;
       }
-      // (12)-(15) of Algorithm 1 (as step()).
-      const Real h = fused->h;
-      Real* xs = fused->state->x.data();
-      Real* vs = fused->state->v.data();
-      Real* xp = x_prev_.data();
-      share.split(n, [&](Index begin, Index end) {
-        if (fused->verlet) {
-          for (Index k = 3 * begin; k < 3 * end; ++k) {
-            xp[k] = xs[k];
-            xs[k] = p[k];
-          }
-        } else {
-          for (Index k = 3 * begin; k < 3 * end; ++k) {
-            vs[k] = (p[k] - xs[k]) / h;
-            xs[k] = p[k];
-          }
-        }
-      });
+      // (12)-(15) of Algorithm 1.
+      share.split(n, [&](Index begin, Index end) { commit(*fused->state, fused->h, begin, end); });
     }
   });
 }

@@ -168,12 +168,17 @@ class PbdStepper {
  private:
   void prepare(const Model& model);
   void predict(const Model& model, State& state, Real h);
+  // (5) and (7) of Algorithm 1 for particles [begin, end), without Müller's damping (Euler) or
+  // with the Verlet front end; (12)-(15) for particles [begin, end); a non-finite position of
+  // sub-step `sub` as an error naming particle i (the state left at the last finite sub-step).
+  void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
+  void commit(State& state, Real h, Index begin, Index end);
+  [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
   // A sub-step done entirely by the projection's threads (no contacts, grabs or Müller damping):
   // the prediction before the sweeps, the finiteness check and the velocity update after them.
   struct Fused {
     State* state;
     Real h;
-    bool verlet;
     Index bad = -1;  // a particle whose new position is not finite (the state is then left as it was)
   };
   void project(const Model& model, const Positions& x_start, Fused* fused = nullptr);
