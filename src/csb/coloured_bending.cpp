@@ -8,6 +8,7 @@
 // and IEEE +, -, *, /, sqrt and selects give the same bits in any lane width, so both copies
 // give the same results (tests/test_bending_simd.py compares them bit for bit).
 #include "csb/coloured_bending.hpp"
+#include "csb/avx2_rows.hpp"
 #include "csb/types.hpp"
 
 #include <atomic>
@@ -29,22 +30,83 @@ CSB_ATAN2_INLINE void blocks(ColouredFour& b, Index begin, Index end, const Real
     bending_block<Xpbd>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
 }
 
+#if CSB_HAS_AVX2_ROWS
+// The AVX2 copy also gathers and scatters four constraints at a time in AVX2 registers
+// (csb/avx2_rows.hpp); a block's last m % 4 constraints go one at a time.
+template <bool Xpbd>
+__attribute__((target("avx2"))) void block_avx2(ColouredFour& b, Index c0, Index m, const Real* r, Real* o,
+                                                 const Real* x) {
+  using namespace avx2;
+  BendingBlock<Xpbd> t;
+  const Index m4 = m - m % 4;
+  for (Index k = 0; k < m4; k += 4) {
+    const auto* q = &b.q[c0 + k];
+    for (int s = 0; s < 4; ++s) {
+      __m256d v[4], d[4];
+      for (int l = 0; l < 4; ++l) {
+        const Index i = 3 * q[l][s];
+        v[l] = load_xyz(r + i);
+        if constexpr (Xpbd) d[l] = _mm256_sub_pd(v[l], load_xyz(x + i));
+      }
+      __m256d ex, ey, ez;
+      rows(v[0], v[1], v[2], v[3], ex, ey, ez);
+      _mm256_store_pd(&t.P[3 * s][k], ex);
+      _mm256_store_pd(&t.P[3 * s + 1][k], ey);
+      _mm256_store_pd(&t.P[3 * s + 2][k], ez);
+      if constexpr (Xpbd) {
+        rows(d[0], d[1], d[2], d[3], ex, ey, ez);
+        _mm256_store_pd(&t.X[3 * s][k], ex);
+        _mm256_store_pd(&t.X[3 * s + 1][k], ey);
+        _mm256_store_pd(&t.X[3 * s + 2][k], ez);
+      }
+    }
+    __m256d wa, wb, wc, wd;
+    rows4(b.w[c0 + k].data(), wa, wb, wc, wd);
+    _mm256_store_pd(&t.W[0][k], wa);
+    _mm256_store_pd(&t.W[1][k], wb);
+    _mm256_store_pd(&t.W[2][k], wc);
+    _mm256_store_pd(&t.W[3][k], wd);
+  }
+  bending_gather(t, b, c0, m4, m, r, x);
+  bending_compute(t, b, c0, m);
+  for (Index k = 0; k < m4; k += 4) {
+    const auto* q = &b.q[c0 + k];
+    const __m256d S = _mm256_load_pd(&t.S[k]);
+    for (int s = 0; s < 4; ++s) {
+      const __m256d ws = _mm256_mul_pd(S, _mm256_load_pd(&t.W[s][k]));
+      const Index at[4] = {3 * q[0][s], 3 * q[1][s], 3 * q[2][s], 3 * q[3][s]};
+      add_rows(o, at, _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s][k])),
+               _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s + 1][k])),
+               _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s + 2][k])));
+    }
+  }
+  bending_scatter(t, b, c0, m4, m, o);
+}
+
+__attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r,
+                                                  Real* o, const Real* x) {
+  for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
+    const Index m = std::min(kBendingBlock, end - c0);
+    if (xpbd)
+      block_avx2<true>(b, c0, m, r, o, x);
+    else
+      block_avx2<false>(b, c0, m, r, o, x);
+  }
+}
+#endif
+
 void blocks_base(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+#if CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+  blocks_avx2(b, xpbd, begin, end, r, o, x);
+#else
   if (xpbd)
     blocks<true>(b, begin, end, r, o, x);
   else
     blocks<false>(b, begin, end, r, o, x);
+#endif
 }
 
 #if CSB_BENDING_AVX2
-__attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r,
-                                                  Real* o, const Real* x) {
-  if (xpbd)
-    blocks<true>(b, begin, end, r, o, x);
-  else
-    blocks<false>(b, begin, end, r, o, x);
-}
-
 bool cpu_has_avx2() {
   __builtin_cpu_init();
   return __builtin_cpu_supports("avx2");

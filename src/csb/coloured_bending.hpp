@@ -30,35 +30,49 @@ namespace csb {
 
 constexpr Index kBendingBlock = 32;
 
+// A block's working arrays. P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint
+// c0 + k, then (in place) ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x; Theta: the angle;
+// S: the multiplier step, Δp_s = S w_s ∇_s C.
 template <bool Xpbd>
-CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
-  constexpr Index B = kBendingBlock;
-  // P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint c0 + k, then (in place)
-  // ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x. Three short loops rather than one long
-  // one: the angle hangs on a chain of sqrt, two divisions and the polynomials (~100 cycles of
-  // latency), and only a short loop body lets the processor overlap that chain across
-  // iterations (in a micro-benchmark one fused loop ran at 1.25x the old scalar kernel, the
-  // split one at 1.7x).
+struct BendingBlock {
+  static constexpr Index B = kBendingBlock;
   alignas(64) Real P[12][B], W[4][B];
   alignas(64) Real X[Xpbd ? 12 : 1][B];
-  alignas(64) Real Sin[B], Cos[B], Wgrad[B], S[B];
-  for (Index k = 0; k < m; ++k) {
+  alignas(64) Real Theta[B], Cos[B], Wgrad[B], S[B];
+};
+
+// 1. Gather constraints c0 + [k0, m) into t, one at a time.
+template <bool Xpbd>
+CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd>& t, const ColouredFour& b, Index c0, Index k0, Index m,
+                                     const Real* r, const Real* x) {
+  for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     const auto& w = b.w[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const Index i = 3 * q[s];
-      P[3 * s][k] = r[i];
-      P[3 * s + 1][k] = r[i + 1];
-      P[3 * s + 2][k] = r[i + 2];
-      W[s][k] = w[s];
+      t.P[3 * s][k] = r[i];
+      t.P[3 * s + 1][k] = r[i + 1];
+      t.P[3 * s + 2][k] = r[i + 2];
+      t.W[s][k] = w[s];
       if constexpr (Xpbd) {
-        X[3 * s][k] = r[i] - x[i];
-        X[3 * s + 1][k] = r[i + 1] - x[i + 1];
-        X[3 * s + 2][k] = r[i + 2] - x[i + 2];
+        t.X[3 * s][k] = r[i] - x[i];
+        t.X[3 * s + 1][k] = r[i + 1] - x[i + 1];
+        t.X[3 * s + 2][k] = r[i + 2] - x[i + 2];
       }
     }
   }
-  // 1. Geometry: the angle's two arguments, the gradient (over the positions) and Σ w |∇C|².
+}
+
+// 2. The arithmetic of constraints c0 + [0, m) in SIMD lanes: the gradient into P, the step into S.
+// Three short loops rather than one long one: the angle hangs on a chain of sqrt, two divisions
+// and the polynomials (~100 cycles of latency), and only a short loop body lets the processor
+// overlap that chain across iterations (in a micro-benchmark one fused loop ran at 1.25x the old
+// scalar kernel, the split one at 1.7x).
+template <bool Xpbd>
+CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, Index c0, Index m) {
+  auto& P = t.P;
+  const auto& W = t.W;
+  // Geometry: the angle's two arguments, the gradient (over the positions) and Σ w |∇C|².
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
     const Real ax = P[0][k], ay = P[1][k], az = P[2][k];
@@ -75,8 +89,8 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
     const Real n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
     const bool ok = e2 > 0 && n1 > 0 && n2 > 0;
     const Real elen = std::sqrt(e2);
-    Sin[k] = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
-    Cos[k] = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
+    t.Theta[k] = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
+    t.Cos[k] = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
     const Real one = ok ? Real(1) : Real(0);
     const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
     const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
@@ -87,24 +101,25 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
     const Real gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
     const Real gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
     const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
-    Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
-               W[2][k] * (gcx * gcx + gcy * gcy + gcz * gcz) + W[3][k] * (gdx * gdx + gdy * gdy + gdz * gdz);
+    t.Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
+                 W[2][k] * (gcx * gcx + gcy * gcy + gcz * gcz) + W[3][k] * (gdx * gdx + gdy * gdy + gdz * gdz);
     P[0][k] = gax, P[1][k] = gay, P[2][k] = gaz, P[3][k] = gbx, P[4][k] = gby, P[5][k] = gbz;
     P[6][k] = gcx, P[7][k] = gcy, P[8][k] = gcz, P[9][k] = gdx, P[10][k] = gdy, P[11][k] = gdz;
   }
-  // 2. The angle, in a loop of its own (its latency chain is the longest), then the violation
+  // The angle, in a loop of its own (its latency chain is the longest), then the violation
   // and the multiplier: Δp_i = S w_i ∇_i C.
 #pragma omp simd
-  for (Index k = 0; k < m; ++k) Sin[k] = atan2_rational(Sin[k], Cos[k]);  // θ
+  for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
   const Real* rest = b.rest.data() + c0;
   if constexpr (Xpbd) {
+    const auto& X = t.X;
     const Real* alpha = b.alpha.data() + c0;
     const Real* gamma = b.gamma.data() + c0;
     Real* lambda = b.lambda.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      const Real violation = wrap_angle(Sin[k] - rest[k]);
-      const Real wgrad = Wgrad[k];
+      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
+      const Real wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
       const Real g = gamma[k];
       const Real along = P[0][k] * X[0][k] + P[1][k] * X[1][k] + P[2][k] * X[2][k] + P[3][k] * X[3][k] +
@@ -114,31 +129,45 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
       const Real l = lambda[k];
       const Real den = (1 + g) * wgrad + alpha[k];
       const Real dl = (-violation - alpha[k] * l - g * moved) / (move ? den : Real(1));
-      S[k] = move ? dl : Real(0);
-      lambda[k] = l + S[k];
+      t.S[k] = move ? dl : Real(0);
+      lambda[k] = l + t.S[k];
     }
   } else {
     const Real* kk = b.k.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      const Real violation = wrap_angle(Sin[k] - rest[k]);
-      const Real wgrad = Wgrad[k];
+      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
+      const Real wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
       const Real stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow
-      S[k] = (move ? -stiffness * violation : Real(0)) / (move ? wgrad : Real(1));
+      t.S[k] = (move ? -stiffness * violation : Real(0)) / (move ? wgrad : Real(1));
     }
   }
-  // 3. Scatter the corrections.
-  for (Index k = 0; k < m; ++k) {
+}
+
+// 3. Scatter the corrections of constraints c0 + [k0, m), one at a time.
+template <bool Xpbd>
+CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd>& t, const ColouredFour& b, Index c0, Index k0, Index m,
+                                      Real* o) {
+  for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Real ws = S[k] * W[s][k];
+      const Real ws = t.S[k] * t.W[s][k];
       const Index i = 3 * q[s];
-      o[i] += ws * P[3 * s][k];
-      o[i + 1] += ws * P[3 * s + 1][k];
-      o[i + 2] += ws * P[3 * s + 2][k];
+      o[i] += ws * t.P[3 * s][k];
+      o[i + 1] += ws * t.P[3 * s + 1][k];
+      o[i + 2] += ws * t.P[3 * s + 2][k];
     }
   }
+}
+
+// Constraints c0 + [0, m) as one block, gathered and scattered one constraint at a time.
+template <bool Xpbd>
+CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
+  BendingBlock<Xpbd> t;
+  bending_gather(t, b, c0, 0, m, r, x);
+  bending_compute(t, b, c0, m);
+  bending_scatter(t, b, c0, 0, m, o);
 }
 
 // The blocks of constraints [begin, end) of one colour (they share no particle). Defined in

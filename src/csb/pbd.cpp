@@ -1,4 +1,5 @@
 #include "csb/pbd.hpp"
+#include "csb/avx2_rows.hpp"
 #include "csb/coloured_bending.hpp"
 #include "csb/dispatch.hpp"
 #include "csb/format.hpp"
@@ -557,15 +558,43 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
   o[j + 2] += sj * dz;
 }
 
-// The same over the independent constraints [begin, end) of one colour, in blocks: positions
-// gathered into small arrays one constraint at a time, the arithmetic in a loop the compiler runs
-// in SIMD lanes, the corrections scattered back. (SSE2 has no gather instruction to vectorise
-// the plain loop with; with AVX-512's, in a native build, the plain loop ran at 7.9 ns per
-// projection against these blocks' 5.8 in AVX2: papers/benchmarks.md.) Per constraint the same
-// operations in the same order as distance_pbd, so the same bits.
+// The same over the independent constraints [begin, end) of one colour, in blocks of kDistanceBlock:
+// positions gathered into small arrays one constraint at a time, the arithmetic in a loop the
+// compiler runs in SIMD lanes (distance_pbd_block_s), the corrections scattered back. (SSE2 has
+// no gather instruction to vectorise the plain loop with; with AVX-512's, in a native build, the
+// plain loop ran at 7.9 ns per projection against these blocks' 5.8 in AVX2:
+// papers/benchmarks.md.) Per constraint the same operations in the same order as distance_pbd,
+// so the same bits.
+constexpr Index kDistanceBlock = 32;
+
+// s of constraints c0 + [0, m) from their d = p_i - p_j.
+template <bool Approx>
+CSB_INLINE void distance_pbd_block_s(const ColouredDistance& b, Index c0, Index m, const Real* dx, const Real* dy,
+                                     const Real* dz, Real* s) {
+  const Real* rest = b.rest.data() + c0;
+  const std::int8_t* sense = b.sense.data() + c0;
+#pragma omp simd
+  for (Index k = 0; k < m; ++k) {
+    const Real dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
+    const Real sn = sense[k];
+    if constexpr (Approx) {
+      const Real r2 = rest[k] * rest[k];
+      const Real cj = (dd - r2) / (2 * rest[k]);
+      const Real violation = cj - sn * std::max(sn * cj, Real(0));
+      const Real den = dd + r2;
+      s[k] = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+    } else {
+      const Real len = std::sqrt(dd);
+      const Real cl = len - rest[k];
+      const Real violation = cl - sn * std::max(sn * cl, Real(0));
+      s[k] = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+    }
+  }
+}
+
 template <bool Approx>
 CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
-  constexpr Index B = 32;
+  constexpr Index B = kDistanceBlock;
   alignas(64) Real dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0);
@@ -575,25 +604,7 @@ CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Inde
       dy[k] = r[i + 1] - r[j + 1];
       dz[k] = r[i + 2] - r[j + 2];
     }
-    const Real* rest = b.rest.data() + c0;
-    const std::int8_t* sense = b.sense.data() + c0;
-#pragma omp simd
-    for (Index k = 0; k < m; ++k) {
-      const Real dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
-      const Real sn = sense[k];
-      if constexpr (Approx) {
-        const Real r2 = rest[k] * rest[k];
-        const Real cj = (dd - r2) / (2 * rest[k]);
-        const Real violation = cj - sn * std::max(sn * cj, Real(0));
-        const Real den = dd + r2;
-        s[k] = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
-      } else {
-        const Real len = std::sqrt(dd);
-        const Real cl = len - rest[k];
-        const Real violation = cl - sn * std::max(sn * cl, Real(0));
-        s[k] = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
-      }
-    }
+    distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
     for (Index k = 0; k < m; ++k) {
       const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
       const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
@@ -607,12 +618,60 @@ CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Inde
   }
 }
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
-// The blocks again in AVX2 lanes, taken when the processor has it (see coloured_bending.cpp).
+#if CSB_HAS_AVX2_ROWS
+// The blocks again with AVX2 lanes, four constraints gathered and scattered at a time in AVX2
+// registers (csb/avx2_rows.hpp), the rest of a block one at a time; taken when the processor has
+// AVX2 (see coloured_bending.cpp).
 __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDistance& b, Index begin, Index end,
                                                                const Real* r, Real* o) {
-  distance_pbd_blocks<false>(b, begin, end, r, o);
+  using namespace avx2;
+  constexpr Index B = kDistanceBlock;
+  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0), m4 = m - m % 4;
+    const Index* bi = b.i.data() + c0;
+    const Index* bj = b.j.data() + c0;
+    for (Index k = 0; k < m4; k += 4) {
+      __m256d d[4];
+      for (int l = 0; l < 4; ++l) d[l] = _mm256_sub_pd(load_xyz(r + 3 * bi[k + l]), load_xyz(r + 3 * bj[k + l]));
+      __m256d x, y, z;
+      rows(d[0], d[1], d[2], d[3], x, y, z);
+      _mm256_store_pd(dx + k, x);
+      _mm256_store_pd(dy + k, y);
+      _mm256_store_pd(dz + k, z);
+    }
+    for (Index k = m4; k < m; ++k) {
+      const Index i = 3 * bi[k], j = 3 * bj[k];
+      dx[k] = r[i] - r[j];
+      dy[k] = r[i + 1] - r[j + 1];
+      dz[k] = r[i + 2] - r[j + 2];
+    }
+    distance_pbd_block_s<false>(b, c0, m, dx, dy, dz, s);
+    const Real* ci = b.ci.data() + c0;
+    const Real* cj = b.cj.data() + c0;
+    for (Index k = 0; k < m4; k += 4) {
+      const __m256d sk = _mm256_load_pd(s + k);
+      const __m256d x = _mm256_load_pd(dx + k), y = _mm256_load_pd(dy + k), z = _mm256_load_pd(dz + k);
+      const __m256d si = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), sj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
+      const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
+      const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
+      add_rows<true>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
+      add_rows(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
+    }
+    for (Index k = m4; k < m; ++k) {
+      const Index i = 3 * bi[k], j = 3 * bj[k];
+      const Real si = ci[k] * s[k], sj = cj[k] * s[k];
+      o[i] -= si * dx[k];
+      o[i + 1] -= si * dy[k];
+      o[i + 2] -= si * dz[k];
+      o[j] += sj * dx[k];
+      o[j + 1] += sj * dy[k];
+      o[j + 2] += sj * dz[k];
+    }
+  }
 }
+#endif
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
 #define CSB_DISTANCE_AVX2 1
 #endif
 
@@ -774,6 +833,8 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
           distance_pbd_blocks_avx2(d, begin, end, r, o);
         else
           distance_pbd_blocks<false>(d, begin, end, r, o);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+        distance_pbd_blocks_avx2(d, begin, end, r, o);
 #else
         distance_pbd_blocks<false>(d, begin, end, r, o);
 #endif

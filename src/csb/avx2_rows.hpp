@@ -1,0 +1,92 @@
+// csb — moving particle positions into and out of AVX2 lanes (issue 7).
+//
+// Positions are stored x, y, z per particle; the blocked kernels want them as rows (x of four
+// constraints in one register, then y, then z). Done one coordinate at a time that is twelve
+// scalar loads and stores per particle of a bending block, half of the kernel's time
+// (papers/benchmarks.md). Here a particle is one masked 256-bit load ([x, y, z, 0]; the fourth
+// double is never read, so the last particle of an array is safe), four of them become three
+// rows in seven shuffles, and a correction goes back as a 128-bit (x, y) and a scalar (z)
+// read-modify-write: the constraints of a colour share no particle, and nothing outside a
+// particle's three doubles is written, so another thread's particles next to it are untouched.
+// Only data moves here; every sum is the same IEEE operation on the same operands as in the
+// scalar loops, so the results keep their bits.
+//
+// These functions are compiled for AVX2 (target attribute) and inlined into the kernels' AVX2
+// copies, which run only when the processor has AVX2 (coloured_bending.cpp).
+#pragma once
+
+#include "csb/types.hpp"
+
+#if defined(__GNUC__) && defined(__x86_64__)
+#define CSB_HAS_AVX2_ROWS 1
+#include <immintrin.h>
+
+#define CSB_AVX2_INLINE inline __attribute__((target("avx2"), always_inline))
+
+namespace csb::avx2 {
+
+// The particle at p as [x, y, z, 0], reading p[0..2] only.
+CSB_AVX2_INLINE __m256d load_xyz(const Real* p) {
+  return _mm256_maskload_pd(p, _mm256_setr_epi64x(-1, -1, -1, 0));
+}
+
+// Rows x, y, z of four [x, y, z, ·] vectors (lane l from v_l).
+CSB_AVX2_INLINE void rows(__m256d v0, __m256d v1, __m256d v2, __m256d v3, __m256d& x, __m256d& y, __m256d& z) {
+  const __m256d t0 = _mm256_unpacklo_pd(v0, v1);  // x0 x1 z0 z1
+  const __m256d t1 = _mm256_unpackhi_pd(v0, v1);  // y0 y1 ·  ·
+  const __m256d t2 = _mm256_unpacklo_pd(v2, v3);  // x2 x3 z2 z3
+  const __m256d t3 = _mm256_unpackhi_pd(v2, v3);  // y2 y3 ·  ·
+  x = _mm256_permute2f128_pd(t0, t2, 0x20);
+  y = _mm256_permute2f128_pd(t1, t3, 0x20);
+  z = _mm256_permute2f128_pd(t0, t2, 0x31);
+}
+
+// Rows of four consecutive [a, b, c, d] quadruples at q (16 doubles): a, b, c, d of each.
+CSB_AVX2_INLINE void rows4(const Real* q, __m256d& a, __m256d& b, __m256d& c, __m256d& d) {
+  const __m256d v0 = _mm256_loadu_pd(q), v1 = _mm256_loadu_pd(q + 4), v2 = _mm256_loadu_pd(q + 8),
+                v3 = _mm256_loadu_pd(q + 12);
+  const __m256d t0 = _mm256_unpacklo_pd(v0, v1), t1 = _mm256_unpackhi_pd(v0, v1);
+  const __m256d t2 = _mm256_unpacklo_pd(v2, v3), t3 = _mm256_unpackhi_pd(v2, v3);
+  a = _mm256_permute2f128_pd(t0, t2, 0x20);
+  b = _mm256_permute2f128_pd(t1, t3, 0x20);
+  c = _mm256_permute2f128_pd(t0, t2, 0x31);
+  d = _mm256_permute2f128_pd(t1, t3, 0x31);
+}
+
+// One coordinate of a particle: o += d (Subtract: o -= d).
+template <bool Subtract>
+CSB_AVX2_INLINE void update(Real& o, Real d) {
+  if constexpr (Subtract)
+    o -= d;
+  else
+    o += d;
+}
+template <bool Subtract>
+CSB_AVX2_INLINE __m128d update(__m128d o, __m128d d) {
+  if constexpr (Subtract)
+    return _mm_sub_pd(o, d);
+  else
+    return _mm_add_pd(o, d);
+}
+
+// Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
+template <bool Subtract = false>
+CSB_AVX2_INLINE void add_rows(Real* o, const Index at[4], __m256d dx, __m256d dy, __m256d dz) {
+  const __m256d t0 = _mm256_unpacklo_pd(dx, dy);  // x0 y0 x2 y2
+  const __m256d t1 = _mm256_unpackhi_pd(dx, dy);  // x1 y1 x3 y3
+  const __m128d xy[4] = {_mm256_castpd256_pd128(t0), _mm256_castpd256_pd128(t1), _mm256_extractf128_pd(t0, 1),
+                         _mm256_extractf128_pd(t1, 1)};
+  alignas(32) Real z[4];
+  _mm256_store_pd(z, dz);
+  for (int l = 0; l < 4; ++l) {
+    Real* p = o + at[l];
+    _mm_storeu_pd(p, update<Subtract>(_mm_loadu_pd(p), xy[l]));
+    update<Subtract>(p[2], z[l]);
+  }
+}
+
+}  // namespace csb::avx2
+
+#else
+#define CSB_HAS_AVX2_ROWS 0
+#endif
