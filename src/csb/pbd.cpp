@@ -226,19 +226,21 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
   }
   // Without contacts, grabs or Müller damping a sub-step is element-wise but for the sweeps: the
-  // projection's threads then also predict and update (the same operations, split by particle).
+  // projection's threads then also predict and update (the same operations, split by particle),
+  // all sub-steps of a step in one fork of the team; otherwise the sub-steps run here, the team
+  // forked for each projection.
   const bool fused = settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
                      self_groups_.empty() && (verlet || settings_.damping <= 0);
   for (std::int64_t s = 0; s < steps; ++s) {
-    for (int sub = 0; sub < settings_.substeps; ++sub) {
-      if (fused) {
-        generate_contacts(model, state.x, h);  // (8): none, but the last sub-step's are cleared
-        if (settings_.method == Method::Xpbd) lambda_stale_ = true;
-        Fused f{&state, h};
-        project(model, state.x, &f);
-        if (f.bad >= 0) fail_non_finite(state, sub, f.bad, h);
-        continue;
-      }
+    if (fused) {
+      generate_contacts(model, state.x, h);  // (8): none, but the last step's are cleared
+      if (settings_.method == Method::Xpbd) lambda_stale_ = true;
+      Fused f{&state, h, settings_.substeps};
+      project(model, state.x, &f);
+      if (f.bad >= 0) fail_non_finite(state, f.bad_sub, f.bad, h);
+    }
+    const int substeps_here = fused ? 0 : settings_.substeps;
+    for (int sub = 0; sub < substeps_here; ++sub) {
       predict(model, state, h);
       if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
       if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
@@ -1080,77 +1082,82 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
-    if (fused) {
-      // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
-      share.split(n, [&](Index begin, Index end) {
-        predict_range(model, *fused->state, fused->h, begin, end);
-        if constexpr (M == Method::Xpbd) {
-          for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
-                          &coloured_.attachments.lambda, &lambda_.balloon}) {
-            const Index m = static_cast<Index>(l->size());
-            const int threads_now = share.team.size();
-            std::fill(l->begin() + static_cast<std::int64_t>(m) * t / threads_now,
-                      l->begin() + static_cast<std::int64_t>(m) * (t + 1) / threads_now, 0.0);
-          }
+    // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
+    const auto predict = [&](Index begin, Index end) {
+      predict_range(model, *fused->state, fused->h, begin, end);
+      if constexpr (M == Method::Xpbd) {
+        for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
+                        &coloured_.attachments.lambda, &lambda_.balloon}) {
+          const Index m = static_cast<Index>(l->size());
+          const int threads_now = share.team.size();
+          std::fill(l->begin() + static_cast<std::int64_t>(m) * t / threads_now,
+                    l->begin() + static_cast<std::int64_t>(m) * (t + 1) / threads_now, 0.0);
         }
-      });
-    }
-    for (int it = 0; it < iterations; ++it) {
-      if constexpr (Jacobi) {
-        share.split(n, [&](Index begin, Index end) {
-          for (Index i = begin; i < end; ++i) {
-            for (int e = 0; e < 3; ++e) {
-              ps[3 * i + e] = p[3 * i + e];
-              delta[3 * i + e] = 0;
+      }
+    };
+    if (fused) share.split(n, predict);
+    for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
+      for (int it = 0; it < iterations; ++it) {
+        if constexpr (Jacobi) {
+          share.split(n, [&](Index begin, Index end) {
+            for (Index i = begin; i < end; ++i) {
+              for (int e = 0; e < 3; ++e) {
+                ps[3 * i + e] = p[3 * i + e];
+                delta[3 * i + e] = 0;
+              }
+              count[i] = count0[i];
             }
-            count[i] = count0[i];
-          }
-        });
+          });
+        }
+        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x);
+        if (tail) {
+          share.single([&] {
+            // Balloons: one constraint over many particles each, serial (see sweep_batches).
+            for (Index c = 0; c < bal.size(); ++c) {
+              const Index* ids = bal.particles.data() + bal.particle_offsets[c];
+              const Triangle* tris = bal.triangles.data() + bal.triangle_offsets[c];
+              const Real target = bal.pressure[c] * bal.rest_volume[c];
+              if constexpr (M == Method::Xpbd)
+                project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0,
+                                x, a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data());
+              else
+                project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
+                                k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
+            }
+            if (contacts) project_contacts(model, Jacobi);
+          });
+        }
+        if constexpr (Jacobi) {
+          // Averaged Jacobi moves each particle by the mean of its corrections, summed Jacobi by their sum.
+          share.split(n, [&](Index begin, Index end) {
+            for (Index i = begin; i < end; ++i) {
+              const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
+              for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
+            }
+          });
+        }
+        if (compliant_grabs) share.single([&] { project_grabs(x_start); });
       }
-      sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x);
-      if (tail) {
-        share.single([&] {
-          // Balloons: one constraint over many particles each, serial (see sweep_batches).
-          for (Index c = 0; c < bal.size(); ++c) {
-            const Index* ids = bal.particles.data() + bal.particle_offsets[c];
-            const Triangle* tris = bal.triangles.data() + bal.triangle_offsets[c];
-            const Real target = bal.pressure[c] * bal.rest_volume[c];
-            if constexpr (M == Method::Xpbd)
-              project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0, x,
-                              a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data());
-            else
-              project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
-                              k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
-          }
-          if (contacts) project_contacts(model, Jacobi);
-        });
-      }
-      if constexpr (Jacobi) {
-        // Averaged Jacobi moves each particle by the mean of its corrections, summed Jacobi by their sum.
+      if (fused) {
+        // The new positions must all be finite before any is taken (else the state stays).
         share.split(n, [&](Index begin, Index end) {
-          for (Index i = begin; i < end; ++i) {
-            const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
-            for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
-          }
+          for (Index i = begin; i < end && bad_[t] < 0; ++i)
+            if (!std::isfinite(p[3 * i]) || !std::isfinite(p[3 * i + 1]) || !std::isfinite(p[3 * i + 2])) bad_[t] = i;
+        });
+        Index bad = -1;
+        for (const Index b : bad_)
+          if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
+        if (bad >= 0) {
+          if (t == 0) fused->bad = bad, fused->bad_sub = sub;
+          return;
+        }
+        // (12)-(15) of Algorithm 1, then the next sub-step's prediction of the same particles.
+        const bool next = sub + 1 < fused->substeps;
+        share.split(n, [&](Index begin, Index end) {
+          commit(*fused->state, fused->h, begin, end);
+          if (next) predict(begin, end);
         });
       }
-      if (compliant_grabs) share.single([&] { project_grabs(x_start); });
-    }
-    if (fused) {
-      // The new positions must all be finite before any is taken (else the state stays).
-      share.split(n, [&](Index begin, Index end) {
-        for (Index i = begin; i < end && bad_[t] < 0; ++i)
-          if (!std::isfinite(p[3 * i]) || !std::isfinite(p[3 * i + 1]) || !std::isfinite(p[3 * i + 2])) bad_[t] = i;
-      });
-      Index bad = -1;
-      for (const Index b : bad_)
-        if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
-      if (bad >= 0) {
-        if (t == 0) fused->bad = bad;
-        return;
-      }
-      // (12)-(15) of Algorithm 1.
-      share.split(n, [&](Index begin, Index end) { commit(*fused->state, fused->h, begin, end); });
     }
   });
 }

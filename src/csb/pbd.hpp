@@ -174,12 +174,16 @@ class PbdStepper {
   void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
   void commit(State& state, Real h, Index begin, Index end);
   [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
-  // A sub-step done entirely by the projection's threads (no contacts, grabs or Müller damping):
-  // the prediction before the sweeps, the finiteness check and the velocity update after them.
+  // The sub-steps of a step done entirely by the projection's threads, in one fork of the team
+  // (no contacts, grabs or Müller damping): the prediction before the sweeps, the finiteness
+  // check and the velocity update after them, the update and the next sub-step's prediction in
+  // one pass.
   struct Fused {
     State* state;
     Real h;
+    int substeps;
     Index bad = -1;  // a particle whose new position is not finite (the state is then left as it was)
+    int bad_sub = -1;  // in this sub-step
   };
   void project(const Model& model, const Positions& x_start, Fused* fused = nullptr);
   void project_sequential(const Model& model, const Positions& x_start);
