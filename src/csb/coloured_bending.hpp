@@ -4,12 +4,13 @@
 // §3.3's projection, Macklin 2016's XPBD update), written out on scalars for a range of
 // constraints that share no particle (one colour), in blocks of kBendingBlock:
 //  1. gather: the four particles' positions (and, XPBD, their displacement since the sub-step's
-//     start) into structure-of-arrays block buffers, one constraint at a time;
+//     start) into structure-of-arrays block buffers, one constraint at a time (the AVX2 copy in
+//     coloured_bending.cpp four at a time, in registers);
 //  2. compute: a branch-free loop over the block that the compiler runs in SIMD lanes (`omp
 //     simd`; SSE2 in the portable build), the angle by atan2_rational (csb/atan2.hpp) instead of
 //     libm's atan2; a degenerate pair (zero-length edge, zero-area triangle) is masked by
 //     selects: its gradient and so its correction are zero;
-//  3. scatter: the twelve corrections added to the particles.
+//  3. scatter: the twelve corrections added to the particles (the AVX2 copy likewise).
 // Every constraint goes through the same IEEE operations in the same order whatever its lane,
 // block, range or thread (no FMA contraction), so results do not depend on the thread count.
 // A range whose constraints may share particles (the overflow colour) is projected one
