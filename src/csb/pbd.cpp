@@ -596,29 +596,41 @@ CSB_INLINE void distance_pbd_block_s(const ColouredDistance& b, Index c0, Index 
   }
 }
 
+// d = p_i - p_j of constraints c0 + [k0, m), one at a time.
+CSB_INLINE void distance_gather(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* r, Real* dx,
+                                Real* dy, Real* dz) {
+  for (Index k = k0; k < m; ++k) {
+    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    dx[k] = r[i] - r[j];
+    dy[k] = r[i + 1] - r[j + 1];
+    dz[k] = r[i + 2] - r[j + 2];
+  }
+}
+
+// The corrections -c_i s d and +c_j s d of constraints c0 + [k0, m), one at a time.
+CSB_INLINE void distance_scatter(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* s,
+                                 const Real* dx, const Real* dy, const Real* dz, Real* o) {
+  for (Index k = k0; k < m; ++k) {
+    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
+    o[i] -= si * dx[k];
+    o[i + 1] -= si * dy[k];
+    o[i + 2] -= si * dz[k];
+    o[j] += sj * dx[k];
+    o[j + 1] += sj * dy[k];
+    o[j + 2] += sj * dz[k];
+  }
+}
+
 template <bool Approx>
 CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
   constexpr Index B = kDistanceBlock;
   alignas(64) Real dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0);
-    for (Index k = 0; k < m; ++k) {
-      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
-      dx[k] = r[i] - r[j];
-      dy[k] = r[i + 1] - r[j + 1];
-      dz[k] = r[i + 2] - r[j + 2];
-    }
+    distance_gather(b, c0, 0, m, r, dx, dy, dz);
     distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
-    for (Index k = 0; k < m; ++k) {
-      const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
-      const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
-      o[i] -= si * dx[k];
-      o[i + 1] -= si * dy[k];
-      o[i + 2] -= si * dz[k];
-      o[j] += sj * dx[k];
-      o[j + 1] += sj * dy[k];
-      o[j + 2] += sj * dz[k];
-    }
+    distance_scatter(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
 
@@ -644,12 +656,7 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
       _mm256_store_pd(dy + k, y);
       _mm256_store_pd(dz + k, z);
     }
-    for (Index k = m4; k < m; ++k) {
-      const Index i = 3 * bi[k], j = 3 * bj[k];
-      dx[k] = r[i] - r[j];
-      dy[k] = r[i + 1] - r[j + 1];
-      dz[k] = r[i + 2] - r[j + 2];
-    }
+    distance_gather(b, c0, m4, m, r, dx, dy, dz);
     distance_pbd_block_s<false>(b, c0, m, dx, dy, dz, s);
     const Real* ci = b.ci.data() + c0;
     const Real* cj = b.cj.data() + c0;
@@ -662,16 +669,7 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
       add_rows<true>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
       add_rows(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
     }
-    for (Index k = m4; k < m; ++k) {
-      const Index i = 3 * bi[k], j = 3 * bj[k];
-      const Real si = ci[k] * s[k], sj = cj[k] * s[k];
-      o[i] -= si * dx[k];
-      o[i + 1] -= si * dy[k];
-      o[i + 2] -= si * dz[k];
-      o[j] += sj * dx[k];
-      o[j + 1] += sj * dy[k];
-      o[j + 2] += sj * dz[k];
-    }
+    distance_scatter(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
 #endif
