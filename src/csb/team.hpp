@@ -1,7 +1,8 @@
 // csb — the threads of the coloured projection (issue 7).
 //
-// A small fork-join team made for the coloured Gauss-Seidel sweep: a step forks it once per
-// sub-step and its threads meet at two barriers per sweep of a cloth. OpenMP's runtime (libgomp)
+// A small fork-join team made for the coloured Gauss-Seidel sweep: a step forks it once (once
+// per sub-step when contacts, grabs or Müller damping keep the sub-step's other work serial)
+// and its threads meet at two barriers per sweep of a cloth. OpenMP's runtime (libgomp)
 // fixes how a waiting thread behaves when it is loaded: spinning (fast when every thread has a
 // core of its own, a collapse when one shares its core with another process: the spinner keeps
 // the core the late thread needs) or sleeping at once (robust, but each wake-up of a sleeping
