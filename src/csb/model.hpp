@@ -37,7 +37,7 @@ namespace csb {
 //
 // Groups (the sweep's schedule, see colour_batches): the colours are grouped, group g owning
 // colours [group_colours[g], group_colours[g + 1]). A model's particles are split into
-// `Model::num_parts` slabs; for P parts every batch has 2P groups:
+// `Model::num_parts` parts (colour_batches); for P parts every batch has 2P groups:
 //   g in [0, P)       constraints whose particles all lie in part g (the part's interior);
 //   g = P + i, i < P-1 constraints between parts i and i + 1 (interface i);
 //   g = 2P - 1        the rest (particles in non-adjacent parts, or more than two parts).
@@ -152,7 +152,7 @@ class Model {
   Index num_parts = 1;               // parts of the particles the batches' colourings are grouped by (Colouring)
   std::vector<Index> part;           // part of each particle
   // The interfaces (i: between parts i and i + 1) in phases: no two interfaces of one phase
-  // share a particle, so threads may sweep them at once (slabs thicker than an element: one phase).
+  // share a particle, so threads may sweep them at once (parts thicker than an element: one phase).
   std::vector<std::vector<Index>> interface_phases;
   Positions rest_positions;          // m, 3 x N
   std::vector<Real> mass;            // kg, > 0 (kept for pinned particles too)
@@ -178,8 +178,9 @@ class Model {
 std::uint64_t next_model_id();
 
 // (Re)computes the parts and the colouring of every batch of `model` (distance, bending, volume,
-// attachments; balloons are one constraint each and stay serial). The parts are slabs of equal
-// particle count along the longest side of the rest positions' bounding box (ties: by index).
+// attachments; balloons are one constraint each and stay serial). The parts are runs of equal
+// particle count: of consecutive indices, or slabs along x, y or z of the rest positions (ties
+// by index), whichever leaves the fewest constraints outside the parts' interiors.
 // ModelBuilder::build and tear call it.
 void colour_batches(Model& model);
 

@@ -30,9 +30,10 @@ using detail::str;
 
 namespace {
 
-// Index of the first particle whose column is not finite, or -1.
-Index first_non_finite(const Positions& x) {
-  for (Index i = 0; i < x.cols(); ++i)
+// Index of the first particle of [begin, end) (default: all) whose column is not finite, or -1.
+Index first_non_finite(const Positions& x, Index begin = 0, Index end = -1) {
+  if (end < 0) end = static_cast<Index>(x.cols());
+  for (Index i = begin; i < end; ++i)
     if (!x.col(i).allFinite()) return i;
   return -1;
 }
@@ -246,9 +247,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
       predict(model, state, h);
       if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
       if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
-        for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
-                        &coloured_.attachments.lambda, &lambda_.balloon})
-          std::fill(l->begin(), l->end(), 0.0);
+        zero_coloured_multipliers(0, 1);
         lambda_stale_ = true;
       } else if (settings_.method == Method::Xpbd) {
         std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
@@ -329,6 +328,14 @@ void PbdStepper::commit(State& state, Real h, Index begin, Index end) {
       v[k] = (p[k] - x[k]) / h;
       x[k] = p[k];
     }
+  }
+}
+
+void PbdStepper::zero_coloured_multipliers(int share, int shares) {
+  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
+                               &coloured_.attachments.lambda, &lambda_.balloon}) {
+    const std::int64_t m = static_cast<std::int64_t>(l->size());
+    std::fill(l->begin() + m * share / shares, l->begin() + m * (share + 1) / shares, 0.0);
   }
 }
 
@@ -1097,15 +1104,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
     // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
     const auto predict = [&](Index begin, Index end) {
       predict_range(model, *fused->state, fused->h, begin, end);
-      if constexpr (M == Method::Xpbd) {
-        for (auto* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
-                        &coloured_.attachments.lambda, &lambda_.balloon}) {
-          const Index m = static_cast<Index>(l->size());
-          const int threads_now = share.team.size();
-          std::fill(l->begin() + static_cast<std::int64_t>(m) * t / threads_now,
-                    l->begin() + static_cast<std::int64_t>(m) * (t + 1) / threads_now, 0.0);
-        }
-      }
+      if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
     };
     if (fused) share.split(n, predict);
     for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
@@ -1152,10 +1151,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
       }
       if (fused) {
         // The new positions must all be finite before any is taken (else the state stays).
-        share.split(n, [&](Index begin, Index end) {
-          for (Index i = begin; i < end && bad_[t] < 0; ++i)
-            if (!std::isfinite(p[3 * i]) || !std::isfinite(p[3 * i + 1]) || !std::isfinite(p[3 * i + 2])) bad_[t] = i;
-        });
+        share.split(n, [&](Index begin, Index end) { bad_[t] = first_non_finite(p_, begin, end); });
         Index bad = -1;
         for (const Index b : bad_)
           if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);

@@ -174,6 +174,9 @@ class PbdStepper {
   void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
   void commit(State& state, Real h, Index begin, Index end);
   [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
+  // XPBD: share `share` of `shares` (equal runs) of every coloured batch's multipliers, and the
+  // balloons', set to zero (at the start of a sub-step).
+  void zero_coloured_multipliers(int share, int shares);
   // The sub-steps of a step done entirely by the projection's threads, in one fork of the team
   // (no contacts, grabs or Müller damping): the prediction before the sweeps, the finiteness
   // check and the velocity update after them, the update and the next sub-step's prediction in
