@@ -39,6 +39,12 @@ py::array view(const T* data, std::vector<py::ssize_t> shape, py::handle base, b
   return a;
 }
 
+// A colouring's serial flags (one byte per colour) as a bool array (a copy).
+py::array_t<bool> serial_flags(const Colouring& c) {
+  return py::array_t<bool>(static_cast<py::ssize_t>(c.serial_colours.size()),
+                           reinterpret_cast<const bool*>(c.serial_colours.data()));
+}
+
 // A copy of rows of indices (triangles, edges, ...) as an (M, K) int32 array.
 template <std::size_t K>
 py::array_t<Index> index_rows(const std::vector<std::array<Index, K>>& rows) {
@@ -456,8 +462,7 @@ PYBIND11_MODULE(_core, m) {
         py::dict d;
         d["order"] = view(c->order.data(), {static_cast<py::ssize_t>(c->order.size())}, self, false);
         d["colour_offsets"] = view(c->colour_offsets.data(), {static_cast<py::ssize_t>(c->colour_offsets.size())}, self, false);
-        d["serial"] = py::array_t<bool>(static_cast<py::ssize_t>(c->serial_colours.size()),
-                                        reinterpret_cast<const bool*>(c->serial_colours.data()));
+        d["serial"] = serial_flags(*c);
         d["group_colours"] = view(c->group_colours.data(), {static_cast<py::ssize_t>(c->group_colours.size())}, self, false);
         return d;
       }, py::arg("batch"),
@@ -968,8 +973,7 @@ PYBIND11_MODULE(_core, m) {
     py::dict d;
     d["order"] = py::array_t<Index>(static_cast<py::ssize_t>(c.order.size()), c.order.data());
     d["colour_offsets"] = py::array_t<Index>(static_cast<py::ssize_t>(c.colour_offsets.size()), c.colour_offsets.data());
-    d["serial"] = py::array_t<bool>(static_cast<py::ssize_t>(c.serial_colours.size()),
-                                    reinterpret_cast<const bool*>(c.serial_colours.data()));
+    d["serial"] = serial_flags(c);
     return d;
   }, py::arg("particles"), py::arg("num_particles"), py::arg("min_colour_size") = kMinColourSize,
      "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
