@@ -117,4 +117,6 @@ def test_bench_peers_command_prints_a_table():
     assert [row[:9] for row in rows[:2]] == [["8x8", "10", "x", "1", "csb", "64", "161", "133", "2940"],
                                              ["8x8", "1", "x", "10", "csb", "64", "161", "133", "2940"]]
     assert all("ok:" in row for row in rows)
+    # csb's threads per timed round are printed: one, since an 8 x 8 cloth is a model of one part
+    assert [row[-2:] for row in rows[:2]] == [["threads", "1"], ["threads", "1"]]
     assert "substeps and iterations read back from the peer as asked" in r.stdout

@@ -54,7 +54,8 @@ NEWTON_SPRING_RELAXATION = 4.0
 
 MAPPING = {
     "csb": "method 'pbd' (the bundled scene): stretch k = 1, bending k = 0.1, corrected per iteration "
-           "to 1 - (1 - k)^(1/iterations); Gauss-Seidel, one thread",
+           "to 1 - (1 - k)^(1/iterations); coloured Gauss-Seidel on the free cores (threads = 0: one or two here, "
+           "printed per timed round)",
     "pypbd": "DistanceConstraint (PBD, stiffness 1) on every unique edge and DihedralConstraint (PBD) on "
              "every interior edge, from addClothConstraints(method 1) and addBendingConstraints(method 1) "
              "on the same triangles; dihedral stiffness = csb's corrected per-projection k; "
@@ -127,6 +128,10 @@ class CsbSide:
     def frames(self, k: int) -> None:
         self.stepper.step(self.model, self.state, k)
 
+    def threads_used(self) -> int | None:
+        """Threads of the last step (csb picks them per step from the free cores)."""
+        return int(self.stepper.threads_used)
+
     def positions(self) -> np.ndarray:
         x = np.asarray(self.state.x)
         return x.T if x.shape[0] == 3 and x.shape[1] != 3 else x
@@ -189,6 +194,9 @@ class PypbdSide:
 
     def positions(self) -> np.ndarray:
         return np.array([self.pd.getPosition(i) for i in range(self.pd.size())])
+
+    def threads_used(self) -> int | None:
+        return None  # OMP_NUM_THREADS of the run
 
 
 class NewtonSide:
@@ -265,6 +273,9 @@ class NewtonSide:
     def positions(self) -> np.ndarray:
         return self.s0.particle_q.numpy().astype(float)
 
+    def threads_used(self) -> int | None:
+        return None  # Warp's CPU kernels run on one thread
+
 
 SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide}
 PEER_MODULES = {"pypbd": "pypbd", "newton": "newton"}
@@ -311,13 +322,15 @@ def time_side(side: Any, frames: int, rounds: int, warmup: int) -> dict[str, Any
     """Median ms per frame over rounds that each start from rest and step `frames` frames."""
     side.reset()
     side.frames(warmup)
-    times = []
+    times, threads = [], []
     for _ in range(rounds):
         side.reset()
         t0 = time.perf_counter()
         side.frames(frames)
         times.append((time.perf_counter() - t0) / frames * 1e3)
-    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=rounds)
+        threads.append(side.threads_used())
+    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=rounds,
+                threads=threads)
 
 
 def run_worker(side_name: str, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int, rounds: int,
@@ -462,6 +475,9 @@ def format_peer_table(runs: Sequence[Run]) -> str:
                 note = (f"{verdict}: drop {1e3 * ch['mean_drop']:.0f} mm (free fall {1e3 * ch['free_fall']:.0f}), "
                         f"strain max {100 * ch['max_strain']:.0f}% mean {100 * ch['mean_strain']:.1f}%, "
                         f"pins {ch['pin_moved']:.0e} m" if ch["finite"] else f"{verdict}: not finite")
+                used = [t for t in row.get("threads") or [] if t is not None]
+                if used:  # csb: the threads of each timed round
+                    note += f"; threads {used[0]}" if len(set(used)) == 1 else f"; threads {'/'.join(map(str, used))}"
                 lines.append(
                     f"{n:>4}x{n:<4} {-msub:>3} x {it:<3} {r.label:>14} {c['particles']:>9} {c['distance']:>8} "
                     f"{c['bending']:>8} {c['projections_per_frame']:>10} {ms:>9.3f} "
