@@ -549,6 +549,7 @@ def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
     info = _core.build_info()
     out: dict = {}
     print(f"\ncsb {info['csb']} issue 7 benchmarks ({info['compiler']}, {info['simd']} build, "
+          f"blocked kernels {_core.kernels.kernel_isa()}, "
           f"{os.cpu_count()} cores, CSB_WAIT={os.environ.get('CSB_WAIT', 'adaptive')}); medians of {rounds} rounds")
     if "fps" in parts:
         print("\ncloth_grid (stretch + shear + bending, 2 pinned corners), dt = 1/60 s: ms per frame and frames per second")

@@ -172,9 +172,9 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
 }
 
 // The blocks of constraints [begin, end) of one colour (they share no particle). Defined in
-// coloured_bending.cpp: on x86-64 compiled twice, for SSE2 and for AVX2, the second taken when
-// the processor has it (same bits: IEEE operations give the same results in any lane width, and
-// neither build contracts to FMA).
+// coloured_bending.cpp: on x86-64 compiled for SSE2, AVX2 and AVX-512, the best the processor
+// has taken (same bits: IEEE operations give the same results in any lane width, and no copy
+// contracts to FMA).
 void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x);
 
 // Constraints [begin, end) of one colour. independent: they share no particle (blocks);
@@ -190,12 +190,13 @@ inline void project_bending_range(ColouredFour& b, Index begin, Index end, bool 
 }
 
 // The instruction set the blocked kernels (bending_blocks, and the coloured PBD distance blocks
-// in pbd.cpp) run: "avx2" or "sse2" in the portable x86-64 build, "native" in a native build
-// (compiled for its machine) or elsewhere. set_kernel_isa("sse2") makes an AVX2 machine run
-// the SSE2 code (for measurements and tests), "auto" undoes it.
+// in pbd.cpp) run: "avx512", "avx2" or "sse2" in the portable x86-64 build ("avx512": bending in
+// its AVX-512 copy, distance in its AVX2 one), "native" in a native build (compiled for its
+// machine) or elsewhere. set_kernel_isa("sse2") makes an AVX2 machine run the SSE2 code (for
+// measurements and tests), "auto" undoes it.
 std::string kernel_isa();
 void set_kernel_isa(const std::string& isa);
-// Whether the blocked kernels take their AVX2 copies now.
+// Whether the blocked distance kernels take their AVX2 copies now ("avx2" or "avx512").
 bool kernels_use_avx2();
 
 // For tests (the Python `csb.kernels`): the same projection over all of `b` as one range, with

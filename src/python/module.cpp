@@ -1243,9 +1243,10 @@ PYBIND11_MODULE(_core, m) {
     if (isa) set_kernel_isa(*isa);
     return kernel_isa();
   }, py::arg("isa") = py::none(),
-     "The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx2' or 'sse2' (x86-64 portable "
-     "build, chosen from the processor), 'native' (a CSB_NATIVE build, or not x86-64). isa='sse2' forces the SSE2 copy, 'avx2' the AVX2 one, 'auto' the "
-     "processor's choice; returns the one in use.");
+     "The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx512', 'avx2' or 'sse2' (x86-64 "
+     "portable build, the best the processor has; 'avx512' runs bending in AVX-512 and distance in AVX2), 'native' (a "
+     "CSB_NATIVE build, or not x86-64). isa='sse2', 'avx2' or 'avx512' forces that copy (an error if the processor "
+     "lacks it), 'auto' the processor's choice; returns the one in use.");
   k.def("project_bending_coloured", [](py::handle points, py::handle quads, py::handle inv_mass, py::handle rest_angle,
                                        py::handle stiffness, py::handle alpha_tilde, py::handle gamma, py::handle lambda_,
                                        py::handle start, bool independent) -> py::tuple {
