@@ -4,6 +4,10 @@ and the memory report. Timings are the benchmark's business (`csb bench`), never
 from __future__ import annotations
 
 import hashlib
+import os
+import subprocess
+import sys
+import time
 
 import numpy as np
 import pytest
@@ -286,7 +290,6 @@ def test_a_non_finite_sub_step_is_reported_alike_on_any_thread_count():
 def test_automatic_threads_follow_the_parts():
     """threads=0: one thread for a model of one part (its phases have one task each), else at
     most the free cores and at most the parts."""
-    import os
 
     def auto_threads(n: int) -> tuple[int, int]:
         b = csb.ModelBuilder()
@@ -299,3 +302,31 @@ def test_automatic_threads_follow_the_parts():
     assert auto_threads(16) == (1, 1)
     parts, threads = auto_threads(32)
     assert parts == 2 and 1 <= threads <= min(2, os.cpu_count() or 1)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or (os.cpu_count() or 1) > 8,
+                    reason="reads /proc/loadavg; keeps every other core busy")
+def test_automatic_threads_leave_a_busy_core_alone():
+    """With every core but one kept busy by other processes, automatic threads settle on one.
+    (A lower free-core reading counts only once a second one 1.3 ms later agrees, so that a
+    task runnable for microseconds does not cost a thread; a busy process is in both.)"""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 64, 64), mass=0.5)
+    model = b.build()
+    assert model.num_parts > 1
+    state = model.initial_state()
+    stepper = csb.PbdStepper(threads=0, iterations=2)
+    spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range((os.cpu_count() or 1) - 1)]
+    try:
+        time.sleep(0.2)  # the spinners are running
+        used = []
+        t_end = time.perf_counter() + 0.1  # 20 readings' worth of steps
+        while time.perf_counter() < t_end:
+            stepper.step(model, state)
+            used.append(stepper.threads_used)
+    finally:
+        for p in spinners:
+            p.kill()
+            p.wait()
+    assert used[-1] == 1, used
+    assert np.isfinite(state.x).all()
