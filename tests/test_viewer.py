@@ -360,6 +360,26 @@ def test_xdotool_drag_and_keys_in_a_real_window(viewer_on, on_display):
     assert not v.frame() and v.closed
 
 
+def test_ctrl_c_stops_csb_view(on_display):
+    """SIGINT (Ctrl-C in the terminal) ends `csb view`: the window closes and the command exits
+    130, not held until someone closes the window."""
+    import signal
+
+    exe = Path(sys.executable).parent
+    p = subprocess.Popen([exe / "csb", "view", "cloth_drop", "--size", "320x240"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    try:
+        xdotool("search", "--sync", "--name", "csb - cloth_drop")  # the window is up and running
+        p.send_signal(signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    assert p.returncode == 130 and "interrupted" in out, (p.returncode, out, err)
+    assert "Traceback" not in err
+
+
 def test_csb_view_and_render_commands(on_display, tmp_path):
     exe = Path(sys.executable).parent
     r = subprocess.run([exe / "csb", "view", "cloth_drop", "--frames", "5", "--size", "320x240"],

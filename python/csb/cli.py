@@ -56,8 +56,13 @@ def _cmd_view(args: argparse.Namespace) -> int:
     from .view import view
 
     w, h = args.size
-    frames = view(args.scene, frames=args.frames, width=w, height=h, method=args.method, camera=_camera(args),
-                  paused=args.paused, wireframe=args.wireframe, particles=args.particles, overlay=not args.no_overlay)
+    try:
+        frames = view(args.scene, frames=args.frames, width=w, height=h, method=args.method, camera=_camera(args),
+                      paused=args.paused, wireframe=args.wireframe, particles=args.particles,
+                      overlay=not args.no_overlay)
+    except KeyboardInterrupt:  # Ctrl-C in the terminal: the window is closed, no traceback
+        print("interrupted")
+        return 130
     print(f"{frames} frames")
     return 0
 
