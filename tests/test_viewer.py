@@ -366,16 +366,19 @@ def test_ctrl_c_stops_csb_view(on_display):
     import signal
 
     exe = Path(sys.executable).parent
-    p = subprocess.Popen([exe / "csb", "view", "cloth_drop", "--size", "320x240"], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
-    try:
-        xdotool("search", "--sync", "--name", "csb - cloth_drop")  # the window is up and running
-        p.send_signal(signal.SIGINT)
-        out, err = p.communicate(timeout=30)
-    finally:
-        if p.poll() is None:
-            p.kill()
-            p.wait()
+    # A shell without job control starts background jobs with SIGINT ignored, and Python keeps an
+    # inherited "ignore": the child gets the default disposition back, as a terminal's would have.
+    with subprocess.Popen([exe / "csb", "view", "cloth_drop", "--size", "320x240"], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)) as p:
+        try:
+            xdotool("search", "--sync", "--name", "csb - cloth_drop")  # the window is up and running
+            p.send_signal(signal.SIGINT)
+            out, err = p.communicate(timeout=30)
+        finally:
+            if p.poll() is None:
+                p.kill()
+                p.communicate()
     assert p.returncode == 130 and "interrupted" in out, (p.returncode, out, err)
     assert "Traceback" not in err
 
