@@ -103,9 +103,9 @@ __attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Ind
 #if CSB_BENDING_AVX2
 // The same code compiled for AVX-512 (F, VL, DQ, BW): still four lanes (the 256-bit registers;
 // 512-bit ones were no faster on the Zen 4 this was measured on, which splits them in two), but
-// 32 registers instead of 16 and mask registers for the selects. Bending: 13.5 against 12.5 ns
-// per projection. The distance blocks were slower so (4.25 against 3.94 ns) and keep the AVX2
-// copy (papers/benchmarks.md).
+// 32 registers instead of 16 and mask registers for the selects. Bending: 14.6 → 13.3 ns per
+// projection. The distance blocks were slower so (3.94 → 4.25 ns) and keep the AVX2 copy
+// (papers/benchmarks.md, stop 13).
 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_avx512(
     ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
   blocks_rows(b, xpbd, begin, end, r, o, x);

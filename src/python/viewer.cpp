@@ -105,20 +105,13 @@ void bind_viewer(py::module_& m) {
            "frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the "
            "mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).")
       .def("run", [](Viewer& v, std::int64_t max_frames) {
-        // Viewer::run's loop, with Python's signal handlers run between frames: Ctrl-C in the
-        // terminal raises KeyboardInterrupt here instead of being held until the window closes.
-        std::int64_t n = 0;
-        while (max_frames <= 0 || n < max_frames) {
-          bool more = false;
-          {
-            py::gil_scoped_release release;
-            more = v.frame();
-          }
-          if (!more) break;
-          ++n;
+        // Python's signal handlers run between frames: Ctrl-C in the terminal raises
+        // KeyboardInterrupt here instead of being held until the window closes.
+        py::gil_scoped_release release;
+        return v.run(max_frames, [] {
+          py::gil_scoped_acquire acquire;
           if (PyErr_CheckSignals() != 0) throw py::error_already_set();
-        }
-        return n;
+        });
       }, py::arg("max_frames") = 0, "Frames until the window closes (or max_frames > 0 were drawn); returns the "
                                     "frames drawn. The GIL is released during each frame; Python's signals "
                                     "(Ctrl-C: KeyboardInterrupt) are handled between frames.")

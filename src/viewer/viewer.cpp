@@ -299,9 +299,12 @@ void Viewer::frame_scene() {
   camera_.frame(lo, hi);
 }
 
-std::int64_t Viewer::run(std::int64_t max_frames) {
+std::int64_t Viewer::run(std::int64_t max_frames, const std::function<void()>& after_frame) {
   std::int64_t n = 0;
-  while ((max_frames <= 0 || n < max_frames) && frame()) ++n;
+  while ((max_frames <= 0 || n < max_frames) && frame()) {
+    ++n;
+    if (after_frame) after_frame();
+  }
   return n;
 }
 

@@ -22,6 +22,7 @@
 #include "viewer/renderer.hpp"
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <vector>
@@ -84,7 +85,9 @@ class Viewer {
   Viewer& operator=(const Viewer&) = delete;
 
   // Frames until the window closes (or `max_frames` > 0 frames were drawn); returns the frames drawn.
-  std::int64_t run(std::int64_t max_frames = 0);
+  // after_frame, if given, runs after each frame drawn (the Python binding handles signals there);
+  // an exception from it ends the loop and passes through.
+  std::int64_t run(std::int64_t max_frames = 0, const std::function<void()>& after_frame = {});
   // One frame: window events, the simulation's advance (unless paused), drawing. Returns false
   // once the window has been asked to close.
   bool frame();
