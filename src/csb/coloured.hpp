@@ -52,6 +52,12 @@ struct ColouredBatches {
   ColouredFour bending, volume;
   ColouredAttachments attachments;
   std::vector<Real> count;           // Jacobi: projections that touch each particle in one sweep (contacts aside)
+  // The particles of each part of the model (Model::part) as runs of consecutive indices: part
+  // g's runs are part_runs[part_run_offsets[g] .. [g + 1]), each [first, end). A cloth grid's
+  // part is one run.
+  std::vector<Index> part_run_offsets;
+  std::vector<std::array<Index, 2>> part_runs;
+  bool rest_empty = false;           // no constraint of any batch lies in the rest group (2P - 1)
   std::size_t bytes() const;
 };
 

@@ -235,14 +235,25 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   const bool fused = settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
                      self_groups_.empty() && (verlet || settings_.damping <= 0);
   for (std::int64_t s = 0; s < steps; ++s) {
+    bool again = false;
     if (fused) {
       generate_contacts(model, state.x, h);  // (8): none, but the last step's are cleared
       if (settings_.method == Method::Xpbd) lambda_stale_ = true;
       Fused f{&state, h, settings_.substeps};
       project(model, state.x, &f);
-      if (f.bad >= 0) fail_non_finite(state, f.bad_sub, f.bad, h);
+      if (f.bad >= 0 && f.bad_sub >= 0) fail_non_finite(state, f.bad_sub, f.bad, h);
+      // Checked once, after the last sub-step, and found non-finite: back to the step's start,
+      // then its sub-steps again one at a time, each checked (the same operations, so the same
+      // positions), which stop at the first non-finite one and leave the state at its start. (A
+      // non-finite position stays so to the step's end: every later operation that writes it
+      // has it as an operand; so the check once misses none.)
+      again = f.bad >= 0;
+      if (again) {
+        state.x = x_step_;
+        (verlet ? x_prev_ : state.v) = v_step_;
+      }
     }
-    const int substeps_here = fused ? 0 : settings_.substeps;
+    const int substeps_here = fused && !again ? 0 : settings_.substeps;
     for (int sub = 0; sub < substeps_here; ++sub) {
       predict(model, state, h);
       if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
@@ -816,9 +827,10 @@ void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk
 }
 
 // One coloured sweep over distance, bending, volume and attachment constraints.
-template <Method M, bool Jacobi>
+// start(g): called at the start of group g's task (a part's interior or an interface).
+template <Method M, bool Jacobi, class Start>
 void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o,
-                    const Real* x) {
+                    const Real* x, Start&& start) {
   ColouredDistance& d = cb.distance;
   const auto distance = [&](Index begin, Index end, bool independent) {
     if constexpr (M == Method::Xpbd) {
@@ -865,6 +877,7 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
     for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x);
   };
   const auto group = [&](Index g) {
+    start(g);
     group_colours(model.distance.colours, g, distance);
     group_colours(model.bending.colours, g, bending);
     group_colours(model.volume.colours, g, volume);
@@ -949,7 +962,8 @@ std::size_t ColouredBatches::bytes() const {
   const auto& d = distance;
   std::size_t s = capacity_bytes(kinematic) + capacity_bytes(count) + capacity_bytes(d.i) + capacity_bytes(d.j) +
                   capacity_bytes(d.rest) + capacity_bytes(d.sense) + capacity_bytes(d.ci) + capacity_bytes(d.cj) +
-                  capacity_bytes(d.alpha) + capacity_bytes(d.gamma) + capacity_bytes(d.inv_den) + capacity_bytes(d.lambda);
+                  capacity_bytes(d.alpha) + capacity_bytes(d.gamma) + capacity_bytes(d.inv_den) + capacity_bytes(d.lambda) +
+                  capacity_bytes(part_run_offsets) + capacity_bytes(part_runs);
   for (const ColouredFour* f : {&bending, &volume})
     s += capacity_bytes(f->q) + capacity_bytes(f->rest) + capacity_bytes(f->w) + capacity_bytes(f->k) +
          capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda);
@@ -1063,6 +1077,28 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     coloured_order_.volume = model.volume.colours.order;
     coloured_order_.attachment = model.attachments.colours.order;
   }
+  // The parts' particles as runs (a fused step's part tasks update and predict them).
+  const Index parts = model.num_parts, n = model.num_particles();
+  std::vector<std::vector<std::array<Index, 2>>> runs(static_cast<std::size_t>(parts));
+  for (Index i = 0; i < n; ++i) {
+    auto& r = runs[static_cast<std::size_t>(model.part[i])];
+    if (!r.empty() && r.back()[1] == i)
+      r.back()[1] = i + 1;
+    else
+      r.push_back({i, i + 1});
+  }
+  cb.part_run_offsets.assign(1, 0);
+  cb.part_runs.clear();
+  for (const auto& r : runs) {
+    cb.part_runs.insert(cb.part_runs.end(), r.begin(), r.end());
+    cb.part_run_offsets.push_back(static_cast<Index>(cb.part_runs.size()));
+  }
+  const Index rest = 2 * parts - 1;
+  cb.rest_empty = true;
+  for (const Colouring* c : {&model.distance.colours, &model.bending.colours, &model.volume.colours,
+                             &model.attachments.colours})
+    cb.rest_empty = cb.rest_empty && (c->num_groups() <= rest ||
+                                      c->colour_offsets[c->group_colours[rest + 1]] == c->colour_offsets[c->group_colours[rest]]);
   cb.model_id = model.id;
 }
 
@@ -1124,6 +1160,30 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const auto& bal = model.balloons;
   const int iterations = settings_.iterations;
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
+  // A fused step whose constraints all lie in parts and interfaces (no rest group, no serial
+  // tail, Gauss-Seidel): part g's task of a sub-step's first sweep first updates its particles
+  // from the last sub-step and predicts them (the last sub-step's interfaces, the only other
+  // constraints on them, are done: a barrier ends their phase), and each group's task sets its
+  // XPBD multipliers to zero; the finiteness check runs once, after the last sub-step, the step's
+  // start kept to go back to. Two barriers a sub-step instead of four.
+  const bool in_tasks = fused && !Jacobi && !tail && !compliant_grabs && coloured_.rest_empty;
+  if (in_tasks) {
+    x_step_.resize(3, n);
+    v_step_.resize(3, n);
+  }
+  const Index parts = model.num_parts;
+  // XPBD: group g's multipliers (of every batch) set to zero.
+  const auto zero_group_multipliers = [&](Index g) {
+    const auto zero = [g](const Colouring& c, std::vector<Real>& lambda) {
+      if (static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
+      std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
+                lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], 0.0);
+    };
+    zero(model.distance.colours, coloured_.distance.lambda);
+    zero(model.bending.colours, coloured_.bending.lambda);
+    zero(model.volume.colours, coloured_.volume.lambda);
+    zero(model.attachments.colours, coloured_.attachments.lambda);
+  };
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
     // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
@@ -1131,9 +1191,34 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
       predict_range(model, *fused->state, fused->h, begin, end);
       if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
     };
-    if (fused) share.split(n, predict);
+    if (in_tasks) {
+      // Keep the step's start, then predict (the multipliers are zeroed by the group tasks).
+      const Real* v = settings_.front_end == FrontEnd::Verlet ? x_prev_.data() : fused->state->v.data();
+      share.split(n, [&](Index begin, Index end) {
+        const Real* x0 = fused->state->x.data();
+        std::memcpy(x_step_.data() + 3 * begin, x0 + 3 * begin, sizeof(Real) * 3 * (end - begin));
+        std::memcpy(v_step_.data() + 3 * begin, v + 3 * begin, sizeof(Real) * 3 * (end - begin));
+        predict_range(model, *fused->state, fused->h, begin, end);
+      });
+    } else if (fused) {
+      share.split(n, predict);
+    }
     for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
       for (int it = 0; it < iterations; ++it) {
+        // What a group's task does before its constraints (in_tasks only).
+        const bool update = in_tasks && it == 0 && sub > 0;
+        const auto start = [&](Index g) {
+          if (!in_tasks) return;
+          if constexpr (M == Method::Xpbd)
+            if (it == 0) zero_group_multipliers(g);
+          if (update && g < parts) {
+            for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
+              const auto [begin, end] = coloured_.part_runs[k];
+              commit(*fused->state, fused->h, begin, end);
+              predict_range(model, *fused->state, fused->h, begin, end);
+            }
+          }
+        };
         if constexpr (Jacobi) {
           share.split(n, [&](Index begin, Index end) {
             for (Index i = begin; i < end; ++i) {
@@ -1145,7 +1230,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
             }
           });
         }
-        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x);
+        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x, start);
         if (tail) {
           share.single([&] {
             // Balloons: one constraint over many particles each, serial (see sweep_batches).
@@ -1175,13 +1260,15 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
         if (compliant_grabs) share.single([&] { project_grabs(x_start); });
       }
       if (fused) {
+        const bool last = sub + 1 == fused->substeps;
+        if (in_tasks && !last) continue;  // updated and predicted by the part tasks
         // The new positions must all be finite before any is taken (else the state stays).
         share.split(n, [&](Index begin, Index end) { bad_[t] = first_non_finite(p_, begin, end); });
         Index bad = -1;
         for (const Index b : bad_)
           if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
         if (bad >= 0) {
-          if (t == 0) fused->bad = bad, fused->bad_sub = sub;
+          if (t == 0) fused->bad = bad, fused->bad_sub = in_tasks ? -1 : sub;
           return;
         }
         // (12)-(15) of Algorithm 1, then the next sub-step's prediction of the same particles.
@@ -1219,7 +1306,8 @@ void PbdStepper::project(const Model& model, const Positions& x_start, Fused* fu
 
 std::size_t PbdStepper::workspace_bytes() const {
   const auto positions = [](const Positions& q) { return sizeof(Real) * static_cast<std::size_t>(q.size()); };
-  std::size_t s = positions(p_) + positions(x_prev_) + positions(p_start_) + positions(delta_) +
+  std::size_t s = positions(p_) + positions(x_prev_) + positions(x_step_) + positions(v_step_) + positions(p_start_) +
+                  positions(delta_) +
                   capacity_bytes(count_) + capacity_bytes(w_) + capacity_bytes(balloon_grad_);
   for (const auto* v : {&k_distance_, &k_bending_, &k_attachment_, &a_distance_, &a_bending_, &a_attachment_,
                         &g_distance_, &g_bending_, &g_attachment_, &k_volume_, &a_volume_, &g_volume_, &k_balloon_,

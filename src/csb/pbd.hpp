@@ -180,13 +180,16 @@ class PbdStepper {
   // The sub-steps of a step done entirely by the projection's threads, in one fork of the team
   // (no contacts, grabs or Müller damping): the prediction before the sweeps, the finiteness
   // check and the velocity update after them, the update and the next sub-step's prediction in
-  // one pass.
+  // one pass. When every constraint lies in a part or an interface (Gauss-Seidel, no balloons)
+  // each part's task instead updates and predicts its own particles before its first sweep of
+  // the next sub-step, and the finiteness check runs once, after the last sub-step.
   struct Fused {
     State* state;
     Real h;
     int substeps;
-    Index bad = -1;  // a particle whose new position is not finite (the state is then left as it was)
-    int bad_sub = -1;  // in this sub-step
+    Index bad = -1;    // a particle whose new position is not finite
+    int bad_sub = -1;  // in this sub-step (the state then left at its start), or -1: after the
+                       // last sub-step, checked once (the caller restores the step's start)
   };
   void project(const Model& model, const Positions& x_start, Fused* fused = nullptr);
   void project_sequential(const Model& model, const Positions& x_start);
@@ -206,6 +209,7 @@ class PbdStepper {
   std::uint64_t model_id_ = 0;
   Positions p_;                          // predicted positions
   Positions x_prev_;                     // Verlet: positions one sub-step back
+  Positions x_step_, v_step_;            // a fused step checked once: x and v (Verlet: x_prev_) at its start
   Positions p_start_, delta_;            // Jacobi: positions at the sweep's start, summed corrections
   std::vector<Real> count_;              // Jacobi: corrections each particle received in the sweep
   std::vector<Real> k_distance_, k_bending_, k_attachment_;  // PBD: stiffness used per iteration
