@@ -253,13 +253,15 @@ def test_the_blocks_write_only_the_particles_of_their_quads(rng):
         K.kernel_isa("auto")
 
 
-@pytest.mark.parametrize("method, solver", [("pbd", "gauss-seidel"), ("xpbd", "gauss-seidel"), ("pbd", "jacobi")])
+@pytest.mark.parametrize("method, solver", [("pbd", "gauss-seidel"), ("xpbd", "gauss-seidel"), ("pbd", "jacobi"),
+                                            ("jakobsen", "gauss-seidel")])
 def test_the_sse2_avx2_and_avx512_kernels_give_the_same_bits(all_isas, method, solver):
-    """The portable build runs the blocked bending and distance kernels in AVX2 lanes (bending in
-    AVX-512 code) when the processor has them; IEEE operations without FMA give the same bits in
-    two lanes as in four, so a falling, bending 64x64 cloth (8 parts: interiors and interfaces)
-    ends bit for bit the same, with Gauss-Seidel (positions read and written in place) and with
-    Jacobi (read from the sweep's start, corrections summed apart)."""
+    """The portable build runs the blocked bending and distance kernels and a fused step's update
+    and prediction in AVX2 lanes (bending in AVX-512 code) when the processor has them; IEEE
+    operations without FMA give the same bits in two lanes as in four, so a falling, bending
+    64x64 cloth (8 parts: interiors and interfaces) ends bit for bit the same, with Gauss-Seidel
+    (positions read and written in place), with Jacobi (read from the sweep's start, corrections
+    summed apart) and with Jakobsen's Verlet front end."""
     b = csb.ModelBuilder()
     cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, 64, 64), mass=0.5, bending_stiffness=0.5,
                        bending_compliance=1e-3 if method == "xpbd" else 0.0)

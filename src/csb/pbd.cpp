@@ -324,6 +324,81 @@ void PbdStepper::predict_range(const Model& model, State& state, Real h, Index b
   }
 }
 
+namespace {
+
+// The update of a sub-step and the prediction of the next for coordinates [k0, k1) in one pass:
+// Euler v = (p - x)/h + a, x = p, p = x + h v; Verlet x* = x, x = p, p = x + keep (x - x*) + a
+// (a = accel_). The operations of commit and predict_range, in their order: the same bits.
+inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x, Real* __restrict v, Real* __restrict p,
+                                   const Real* __restrict a, Real h, Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    const Real pk = p[k];
+    const Real vk = (pk - x[k]) / h + a[k];
+    x[k] = pk;
+    v[k] = vk;
+    p[k] = pk + h * vk;
+  }
+}
+inline __attribute__((always_inline)) void advance_verlet_body(Real* __restrict x, Real* __restrict xp, Real* __restrict p,
+                                    const Real* __restrict a, Real keep, Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    const Real pk = p[k], xk = x[k];
+    xp[k] = xk;
+    x[k] = pk;
+    p[k] = pk + keep * (pk - xk) + a[k];
+  }
+}
+void advance_euler_base(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0, Index k1) {
+  advance_euler_body(x, v, p, a, h, k0, k1);
+}
+void advance_verlet_base(Real* x, Real* xp, Real* p, const Real* a, Real keep, Index k0, Index k1) {
+  advance_verlet_body(x, xp, p, a, keep, k0, k1);
+}
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+// Four lanes instead of SSE2's two (the division dominates): taken with the AVX2 kernels.
+#define CSB_ADVANCE_AVX2 1
+__attribute__((target("avx2"))) void advance_euler_avx2(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0,
+                                                         Index k1) {
+  advance_euler_body(x, v, p, a, h, k0, k1);
+}
+__attribute__((target("avx2"))) void advance_verlet_avx2(Real* x, Real* xp, Real* p, const Real* a, Real keep,
+                                                          Index k0, Index k1) {
+  advance_verlet_body(x, xp, p, a, keep, k0, k1);
+}
+#endif
+
+}  // namespace
+
+void PbdStepper::set_accel(const Model& model, Real h, Index begin, Index end) {
+  const Real* w = model.inv_mass.data();
+  const Vec3& g = settings_.gravity;
+  const Real step = settings_.front_end == FrontEnd::Verlet ? h * h : h;
+  for (Index i = begin; i < end; ++i) {
+    const Real a = w[i] > 0 ? step : 0;
+    for (int k = 0; k < 3; ++k) accel_[3 * i + k] = a * g[k];
+  }
+}
+
+void PbdStepper::advance(State& state, Real h, Index begin, Index end) {
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  Real* x = state.x.data();
+  Real* v = verlet ? x_prev_.data() : state.v.data();
+  const Real keep = 1 - settings_.verlet_drag;
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) {
+    if (verlet)
+      advance_verlet_avx2(x, v, p_.data(), accel_.data(), keep, 3 * begin, 3 * end);
+    else
+      advance_euler_avx2(x, v, p_.data(), accel_.data(), h, 3 * begin, 3 * end);
+    return;
+  }
+#endif
+  if (verlet)
+    advance_verlet_base(x, v, p_.data(), accel_.data(), keep, 3 * begin, 3 * end);
+  else
+    advance_euler_base(x, v, p_.data(), accel_.data(), h, 3 * begin, 3 * end);
+}
+
 void PbdStepper::commit(State& state, Real h, Index begin, Index end) {
   Real* x = state.x.data();
   Real* v = state.v.data();
@@ -1171,6 +1246,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
     x_step_.resize(3, n);
     v_step_.resize(3, n);
   }
+  if (fused) accel_.resize(3 * static_cast<std::size_t>(n));
   const Index parts = model.num_parts;
   // XPBD: group g's multipliers (of every batch) set to zero.
   const auto zero_group_multipliers = [&](Index g) {
@@ -1199,9 +1275,13 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
         std::memcpy(x_step_.data() + 3 * begin, x0 + 3 * begin, sizeof(Real) * 3 * (end - begin));
         std::memcpy(v_step_.data() + 3 * begin, v + 3 * begin, sizeof(Real) * 3 * (end - begin));
         predict_range(model, *fused->state, fused->h, begin, end);
+        set_accel(model, fused->h, begin, end);
       });
     } else if (fused) {
-      share.split(n, predict);
+      share.split(n, [&](Index begin, Index end) {
+        predict(begin, end);
+        set_accel(model, fused->h, begin, end);
+      });
     }
     for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
       for (int it = 0; it < iterations; ++it) {
@@ -1214,8 +1294,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
           if (update && g < parts) {
             for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
               const auto [begin, end] = coloured_.part_runs[k];
-              commit(*fused->state, fused->h, begin, end);
-              predict_range(model, *fused->state, fused->h, begin, end);
+              advance(*fused->state, fused->h, begin, end);
             }
           }
         };
@@ -1274,8 +1353,12 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
         // (12)-(15) of Algorithm 1, then the next sub-step's prediction of the same particles.
         const bool next = sub + 1 < fused->substeps;
         share.split(n, [&](Index begin, Index end) {
-          commit(*fused->state, fused->h, begin, end);
-          if (next) predict(begin, end);
+          if (!next) {
+            commit(*fused->state, fused->h, begin, end);
+            return;
+          }
+          advance(*fused->state, fused->h, begin, end);
+          if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
         });
       }
     }
@@ -1307,7 +1390,7 @@ void PbdStepper::project(const Model& model, const Positions& x_start, Fused* fu
 std::size_t PbdStepper::workspace_bytes() const {
   const auto positions = [](const Positions& q) { return sizeof(Real) * static_cast<std::size_t>(q.size()); };
   std::size_t s = positions(p_) + positions(x_prev_) + positions(x_step_) + positions(v_step_) + positions(p_start_) +
-                  positions(delta_) +
+                  positions(delta_) + capacity_bytes(accel_) +
                   capacity_bytes(count_) + capacity_bytes(w_) + capacity_bytes(balloon_grad_);
   for (const auto* v : {&k_distance_, &k_bending_, &k_attachment_, &a_distance_, &a_bending_, &a_attachment_,
                         &g_distance_, &g_bending_, &g_attachment_, &k_volume_, &a_volume_, &g_volume_, &k_balloon_,

@@ -173,6 +173,11 @@ class PbdStepper {
   // sub-step `sub` as an error naming particle i (the state left at the last finite sub-step).
   void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
   void commit(State& state, Real h, Index begin, Index end);
+  // commit then predict_range for particles [begin, end) in one pass (the same operations), the
+  // prediction's h g (Verlet: h² g) taken from accel_ (a fused step).
+  void advance(State& state, Real h, Index begin, Index end);
+  // accel_ for particles [begin, end).
+  void set_accel(const Model& model, Real h, Index begin, Index end);
   [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
   // XPBD: share `share` of `shares` (equal runs) of every coloured batch's multipliers, and the
   // balloons', set to zero (at the start of a sub-step).
@@ -210,6 +215,7 @@ class PbdStepper {
   Positions p_;                          // predicted positions
   Positions x_prev_;                     // Verlet: positions one sub-step back
   Positions x_step_, v_step_;            // a fused step checked once: x and v (Verlet: x_prev_) at its start
+  std::vector<Real> accel_;              // a fused step: what a prediction adds, h g (Verlet h² g), 0 where w = 0
   Positions p_start_, delta_;            // Jacobi: positions at the sweep's start, summed corrections
   std::vector<Real> count_;              // Jacobi: corrections each particle received in the sweep
   std::vector<Real> k_distance_, k_bending_, k_attachment_;  // PBD: stiffness used per iteration
