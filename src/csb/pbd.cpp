@@ -1235,18 +1235,19 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const auto& bal = model.balloons;
   const int iterations = settings_.iterations;
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
-  // A fused step whose constraints all lie in parts and interfaces (no rest group, no serial
-  // tail, Gauss-Seidel): part g's task of a sub-step's first sweep first updates its particles
+  // A fused step of several sub-steps whose constraints all lie in parts and interfaces (no rest
+  // group, no serial tail, Gauss-Seidel): part g's task of a sub-step's first sweep first updates its particles
   // from the last sub-step and predicts them (the last sub-step's interfaces, the only other
   // constraints on them, are done: a barrier ends their phase), and each group's task sets its
   // XPBD multipliers to zero; the finiteness check runs once, after the last sub-step, the step's
   // start kept to go back to. Two barriers a sub-step instead of four.
-  const bool in_tasks = fused && !Jacobi && !tail && !compliant_grabs && coloured_.rest_empty;
+  const bool in_tasks = fused && fused->substeps > 1 && !Jacobi && !tail && !compliant_grabs && coloured_.rest_empty;
+  const bool advancing = fused && fused->substeps > 1;  // a sub-step's update is followed by a prediction
   if (in_tasks) {
     x_step_.resize(3, n);
     v_step_.resize(3, n);
   }
-  if (fused) accel_.resize(3 * static_cast<std::size_t>(n));
+  if (advancing) accel_.resize(3 * static_cast<std::size_t>(n));
   const Index parts = model.num_parts;
   // XPBD: group g's multipliers (of every batch) set to zero.
   const auto zero_group_multipliers = [&](Index g) {
@@ -1280,7 +1281,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
     } else if (fused) {
       share.split(n, [&](Index begin, Index end) {
         predict(begin, end);
-        set_accel(model, fused->h, begin, end);
+        if (advancing) set_accel(model, fused->h, begin, end);
       });
     }
     for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
