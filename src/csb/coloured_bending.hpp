@@ -4,7 +4,8 @@
 // §3.3's projection, Macklin 2016's XPBD update), written out on scalars for a range of
 // constraints that share no particle (one colour), in blocks of kBendingBlock (∇_a θ as minus
 // the sum of the other three gradients and |∇_c θ|², |∇_d θ|² in closed form: the same values,
-// about two dozen operations fewer a constraint, a few units in the last place apart from the reference):
+// about two dozen operations fewer a constraint, a few units in the last place from the
+// reference):
 //  1. gather: the four particles' positions (and, XPBD, their displacement since the sub-step's
 //     start) into structure-of-arrays block buffers, one constraint at a time (the AVX2 copy in
 //     coloured_bending.cpp four at a time, in registers);
@@ -104,7 +105,8 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
     const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
     // θ is invariant under translation, so the gradients sum to zero: ∇_a θ = -(∇_b + ∇_c + ∇_d)
     // (Bridson's -((c - b)·e N1/|N1|² + (d - b)·e N2/|N2|²)/|e| in closed form), and
-    // |∇_c θ|² = |e|² |N1|²/|N1|⁴ = |e|²/|N1|², |∇_d θ|² = |e|²/|N2|² (0 where degenerate: i1 = i2 = 0).
+    // |∇_c θ|² = |e|² |N1|²/|N1|⁴ = |e|²/|N1|², |∇_d θ|² = |e|²/|N2|² (0 where degenerate:
+    // i1 = i2 = 0).
     const Real gax = -(gbx + gcx + gdx), gay = -(gby + gcy + gdy), gaz = -(gbz + gcz + gdz);
     t.Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
                  (W[2][k] * i1 + W[3][k] * i2) * e2;

@@ -329,8 +329,9 @@ namespace {
 // The update of a sub-step and the prediction of the next for coordinates [k0, k1) in one pass:
 // Euler v = (p - x)/h + a, x = p, p = x + h v; Verlet x* = x, x = p, p = x + keep (x - x*) + a
 // (a = accel_). The operations of commit and predict_range, in their order: the same bits.
-inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x, Real* __restrict v, Real* __restrict p,
-                                   const Real* __restrict a, Real h, Index k0, Index k1) {
+inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x, Real* __restrict v,
+                                                              Real* __restrict p, const Real* __restrict a, Real h,
+                                                              Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) {
     const Real pk = p[k];
     const Real vk = (pk - x[k]) / h + a[k];
@@ -339,8 +340,9 @@ inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x
     p[k] = pk + h * vk;
   }
 }
-inline __attribute__((always_inline)) void advance_verlet_body(Real* __restrict x, Real* __restrict xp, Real* __restrict p,
-                                    const Real* __restrict a, Real keep, Index k0, Index k1) {
+inline __attribute__((always_inline)) void advance_verlet_body(Real* __restrict x, Real* __restrict xp,
+                                                               Real* __restrict p, const Real* __restrict a, Real keep,
+                                                               Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) {
     const Real pk = p[k], xk = x[k];
     xp[k] = xk;
@@ -1037,8 +1039,8 @@ std::size_t ColouredBatches::bytes() const {
   const auto& d = distance;
   std::size_t s = capacity_bytes(kinematic) + capacity_bytes(count) + capacity_bytes(d.i) + capacity_bytes(d.j) +
                   capacity_bytes(d.rest) + capacity_bytes(d.sense) + capacity_bytes(d.ci) + capacity_bytes(d.cj) +
-                  capacity_bytes(d.alpha) + capacity_bytes(d.gamma) + capacity_bytes(d.inv_den) + capacity_bytes(d.lambda) +
-                  capacity_bytes(part_run_offsets) + capacity_bytes(part_runs);
+                  capacity_bytes(d.alpha) + capacity_bytes(d.gamma) + capacity_bytes(d.inv_den) +
+                  capacity_bytes(d.lambda) + capacity_bytes(part_run_offsets) + capacity_bytes(part_runs);
   for (const ColouredFour* f : {&bending, &volume})
     s += capacity_bytes(f->q) + capacity_bytes(f->rest) + capacity_bytes(f->w) + capacity_bytes(f->k) +
          capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda);
@@ -1172,8 +1174,8 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   cb.rest_empty = true;
   for (const Colouring* c : {&model.distance.colours, &model.bending.colours, &model.volume.colours,
                              &model.attachments.colours})
-    cb.rest_empty = cb.rest_empty && (c->num_groups() <= rest ||
-                                      c->colour_offsets[c->group_colours[rest + 1]] == c->colour_offsets[c->group_colours[rest]]);
+    cb.rest_empty = cb.rest_empty && (c->num_groups() <= rest || c->colour_offsets[c->group_colours[rest + 1]] ==
+                                                                      c->colour_offsets[c->group_colours[rest]]);
   cb.model_id = model.id;
 }
 
@@ -1236,11 +1238,12 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const int iterations = settings_.iterations;
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   // A fused step of several sub-steps whose constraints all lie in parts and interfaces (no rest
-  // group, no serial tail, Gauss-Seidel): part g's task of a sub-step's first sweep first updates its particles
-  // from the last sub-step and predicts them (the last sub-step's interfaces, the only other
-  // constraints on them, are done: a barrier ends their phase), and each group's task sets its
-  // XPBD multipliers to zero; the finiteness check runs once, after the last sub-step, the step's
-  // start kept to go back to. Two barriers a sub-step instead of four.
+  // group, no serial tail, Gauss-Seidel): part g's task of a sub-step's first sweep first
+  // updates its particles from the last sub-step and predicts them (the last sub-step's
+  // interfaces, the only other constraints on them, are done: a barrier ends their phase), and
+  // each group's task sets its XPBD multipliers to zero; the finiteness check runs once, after
+  // the last sub-step, the step's start kept to go back to. Two barriers a sub-step instead of
+  // four (a cloth).
   const bool in_tasks = fused && fused->substeps > 1 && !Jacobi && !tail && !compliant_grabs && coloured_.rest_empty;
   const bool advancing = fused && fused->substeps > 1;  // a sub-step's update is followed by a prediction
   if (in_tasks) {

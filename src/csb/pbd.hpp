@@ -185,9 +185,10 @@ class PbdStepper {
   // The sub-steps of a step done entirely by the projection's threads, in one fork of the team
   // (no contacts, grabs or Müller damping): the prediction before the sweeps, the finiteness
   // check and the velocity update after them, the update and the next sub-step's prediction in
-  // one pass. When every constraint lies in a part or an interface (Gauss-Seidel, no balloons)
-  // each part's task instead updates and predicts its own particles before its first sweep of
-  // the next sub-step, and the finiteness check runs once, after the last sub-step.
+  // one pass. With several sub-steps, when every constraint lies in a part or an interface
+  // (Gauss-Seidel, no balloons), each part's task instead updates and predicts its own particles
+  // before its first sweep of the next sub-step, and the finiteness check runs once, after the
+  // last sub-step.
   struct Fused {
     State* state;
     Real h;
