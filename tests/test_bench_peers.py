@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import time
 import tomllib
 from pathlib import Path
 
@@ -54,6 +55,35 @@ def test_the_check_catches_a_broken_cloth(arrays):
     assert check_cloth(arrays, x, 3)["ok"]
     x[5, 1] = np.nan
     assert not check_cloth(arrays, x, 3)["ok"]
+
+
+class _SlowSide:
+    """A side whose frame takes 1 ms: counts its resets and frames."""
+
+    def __init__(self):
+        self.resets = self.frames_stepped = 0
+
+    def reset(self):
+        self.resets += 1
+
+    def frames(self, k):
+        self.frames_stepped += k
+        time.sleep(1e-3 * k)
+
+    def threads_used(self):
+        return None
+
+
+def test_each_side_is_timed_for_at_least_the_minimum_time():
+    side = _SlowSide()
+    timing = bench_peers.time_side(side, frames=2, rounds=3, warmup=1, min_time=0.1)
+    # rounds of ~2 ms: at least 0.1 s of them, so some 50 rounds, each from rest (a reset)
+    assert 20 <= timing["rounds"] <= 60 and len(timing["threads"]) == timing["rounds"]
+    assert side.resets == timing["rounds"] + 1 and side.frames_stepped == 1 + 2 * timing["rounds"]
+    assert 1.0 <= timing["ms_min"] <= timing["ms_per_frame"] <= timing["ms_max"]
+    # never fewer than `rounds`, never more than `max_rounds`
+    assert bench_peers.time_side(_SlowSide(), frames=1, rounds=4, warmup=0, min_time=0)["rounds"] == 4
+    assert bench_peers.time_side(_SlowSide(), frames=1, rounds=2, warmup=0, min_time=10, max_rounds=5)["rounds"] == 5
 
 
 def _same_fall_as_csb(arrays, side, frames=3):
@@ -109,7 +139,7 @@ def test_the_peers_are_an_optional_extra_only():
 
 def test_bench_peers_command_prints_a_table():
     r = subprocess.run([sys.executable, "-m", "csb.cli", "bench", "--peers", "--sides", "csb", "--sizes", "8",
-                        "--rounds", "2", "--peer-frames", "2", "--hold-frames", "4"],
+                        "--rounds", "2", "--peer-frames", "2", "--hold-frames", "4", "--peer-min-time", "0.05"],
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     rows = [line.split() for line in r.stdout.splitlines() if line.strip().startswith("8x8")]
@@ -120,3 +150,5 @@ def test_bench_peers_command_prints_a_table():
     # csb's threads per timed round are printed: one, since an 8 x 8 cloth is a model of one part
     assert [row[-2:] for row in rows[:2]] == [["threads", "1"], ["threads", "1"]]
     assert "substeps and iterations read back from the peer as asked" in r.stdout
+    assert "as many as fill 0.05 s of timed frames" in r.stdout
+    assert all(int(row[11]) >= 2 for row in rows[:2])  # the rounds column

@@ -16,7 +16,8 @@ extra (``pip install csb[bench]``), never a core dependency.
 
 Timing: after a warm-up, every round starts again from the cloth at rest and times the same
 first ``frames`` frames of the motion on every side (so no side is timed on a cloth that has
-drifted into a different state); the figure is the median over rounds, in ms per frame. After
+drifted into a different state); the figure is the median over rounds, in ms per frame: at
+least ``rounds`` of them, and as many more as fill ``min_time`` seconds of timed frames. After
 the timed frames each side's cloth is checked: finite, pins where they were, fallen under
 gravity no faster than free fall, mean edge strain below 10 % (the largest strain is printed).
 
@@ -51,6 +52,11 @@ GRAVITY = 9.81
 # particles by 1/(1 + r) of the full correction, the stiffest setting whose summed Jacobi stays
 # bounded on this cloth (r = 1 diverges at 32 x 32).
 NEWTON_SPRING_RELAXATION = 4.0
+
+# Timed rounds per side and row: at least `rounds`, and as many more as fill MIN_TIME seconds of
+# timed frames (at most MAX_ROUNDS), so that each median rests on about a second of stepping.
+MIN_TIME = 1.0
+MAX_ROUNDS = 2000
 
 MAPPING = {
     "csb": "method 'pbd' (the bundled scene): stretch k = 1, bending k = 0.1, corrected per iteration "
@@ -318,23 +324,30 @@ def check_cloth(arrays: dict[str, Any], x: np.ndarray, frames: int) -> dict[str,
     return out
 
 
-def time_side(side: Any, frames: int, rounds: int, warmup: int) -> dict[str, Any]:
-    """Median ms per frame over rounds that each start from rest and step `frames` frames."""
+def time_side(side: Any, frames: int, rounds: int, warmup: int, min_time: float = 0.0,
+              max_rounds: int = MAX_ROUNDS) -> dict[str, Any]:
+    """Median ms per frame over rounds that each start from rest and step `frames` frames: at
+    least `rounds` rounds, and more (up to `max_rounds`) until the timed frames add up to
+    `min_time` seconds. On a shared machine a slow spell of a second or so would otherwise be
+    the whole sample of a side whose rounds last a millisecond; every side gets the same rule."""
     side.reset()
     side.frames(warmup)
     times, threads = [], []
-    for _ in range(rounds):
+    timed = 0.0
+    while len(times) < rounds or (timed < min_time and len(times) < max_rounds):
         side.reset()
         t0 = time.perf_counter()
         side.frames(frames)
-        times.append((time.perf_counter() - t0) / frames * 1e3)
+        dt = time.perf_counter() - t0
+        timed += dt
+        times.append(dt / frames * 1e3)
         threads.append(side.threads_used())
-    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=rounds,
+    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=len(times),
                 threads=threads)
 
 
 def run_worker(side_name: str, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int, rounds: int,
-               warmup: int, hold_frames: int = 0) -> dict[str, Any]:
+               warmup: int, hold_frames: int = 0, min_time: float = 0.0) -> dict[str, Any]:
     """Everything one side does, in this process: returns JSON-able results."""
     out: dict[str, Any] = dict(side=side_name, rows=[], threads=os.environ.get("OMP_NUM_THREADS"))
     t0 = time.perf_counter()
@@ -366,7 +379,7 @@ def run_worker(side_name: str, sizes: Sequence[int], cases: Sequence[tuple[int, 
             t_first = time.perf_counter()
             side.frames(1)  # the first frame: Newton compiles its kernels here
             first_frame_s = time.perf_counter() - t_first
-            timing = time_side(side, frames, rounds, warmup)
+            timing = time_side(side, frames, rounds, warmup, min_time)
             check = check_cloth(arrays, side.positions(), frames)
             hold = None
             if hold_frames > 0:  # longer: does the cloth hang, or fall, or diverge?
@@ -388,10 +401,11 @@ def _worker_main(argv: Sequence[str]) -> int:
     p.add_argument("--frames", type=int, default=5)
     p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--warmup", type=int, default=2)
+    p.add_argument("--min-time", type=float, default=0.0)
     p.add_argument("--hold-frames", type=int, default=0)
     a = p.parse_args(argv)
     cases = [tuple(int(v) for v in c.split("x")) for c in a.cases]
-    result = run_worker(a.worker, a.sizes, cases, a.frames, a.rounds, a.warmup, a.hold_frames)
+    result = run_worker(a.worker, a.sizes, cases, a.frames, a.rounds, a.warmup, a.hold_frames, a.min_time)
     print("CSB_PEERS_JSON " + json.dumps(result))
     return 0
 
@@ -411,10 +425,11 @@ class Run:
 
 
 def run_side_subprocess(run: Run, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int,
-                        rounds: int, warmup: int, hold_frames: int = 0, timeout: float = 7200) -> Run:
+                        rounds: int, warmup: int, hold_frames: int = 0, min_time: float = 0.0,
+                        timeout: float = 7200) -> Run:
     cmd = [sys.executable, "-m", "csb.bench_peers", "--worker", run.side, "--sizes", *map(str, sizes),
            "--cases", *[f"{s}x{i}" for s, i in cases], "--frames", str(frames), "--rounds", str(rounds),
-           "--warmup", str(warmup), "--hold-frames", str(hold_frames)]
+           "--warmup", str(warmup), "--hold-frames", str(hold_frames), "--min-time", str(min_time)]
     env = {**os.environ, **run.env}
     t0 = time.perf_counter()
     r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
@@ -456,7 +471,7 @@ def format_peer_table(runs: Sequence[Run]) -> str:
     csb_ms = {(row["n"], row["substeps"], row["iterations"]): row["ms_per_frame"]
               for row in (csb.result["rows"] if csb else [])}
     head = (f"{'cloth':>9} {'sub x it':>8} {'side':>14} {'particles':>9} {'distance':>8} {'bending':>8} "
-            f"{'proj/frame':>10} {'ms/frame':>9} {'(min-max)':>17} {'Mproj/s':>8} {'/ csb':>7} "
+            f"{'proj/frame':>10} {'ms/frame':>9} {'(min-max)':>17} {'rounds':>6} {'Mproj/s':>8} {'/ csb':>7} "
             f"{'check after the timed frames':<40}")
     lines = [head, "-" * len(head)]
     keys = sorted({(row["n"], -row["substeps"], row["iterations"]) for r in done for row in r.result["rows"]})
@@ -476,12 +491,14 @@ def format_peer_table(runs: Sequence[Run]) -> str:
                         f"strain max {100 * ch['max_strain']:.0f}% mean {100 * ch['mean_strain']:.1f}%, "
                         f"pins {ch['pin_moved']:.0e} m" if ch["finite"] else f"{verdict}: not finite")
                 used = [t for t in row.get("threads") or [] if t is not None]
-                if used:  # csb: the threads of each timed round
-                    note += f"; threads {used[0]}" if len(set(used)) == 1 else f"; threads {'/'.join(map(str, used))}"
+                if used:  # csb: the threads of the timed rounds, and in how many rounds each count
+                    counts = sorted(((used.count(t), t) for t in set(used)), reverse=True)
+                    note += f"; threads {used[0]}" if len(counts) == 1 else "; threads " + ", ".join(
+                        f"{t} in {k} rounds" for k, t in counts)
                 lines.append(
                     f"{n:>4}x{n:<4} {-msub:>3} x {it:<3} {r.label:>14} {c['particles']:>9} {c['distance']:>8} "
                     f"{c['bending']:>8} {c['projections_per_frame']:>10} {ms:>9.3f} "
-                    f"{spread:>17} {mproj:>8.1f} {ratio} {note}")
+                    f"{spread:>17} {row['rounds']:>6} {mproj:>8.1f} {ratio} {note}")
     return "\n".join(lines)
 
 
@@ -504,7 +521,7 @@ def format_hold_table(runs: Sequence[Run]) -> str:
     return f"\nAfter {frames} frames ({frames / 60:.2f} s) from rest, untimed:\n" + "\n".join(lines)
 
 
-def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int) -> str:
+def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, min_time: float = 0.0) -> str:
     versions: dict[str, str] = {}
     for r in runs:
         if r.result:
@@ -512,7 +529,9 @@ def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int) ->
     info = ", ".join(f"{k} {v}" for k, v in versions.items())
     return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame; "
             f"each round starts at rest and times frames 1-{frames} (after {warmup} warm-up frames); "
-            f"median of {rounds} rounds. '/ csb': ms/frame over csb's. {info}")
+            + (f"median of at least {rounds} rounds, and of as many as fill {min_time:g} s of timed frames "
+               f"(column 'rounds'). " if min_time > 0 else f"median of {rounds} rounds. ")
+            + f"'/ csb': ms/frame over csb's. {info}")
 
 
 def format_notes(runs: Sequence[Run]) -> str:
@@ -545,7 +564,7 @@ def format_notes(runs: Sequence[Run]) -> str:
 
 
 def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES, frames: int = 5, rounds: int = 7,
-         warmup: int = 2, sides: Sequence[str] = ("csb", "pypbd", "newton"), pypbd_threads: Sequence[int] = (1, 2),
+         warmup: int = 2, min_time: float = MIN_TIME, sides: Sequence[str] = ("csb", "pypbd", "newton"), pypbd_threads: Sequence[int] = (1, 2),
          newton_cold: bool = True, hold_frames: int = 0, newton_launches: bool = True) -> list[Run]:
     with tempfile.TemporaryDirectory(prefix="csb-warp-cache-") as cache:
         runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches)
@@ -558,7 +577,7 @@ def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES,
                 for run in runs:
                     print(f"running {run.label} {n}x{n} {case[0]}x{case[1]} ...", file=sys.stderr, flush=True)
                     part = run_side_subprocess(Run(run.label, run.side, run.env), [n], [case], frames, rounds,
-                                               warmup, hold_frames)
+                                               warmup, hold_frames, min_time)
                     run.wall_s += part.wall_s
                     if part.error:
                         run.error = (run.error + "; " if run.error else "") + f"{n} {case}: {part.error}"
@@ -567,7 +586,7 @@ def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES,
                         run.result["first_frame_first_run_s"] = part.result["rows"][0]["first_frame_s"]
                     else:
                         run.result["rows"].extend(part.result["rows"])
-    print(format_header(runs, frames, rounds, warmup))
+    print(format_header(runs, frames, rounds, warmup, min_time))
     print(format_peer_table(runs))
     print(format_notes(runs))
     hold = format_hold_table(runs)

@@ -28,6 +28,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         from . import bench_peers
 
         bench_peers.main(sizes=args.sizes or bench_peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
+                         min_time=bench_peers.MIN_TIME if args.peer_min_time is None else args.peer_min_time,
                          sides=args.sides, pypbd_threads=args.pypbd_threads, newton_cold=not args.newton_cache,
                          hold_frames=args.hold_frames)
         return 0
@@ -142,6 +143,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="with --peers: OMP_NUM_THREADS values to run pypbd with (default: 1 2)")
     p.add_argument("--peer-frames", type=int, default=5,
                    help="with --peers: frames per timed round, each round from rest (default: 5)")
+    p.add_argument("--peer-min-time", type=float, default=None,
+                   help="with --peers: seconds of timed frames per side and row; rounds are added beyond "
+                        "--rounds until they add up to it (default: 1)")
     p.add_argument("--hold-frames", type=int, default=0,
                    help="with --peers: also step each cloth this many frames from rest and check it (untimed)")
     p.add_argument("--newton-cache", action="store_true",
