@@ -61,7 +61,8 @@ MAX_ROUNDS = 2000
 MAPPING = {
     "csb": "method 'pbd' (the bundled scene): stretch k = 1, bending k = 0.1, corrected per iteration "
            "to 1 - (1 - k)^(1/iterations); coloured Gauss-Seidel on the free cores (threads = 0: one or two here, "
-           "printed per timed round)",
+           "printed per timed round), each bending element projecting its edge's distance constraint just "
+           "before itself",
     "pypbd": "DistanceConstraint (PBD, stiffness 1) on every unique edge and DihedralConstraint (PBD) on "
              "every interior edge, from addClothConstraints(method 1) and addBendingConstraints(method 1) "
              "on the same triangles; dihedral stiffness = csb's corrected per-projection k; "

@@ -6,8 +6,9 @@
 // (papers/benchmarks.md). Here a particle is one masked 256-bit load ([x, y, z, 0]; the fourth
 // double is never read, so the last particle of an array is safe), four of them become three
 // rows in seven shuffles, and a correction goes back as a 128-bit (x, y) and a scalar (z)
-// read-modify-write: the constraints of a colour share no particle, and nothing outside a
-// particle's three doubles is written, so another thread's particles next to it are untouched.
+// read-modify-write (add_rows), or a new position as a 128-bit and a scalar store (store_rows):
+// the constraints of a colour share no particle, and nothing outside a particle's three doubles
+// is written, so another thread's particles next to it are untouched.
 // Only data moves here; every sum is the same IEEE operation on the same operands as in the
 // scalar loops, so the results keep their bits.
 //
@@ -83,6 +84,21 @@ CSB_AVX2_INLINE void add_rows(Real* o, const Index at[4], __m256d dx, __m256d dy
     _mm_storeu_pd(p, update<Subtract>(_mm_loadu_pd(p), xy[l]));
     update<Subtract>(p[2], z[l]);
   }
+}
+
+// Lane l of the rows (x, y, z) written to the particle at o + at[l] (its three doubles only).
+CSB_AVX2_INLINE void store_rows(Real* o, const Index at[4], __m256d x, __m256d y, __m256d z) {
+  const __m256d t0 = _mm256_unpacklo_pd(x, y);  // x0 y0 x2 y2
+  const __m256d t1 = _mm256_unpackhi_pd(x, y);  // x1 y1 x3 y3
+  _mm_storeu_pd(o + at[0], _mm256_castpd256_pd128(t0));
+  _mm_storeu_pd(o + at[1], _mm256_castpd256_pd128(t1));
+  _mm_storeu_pd(o + at[2], _mm256_extractf128_pd(t0, 1));
+  _mm_storeu_pd(o + at[3], _mm256_extractf128_pd(t1, 1));
+  const __m128d z01 = _mm256_castpd256_pd128(z), z23 = _mm256_extractf128_pd(z, 1);
+  _mm_store_sd(o + at[0] + 2, z01);
+  _mm_storeh_pd(o + at[1] + 2, z01);
+  _mm_store_sd(o + at[2] + 2, z23);
+  _mm_storeh_pd(o + at[3] + 2, z23);
 }
 
 }  // namespace csb::avx2

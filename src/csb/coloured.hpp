@@ -12,6 +12,7 @@
 // multipliers live here in colour order and are put back in the model's order on request.
 #pragma once
 
+#include "csb/model.hpp"
 #include "csb/types.hpp"
 
 #include <array>
@@ -37,6 +38,11 @@ struct ColouredFour {
   std::vector<Real> k;               // PBD, Jakobsen
   std::vector<Real> alpha, gamma;    // XPBD
   std::vector<Real> lambda;
+  // Bending with PBD Gauss-Seidel: the distance constraint on each element's edge (a, b), when
+  // the model has one, projected by the same kernel just before the bending constraint (see
+  // PbdStepper::build_coloured); empty otherwise. rest length (m), and the shares of the
+  // correction of a and of b (k w / Σw; 0 and 0 where the element has no distance constraint).
+  std::vector<Real> pair_rest, pair_ca, pair_cb;
 };
 
 struct ColouredAttachments {
@@ -48,6 +54,9 @@ struct ColouredAttachments {
 struct ColouredBatches {
   std::uint64_t model_id = 0;        // the model they were built from
   std::vector<Index> kinematic;      // the particles held kinematically when built (w = 0)
+  // The distance constraints projected on their own, and their colouring: the model's, less
+  // those projected with a bending element (ColouredFour::pair_rest).
+  Colouring distance_colours;
   ColouredDistance distance;
   ColouredFour bending, volume;
   ColouredAttachments attachments;

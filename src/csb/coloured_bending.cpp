@@ -69,18 +69,25 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
   }
   bending_gather(t, b, c0, m4, m, r, x);
   bending_compute(t, b, c0, m);
+  const bool in_place = o == r;
   for (Index k = 0; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
     const __m256d S = _mm256_load_pd(&t.S[k]);
     for (int s = 0; s < 4; ++s) {
       const __m256d ws = _mm256_mul_pd(S, _mm256_load_pd(&t.W[s][k]));
       const Index at[4] = {3 * q[0][s], 3 * q[1][s], 3 * q[2][s], 3 * q[3][s]};
-      add_rows(o, at, _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s][k])),
-               _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s + 1][k])),
-               _mm256_mul_pd(ws, _mm256_load_pd(&t.P[3 * s + 2][k])));
+      const __m256d dx = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s][k])),
+                    dy = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s + 1][k])),
+                    dz = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s + 2][k]));
+      if (in_place)
+        store_rows(o, at, _mm256_add_pd(_mm256_load_pd(&t.P[3 * s][k]), dx),
+                   _mm256_add_pd(_mm256_load_pd(&t.P[3 * s + 1][k]), dy),
+                   _mm256_add_pd(_mm256_load_pd(&t.P[3 * s + 2][k]), dz));
+      else
+        add_rows(o, at, dx, dy, dz);
     }
   }
-  bending_scatter(t, b, c0, m4, m, o);
+  bending_scatter(t, b, c0, m4, m, in_place, o);
 }
 
 CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o,

@@ -12,8 +12,13 @@
 //  2. compute: a branch-free loop over the block that the compiler runs in SIMD lanes (`omp
 //     simd`; SSE2 in the portable build), the angle by atan2_rational (csb/atan2.hpp) instead of
 //     libm's atan2; a degenerate pair (zero-length edge, zero-area triangle) is masked by
-//     selects: its gradient and so its correction are zero;
-//  3. scatter: the twelve corrections added to the particles (the AVX2 copy likewise).
+//     selects: its gradient and so its correction are zero. With PBD or Jakobsen Gauss-Seidel
+//     the distance constraint on the element's edge (a, b) is projected first, on the block's
+//     copy of a and b (ColouredFour::pair_rest; PbdStepper::build_coloured);
+//  3. scatter: Gauss-Seidel (o = r) writes the four new positions, the block's copy plus the
+//     correction (the same sum as adding the correction to the particle, which no other
+//     constraint of the colour has moved meanwhile); Jacobi adds the twelve corrections (the
+//     AVX2 copy likewise).
 // Every constraint goes through the same IEEE operations in the same order whatever its lane,
 // block, range or thread (no FMA contraction), so results do not depend on the thread count.
 // A range whose constraints may share particles (the overflow colour) is projected one
@@ -35,12 +40,13 @@ namespace csb {
 constexpr Index kBendingBlock = 32;
 
 // A block's working arrays. P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint
-// c0 + k, then (in place) ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x; Theta: the angle;
-// S: the multiplier step, Δp_s = S w_s ∇_s C.
+// c0 + k (a and b moved by the edge's distance constraint, if projected with the element);
+// G[3 s + e][k]: ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x; Theta: the angle; S: the
+// multiplier step, Δp_s = S w_s ∇_s C.
 template <bool Xpbd>
 struct BendingBlock {
   static constexpr Index B = kBendingBlock;
-  alignas(64) Real P[12][B], W[4][B];
+  alignas(64) Real P[12][B], G[12][B], W[4][B];
   alignas(64) Real X[Xpbd ? 12 : 1][B];
   alignas(64) Real Theta[B], Cos[B], Wgrad[B], S[B];
 };
@@ -75,7 +81,25 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd>& t, const ColouredFour& 
 template <bool Xpbd>
 CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, Index c0, Index m) {
   auto& P = t.P;
+  auto& G = t.G;
   const auto& W = t.W;
+  if (!b.pair_rest.empty()) {
+    // The distance constraints on the elements' edges (a, b) first (PBD, as distance_pbd:
+    // d = a - b, s = (|d| - rest)/|d|, Δa = -ca s d, Δb = +cb s d; ca = cb = 0 for an element
+    // without one), into the block's positions of a and b.
+    const Real* rest = b.pair_rest.data() + c0;
+    const Real* ca = b.pair_ca.data() + c0;
+    const Real* cb = b.pair_cb.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      const Real dx = P[0][k] - P[3][k], dy = P[1][k] - P[4][k], dz = P[2][k] - P[5][k];
+      const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
+      const Real s = (len > 0 ? len - rest[k] : Real(0)) / (len > 0 ? len : Real(1));
+      const Real sa = ca[k] * s, sb = cb[k] * s;
+      P[0][k] -= sa * dx, P[1][k] -= sa * dy, P[2][k] -= sa * dz;
+      P[3][k] += sb * dx, P[4][k] += sb * dy, P[5][k] += sb * dz;
+    }
+  }
   // Geometry: the angle's two arguments, the gradient (over the positions) and Σ w |∇C|².
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
@@ -110,8 +134,8 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
     const Real gax = -(gbx + gcx + gdx), gay = -(gby + gcy + gdy), gaz = -(gbz + gcz + gdz);
     t.Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
                  (W[2][k] * i1 + W[3][k] * i2) * e2;
-    P[0][k] = gax, P[1][k] = gay, P[2][k] = gaz, P[3][k] = gbx, P[4][k] = gby, P[5][k] = gbz;
-    P[6][k] = gcx, P[7][k] = gcy, P[8][k] = gcz, P[9][k] = gdx, P[10][k] = gdy, P[11][k] = gdz;
+    G[0][k] = gax, G[1][k] = gay, G[2][k] = gaz, G[3][k] = gbx, G[4][k] = gby, G[5][k] = gbz;
+    G[6][k] = gcx, G[7][k] = gcy, G[8][k] = gcz, G[9][k] = gdx, G[10][k] = gdy, G[11][k] = gdz;
   }
   // The angle, in a loop of its own (its latency chain is the longest), then the violation
   // and the multiplier: Δp_i = S w_i ∇_i C.
@@ -129,9 +153,9 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
       const Real wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
       const Real g = gamma[k];
-      const Real along = P[0][k] * X[0][k] + P[1][k] * X[1][k] + P[2][k] * X[2][k] + P[3][k] * X[3][k] +
-                         P[4][k] * X[4][k] + P[5][k] * X[5][k] + P[6][k] * X[6][k] + P[7][k] * X[7][k] +
-                         P[8][k] * X[8][k] + P[9][k] * X[9][k] + P[10][k] * X[10][k] + P[11][k] * X[11][k];
+      const Real along = G[0][k] * X[0][k] + G[1][k] * X[1][k] + G[2][k] * X[2][k] + G[3][k] * X[3][k] +
+                         G[4][k] * X[4][k] + G[5][k] * X[5][k] + G[6][k] * X[6][k] + G[7][k] * X[7][k] +
+                         G[8][k] * X[8][k] + G[9][k] * X[9][k] + G[10][k] * X[10][k] + G[11][k] * X[11][k];
       const Real moved = g == 0 ? Real(0) : along;
       const Real l = lambda[k];
       const Real den = (1 + g) * wgrad + alpha[k];
@@ -152,18 +176,18 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
   }
 }
 
-// 3. Scatter the corrections of constraints c0 + [k0, m), one at a time.
+// 3. Scatter constraints c0 + [k0, m), one at a time. In place (Gauss-Seidel, o = r): the new
+// positions written, P + S w_s ∇_s C; else (Jacobi) the correction added to o.
 template <bool Xpbd>
 CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd>& t, const ColouredFour& b, Index c0, Index k0, Index m,
-                                      Real* o) {
+                                      bool in_place, Real* o) {
   for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const Real ws = t.S[k] * t.W[s][k];
       const Index i = 3 * q[s];
-      o[i] += ws * t.P[3 * s][k];
-      o[i + 1] += ws * t.P[3 * s + 1][k];
-      o[i + 2] += ws * t.P[3 * s + 2][k];
+      for (int e = 0; e < 3; ++e)
+        o[i + e] = (in_place ? t.P[3 * s + e][k] : o[i + e]) + ws * t.G[3 * s + e][k];
     }
   }
 }
@@ -174,7 +198,7 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
   BendingBlock<Xpbd> t;
   bending_gather(t, b, c0, 0, m, r, x);
   bending_compute(t, b, c0, m);
-  bending_scatter(t, b, c0, 0, m, o);
+  bending_scatter(t, b, c0, 0, m, o == r, o);
 }
 
 // The blocks of constraints [begin, end) of one colour (they share no particle). Defined in

@@ -22,6 +22,7 @@
 #include <limits>
 
 #include <thread>
+#include <unordered_map>
 #include <sstream>
 
 namespace csb {
@@ -596,7 +597,9 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
 //
 // Threads share the work by groups (see Colouring): a sweep is
 //  1. the parts' interiors, each part a task: one thread projects every batch's colours of that
-//     part (distance, then bending, volume, attachments), no barrier between colours;
+//     part (distance, then bending, volume, attachments; with PBD or Jakobsen Gauss-Seidel a
+//     bending element also projects the distance constraint on its edge, just before itself,
+//     see build_coloured), no barrier between colours;
 //  2. the interfaces (constraints between parts i and i + 1), each a task, in the model's
 //     interface phases, whose interfaces share no particle (one phase for a cloth);
 //  3. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
@@ -955,7 +958,7 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
   };
   const auto group = [&](Index g) {
     start(g);
-    group_colours(model.distance.colours, g, distance);
+    group_colours(cb.distance_colours, g, distance);
     group_colours(model.bending.colours, g, bending);
     group_colours(model.volume.colours, g, volume);
     group_colours(model.attachments.colours, g, attachment);
@@ -968,7 +971,7 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
     share.tasks(static_cast<Index>(phase.size()), [&](Index k) { group(parts + phase[k]); });
   // 3. The rest, colour by colour.
   const Index rest = 2 * parts - 1;
-  shared_colours(share, model.distance.colours, rest, kChunkDistance, distance);
+  shared_colours(share, cb.distance_colours, rest, kChunkDistance, distance);
   shared_colours(share, model.bending.colours, rest, kChunkFour, bending);
   shared_colours(share, model.volume.colours, rest, kChunkFour, volume);
   shared_colours(share, model.attachments.colours, rest, kChunkAttachment, attachment);
@@ -1043,7 +1046,11 @@ std::size_t ColouredBatches::bytes() const {
                   capacity_bytes(d.lambda) + capacity_bytes(part_run_offsets) + capacity_bytes(part_runs);
   for (const ColouredFour* f : {&bending, &volume})
     s += capacity_bytes(f->q) + capacity_bytes(f->rest) + capacity_bytes(f->w) + capacity_bytes(f->k) +
-         capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda);
+         capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda) +
+         capacity_bytes(f->pair_rest) + capacity_bytes(f->pair_ca) + capacity_bytes(f->pair_cb);
+  const Colouring& dc = distance_colours;
+  s += capacity_bytes(dc.order) + capacity_bytes(dc.colour_offsets) + capacity_bytes(dc.serial_colours) +
+       capacity_bytes(dc.group_colours);
   const auto& a = attachments;
   s += capacity_bytes(a.i) + capacity_bytes(a.target) + capacity_bytes(a.w) + capacity_bytes(a.k) +
        capacity_bytes(a.alpha) + capacity_bytes(a.gamma) + capacity_bytes(a.lambda);
@@ -1059,9 +1066,51 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     out.resize(order.size());
     for (std::size_t c = 0; c < order.size(); ++c) out[c] = from[order[c]];
   };
+  // PBD and Jakobsen Gauss-Seidel (exact square root): each bending element (a, b, c, d) takes the
+  // distance constraint on its edge (a, b), when there is one (bilateral, not yet taken by
+  // another element; elements in colour order): one kernel projects it and then the bending
+  // constraint, four particles moved in and out once instead of six. (Another Gauss-Seidel
+  // order: within a bending colour, its elements' edges, then its bending constraints.)
+  const DistanceBatch& db = model.distance;
+  const BendingBatch& bb = model.bending;
+  const bool pairs = !xpbd && settings_.solver == Solver::GaussSeidel && !settings_.sqrt_approximation &&
+                     bb.size() > 0 && db.size() > 0;
+  // pair_of[c]: the distance constraint (model index) of the element at bending colour position c, or -1
+  std::vector<Index> pair_of(pairs ? static_cast<std::size_t>(bb.size()) : 0, -1);
+  std::vector<std::uint8_t> paired(pairs ? static_cast<std::size_t>(db.size()) : 0, 0);
+  if (pairs) {
+    std::unordered_map<std::uint64_t, Index> edges;
+    edges.reserve(static_cast<std::size_t>(db.size()));
+    const auto key = [](Index i, Index j) {
+      return (static_cast<std::uint64_t>(std::min(i, j)) << 32) | static_cast<std::uint32_t>(std::max(i, j));
+    };
+    for (Index o = 0; o < db.size(); ++o)
+      if (db.sense[o] == 0) edges.emplace(key(db.particles[o][0], db.particles[o][1]), o);
+    const auto& order = bb.colours.order;
+    for (std::size_t c = 0; c < order.size(); ++c) {
+      const auto& q = bb.particles[order[c]];
+      const auto it = edges.find(key(q[0], q[1]));
+      if (it == edges.end() || paired[it->second]) continue;
+      paired[it->second] = 1;
+      pair_of[c] = it->second;
+    }
+  }
+  cb.distance_colours = db.colours;
+  if (pairs) {  // the model's colouring less the paired constraints
+    Colouring& dc = cb.distance_colours;
+    std::vector<Index> order;
+    std::vector<Index> offsets{0};
+    for (Index k = 0; k < dc.num_colours(); ++k) {
+      for (Index c = dc.colour_offsets[k]; c < dc.colour_offsets[k + 1]; ++c)
+        if (!paired[dc.order[c]]) order.push_back(dc.order[c]);
+      offsets.push_back(static_cast<Index>(order.size()));
+    }
+    dc.order = std::move(order);
+    dc.colour_offsets = std::move(offsets);
+  }
   {
     const DistanceBatch& b = model.distance;
-    const auto& order = b.colours.order;
+    const auto& order = cb.distance_colours.order;
     ColouredDistance& d = cb.distance;
     const std::size_t m = order.size();
     d.i.resize(m);
@@ -1113,6 +1162,27 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   };
   four(cb.bending, model.bending.particles, model.bending.rest_angle, model.bending.colours, k_bending_, a_bending_,
        g_bending_);
+  {
+    ColouredFour& f = cb.bending;
+    const std::size_t m = pair_of.size();
+    f.pair_rest.assign(m, 0);
+    f.pair_ca.assign(m, 0);
+    f.pair_cb.assign(m, 0);
+    for (std::size_t c = 0; c < m; ++c) {
+      const Index o = pair_of[c];
+      if (o < 0) continue;
+      const Index i = db.particles[o][0], j = db.particles[o][1];
+      const Real wsum = w[i] + w[j];
+      const Real ci = wsum > 0 ? k_distance_[o] * w[i] / wsum : 0;
+      const Real cj = wsum > 0 ? k_distance_[o] * w[j] / wsum : 0;
+      // the kernel takes d = a - b: Δa = -ca s d, Δb = +cb s d (the constraint's own
+      // orientation, d = p_i - p_j, gives the same values)
+      const bool forward = i == f.q[c][0];
+      f.pair_rest[c] = db.rest_length[o];
+      f.pair_ca[c] = forward ? ci : cj;
+      f.pair_cb[c] = forward ? cj : ci;
+    }
+  }
   four(cb.volume, model.volume.particles, model.volume.rest_volume, model.volume.colours, k_volume_, a_volume_, g_volume_);
   {
     const AttachmentBatch& b = model.attachments;
@@ -1172,8 +1242,9 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   }
   const Index rest = 2 * parts - 1;
   cb.rest_empty = true;
-  for (const Colouring* c : {&model.distance.colours, &model.bending.colours, &model.volume.colours,
-                             &model.attachments.colours})
+  const Colouring* const batches[] = {&cb.distance_colours, &model.bending.colours, &model.volume.colours,
+                                      &model.attachments.colours};
+  for (const Colouring* c : batches)
     cb.rest_empty = cb.rest_empty && (c->num_groups() <= rest || c->colour_offsets[c->group_colours[rest + 1]] ==
                                                                       c->colour_offsets[c->group_colours[rest]]);
   cb.model_id = model.id;
