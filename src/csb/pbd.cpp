@@ -867,11 +867,21 @@ struct Share {
   int t;                   // this thread
   std::int64_t phase = 0;  // phases begun
 
-  // Tasks 0 .. count - 1 shared dynamically, then a barrier.
+  // Tasks 0 .. count - 1 shared dynamically, then a barrier. The tasks are cut into one range per
+  // thread (up to Team::kRanges), each with its own counter: a thread takes the tasks of its own
+  // range first, then those left in the others'. So a part stays on one core from sweep to sweep
+  // (its particles and constraints in that core's cache: 2-5 % of a 64x64 frame), and a thread
+  // slowed by a busy core still leaves its tasks to the others.
   template <class F>
   void tasks(Index count, F&& f) {
     if (count <= 0) return;
-    for (int k; (k = team.take(phase)) < count;) f(static_cast<Index>(k));
+    const int ranges = std::min(team.size(), Team::kRanges);
+    for (int i = 0; i < ranges; ++i) {
+      const int r = (t + i) % ranges;
+      const Index begin = static_cast<Index>(static_cast<std::int64_t>(count) * r / ranges);
+      const Index end = static_cast<Index>(static_cast<std::int64_t>(count) * (r + 1) / ranges);
+      for (int k; (k = team.take(phase, r)) < end - begin;) f(begin + static_cast<Index>(k));
+    }
     team.barrier();
     if (t == 0) team.reset(phase);
     ++phase;

@@ -78,7 +78,8 @@ void Team::worker(int t, std::uint32_t seen) {
 }
 
 void Team::run(int threads, bool spin, const std::function<void(int)>& job) {
-  for (Counter& c : counters_) c.value.store(0, std::memory_order_relaxed);
+  for (auto& ring : counters_)
+    for (Counter& c : ring) c.value.store(0, std::memory_order_relaxed);
   if (threads <= 1) {
     active_ = 1;
     job(0);

@@ -11,9 +11,9 @@
 // each of its threads (the caller reads /proc/loadavg, see free_cores in pbd.cpp), and otherwise
 // sleeps at once. A thread that spun for kSpinNs without being released sleeps too.
 //
-// Work is shared by `take`: a counter per phase hands out task numbers, so a thread slowed by a
-// busy core takes fewer. Which thread runs a task never changes a result: the tasks of one phase
-// write disjoint data (the sweep's colouring guarantees it).
+// Work is shared by `take`: counters per phase (one per range of its tasks) hand out task
+// numbers, so a thread slowed by a busy core takes fewer. Which thread runs a task never changes
+// a result: the tasks of one phase write disjoint data (the sweep's colouring guarantees it).
 #pragma once
 
 #include <atomic>
@@ -39,13 +39,17 @@ class Team {
   void run(int threads, bool spin, const std::function<void(int)>& job);
   // Within run: waits until every thread of the team has arrived.
   void barrier();
-  // Within run: the next task number of `phase` (phases are counted by the caller, the same on
-  // every thread; thread 0 resets a phase's counter after the barrier that ends the phase, and
-  // the counter serves again kRing phases later, several barriers on). Tasks past the phase's
+  // Within run: the next task number of `phase` in `range` (phases are counted by the caller,
+  // the same on every thread; thread 0 resets a phase's counters after the barrier that ends the
+  // phase, and they serve again kRing phases later, several barriers on). Tasks past the range's
   // count mean it is done.
-  int take(std::int64_t phase) { return counters_[phase % kRing].value.fetch_add(1, std::memory_order_relaxed); }
-  // Within run, on thread 0 after a barrier that ends `phase`: makes its counter ready for reuse.
-  void reset(std::int64_t phase) { counters_[phase % kRing].value.store(0, std::memory_order_relaxed); }
+  int take(std::int64_t phase, int range = 0) {
+    return counters_[phase % kRing][range].value.fetch_add(1, std::memory_order_relaxed);
+  }
+  // Within run, on thread 0 after a barrier that ends `phase`: makes its counters ready for reuse.
+  void reset(std::int64_t phase) {
+    for (Counter& c : counters_[phase % kRing]) c.value.store(0, std::memory_order_relaxed);
+  }
   int size() const { return active_; }
 
   // Threads of every team in this process now spinning while they wait for work (between runs):
@@ -53,6 +57,7 @@ class Team {
   static int idle_spinning();
 
   static constexpr int kRing = 4;
+  static constexpr int kRanges = 8;  // counters per phase (`take`'s range)
   static constexpr std::int64_t kSpinNs = 50'000;  // how long a waiting thread spins, at most
 
  private:
@@ -75,7 +80,7 @@ class Team {
   alignas(64) std::atomic<std::uint32_t> barrier_{0};  // generation of barriers
   alignas(64) std::atomic<int> sleepers_{0};
   std::atomic<bool> quit_{false};
-  Counter counters_[kRing];
+  Counter counters_[kRing][kRanges];
   std::mutex mutex_;
   std::condition_variable wake_;
 };
