@@ -152,3 +152,21 @@ def test_bench_peers_command_prints_a_table():
     assert "substeps and iterations read back from the peer as asked" in r.stdout
     assert "as many as fill 0.05 s of timed frames" in r.stdout
     assert all(int(row[11]) >= 2 for row in rows[:2])  # the rounds column
+
+
+@pytest.mark.parametrize("option, value, message", [
+    ("--rounds", "0", "argument --rounds: must be at least 1, got 0"),
+    ("--peer-frames", "0", "argument --peer-frames: must be at least 1, got 0"),
+    ("--peer-min-time", "-1", "argument --peer-min-time: must be at least 0, got -1"),
+    ("--peer-min-time", "nan", "argument --peer-min-time: must be at least 0, got nan"),
+    ("--sizes", "1", "argument --sizes: must be at least 2, got 1"),
+    ("--pypbd-threads", "0", "argument --pypbd-threads: must be at least 1, got 0"),
+    ("--rounds", "x", "argument --rounds: expected an integer, got 'x'"),
+])
+def test_impossible_bench_options_are_refused_by_name(capsys, option, value, message):
+    from csb import cli
+
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["bench", "--peers", "--sides", "csb", option, value])
+    assert exit_.value.code == 2
+    assert message in capsys.readouterr().err

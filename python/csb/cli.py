@@ -104,6 +104,21 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
+def _at_least(low: float, kind: type = int):
+    """An argparse type: a number of `kind` not below `low` (argparse names the option)."""
+
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}")
+        if not value >= low:  # also rejects NaN
+            raise argparse.ArgumentTypeError(f"must be at least {low:g}, got {text}")
+        return value
+
+    return parse
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="csb", description="Cloth and soft-body dynamics with Position Based Dynamics.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -117,12 +132,12 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "
                                      "colouring, threads, scaling, memory and the reference; --peers: against pypbd "
                                      "and newton (prints tables)")
-    p.add_argument("--sizes", type=int, nargs="+", default=None,
+    p.add_argument("--sizes", type=_at_least(2), nargs="+", default=None,
                    help="particles per side (default: 64 128; with --peers 32 64 128 256)")
-    p.add_argument("--iterations", type=int, default=10)
-    p.add_argument("--substeps", type=int, default=1)
-    p.add_argument("--steps", type=int, default=10, help="steps per timed round")
-    p.add_argument("--rounds", type=int, default=7, help="timed rounds; the median is reported")
+    p.add_argument("--iterations", type=_at_least(1), default=10)
+    p.add_argument("--substeps", type=_at_least(1), default=1)
+    p.add_argument("--steps", type=_at_least(1), default=10, help="steps per timed round")
+    p.add_argument("--rounds", type=_at_least(1), default=7, help="timed rounds; the median is reported")
     p.add_argument("--parts", nargs="+",
                    default=["step", "front-ends", "dispatch", "viewer", "fps", "types", "threads", "busy", "particles",
                             "memory", "big", "klu"],
@@ -132,21 +147,21 @@ def main(argv: list[str] | None = None) -> int:
                         "frame time; issue 7: fps of 128x128 and 256x256 cloths, projections per second by type "
                         "against a plain loop, 1 against 2 threads, the same with a busy core, cost per particle "
                         "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size")
-    p.add_argument("--front-end-sizes", type=int, nargs="+", default=[32, 128, 512],
+    p.add_argument("--front-end-sizes", type=_at_least(2), nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.add_argument("--peers", action="store_true",
                    help="instead: the same cloth in csb, pypbd and newton (CPU), 10 substeps x 1 iteration and "
                         "1 x 10 (issue 7); a peer that is not installed is skipped (pip install 'csb[bench]')")
     p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton"], choices=["csb", "pypbd", "newton"],
                    help="with --peers: which sides to run")
-    p.add_argument("--pypbd-threads", type=int, nargs="+", default=[1, 2],
+    p.add_argument("--pypbd-threads", type=_at_least(1), nargs="+", default=[1, 2],
                    help="with --peers: OMP_NUM_THREADS values to run pypbd with (default: 1 2)")
-    p.add_argument("--peer-frames", type=int, default=5,
+    p.add_argument("--peer-frames", type=_at_least(1), default=5,
                    help="with --peers: frames per timed round, each round from rest (default: 5)")
-    p.add_argument("--peer-min-time", type=float, default=None,
+    p.add_argument("--peer-min-time", type=_at_least(0.0, float), default=None,
                    help="with --peers: seconds of timed frames per side and row; rounds are added beyond "
                         "--rounds until they add up to it (default: 1)")
-    p.add_argument("--hold-frames", type=int, default=0,
+    p.add_argument("--hold-frames", type=_at_least(0), default=0,
                    help="with --peers: also step each cloth this many frames from rest and check it (untimed)")
     p.add_argument("--newton-cache", action="store_true",
                    help="with --peers: use Warp's kernel cache (default: a fresh one, so that first-use "
