@@ -38,10 +38,11 @@ struct ColouredFour {
   std::vector<Real> k;               // PBD, Jakobsen
   std::vector<Real> alpha, gamma;    // XPBD
   std::vector<Real> lambda;
-  // Bending with PBD Gauss-Seidel: the distance constraint on each element's edge (a, b), when
-  // the model has one, projected by the same kernel just before the bending constraint (see
-  // PbdStepper::build_coloured); empty otherwise. rest length (m), and the shares of the
-  // correction of a and of b (k w / Σw; 0 and 0 where the element has no distance constraint).
+  // Bending with PBD or Jakobsen, Gauss-Seidel, exact square root: the distance constraint on
+  // each element's edge (a, b), when the model has one, projected by the same kernel just before
+  // the bending constraint (see PbdStepper::build_coloured); empty otherwise. Its rest length
+  // (m), and the shares of the correction of a and of b (k w / Σw; 0 and 0 where the element
+  // has no distance constraint).
   std::vector<Real> pair_rest, pair_ca, pair_cb;
 };
 
