@@ -1083,6 +1083,12 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   // order: within a bending colour, its elements' edges, then its bending constraints.)
   const DistanceBatch& db = model.distance;
   const BendingBatch& bb = model.bending;
+  // PBD's shares of distance constraint o's correction for its particles i and j: k w / Σw.
+  const auto pbd_shares = [&](Index o) -> std::array<Real, 2> {
+    const Index i = db.particles[o][0], j = db.particles[o][1];
+    const Real wsum = w[i] + w[j];
+    return {wsum > 0 ? k_distance_[o] * w[i] / wsum : 0, wsum > 0 ? k_distance_[o] * w[j] / wsum : 0};
+  };
   const bool pairs = !xpbd && settings_.solver == Solver::GaussSeidel && !settings_.sqrt_approximation &&
                      bb.size() > 0 && db.size() > 0;
   // pair_of[c]: the distance constraint (model index) of the element at bending colour position c, or -1
@@ -1145,8 +1151,9 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
         d.cj[c] = w[j];
         d.inv_den[c] = wsum > 0 ? 1 / ((1 + d.gamma[c]) * wsum + d.alpha[c]) : 0;
       } else {
-        d.ci[c] = wsum > 0 ? k_distance_[o] * w[i] / wsum : 0;
-        d.cj[c] = wsum > 0 ? k_distance_[o] * w[j] / wsum : 0;
+        const auto [ci, cj] = pbd_shares(o);
+        d.ci[c] = ci;
+        d.cj[c] = cj;
       }
     }
   }
@@ -1181,13 +1188,10 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = pair_of[c];
       if (o < 0) continue;
-      const Index i = db.particles[o][0], j = db.particles[o][1];
-      const Real wsum = w[i] + w[j];
-      const Real ci = wsum > 0 ? k_distance_[o] * w[i] / wsum : 0;
-      const Real cj = wsum > 0 ? k_distance_[o] * w[j] / wsum : 0;
+      const auto [ci, cj] = pbd_shares(o);
       // the kernel takes d = a - b: Δa = -ca s d, Δb = +cb s d (the constraint's own
       // orientation, d = p_i - p_j, gives the same values)
-      const bool forward = i == f.q[c][0];
+      const bool forward = db.particles[o][0] == f.q[c][0];
       f.pair_rest[c] = db.rest_length[o];
       f.pair_ca[c] = forward ? ci : cj;
       f.pair_cb[c] = forward ? cj : ci;
@@ -1229,7 +1233,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     for (Index i : model.attachments.particle) cb.count[i] += 1;
   }
   if (xpbd) {
-    coloured_order_.distance = model.distance.colours.order;
+    coloured_order_.distance = cb.distance_colours.order;
     coloured_order_.bending = model.bending.colours.order;
     coloured_order_.volume = model.volume.colours.order;
     coloured_order_.attachment = model.attachments.colours.order;
@@ -1340,7 +1344,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
       std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
                 lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], 0.0);
     };
-    zero(model.distance.colours, coloured_.distance.lambda);
+    zero(coloured_.distance_colours, coloured_.distance.lambda);
     zero(model.bending.colours, coloured_.bending.lambda);
     zero(model.volume.colours, coloured_.volume.lambda);
     zero(model.attachments.colours, coloured_.attachments.lambda);
