@@ -58,9 +58,10 @@ def test_the_check_catches_a_broken_cloth(arrays):
 
 
 class _SlowSide:
-    """A side whose frame takes 1 ms: counts its resets and frames."""
+    """A side whose frame takes `ms` ms: counts its resets and frames, and logs its turns."""
 
-    def __init__(self):
+    def __init__(self, ms=1.0, log=None, name=""):
+        self.ms, self.log, self.name = ms, log, name
         self.resets = self.frames_stepped = 0
 
     def reset(self):
@@ -68,22 +69,83 @@ class _SlowSide:
 
     def frames(self, k):
         self.frames_stepped += k
-        time.sleep(1e-3 * k)
+        time.sleep(1e-3 * self.ms * k)
 
     def threads_used(self):
         return None
 
 
-def test_each_side_is_timed_for_at_least_the_minimum_time():
+class _LoggedTurns(bench_peers.Turns):
+    def turn(self, min_rounds, seconds, max_rounds):
+        self.side.log.append(self.side.name)
+        return super().turn(min_rounds, seconds, max_rounds)
+
+
+class _FailingTurns:
+    def __init__(self, after):
+        self.after, self.turns = after, 0
+
+    def turn(self, min_rounds, seconds, max_rounds):
+        self.turns += 1
+        if self.turns > self.after:
+            raise bench_peers.WorkerFailed("exit -9: killed")
+        return dict(times=[1.0] * min_rounds, threads=[None] * min_rounds)
+
+
+def test_a_turn_warms_up_then_times_rounds_from_rest_for_at_least_its_time():
     side = _SlowSide()
-    timing = bench_peers.time_side(side, frames=2, rounds=3, warmup=1, min_time=0.1)
+    turn = bench_peers.Turns(side, frames=2, warmup=1).turn(min_rounds=3, seconds=0.1, max_rounds=2000)
     # rounds of ~2 ms: at least 0.1 s of them, so some 50 rounds, each from rest (a reset)
-    assert 20 <= timing["rounds"] <= 60 and len(timing["threads"]) == timing["rounds"]
-    assert side.resets == timing["rounds"] + 1 and side.frames_stepped == 1 + 2 * timing["rounds"]
-    assert 1.0 <= timing["ms_min"] <= timing["ms_per_frame"] <= timing["ms_max"]
-    # never fewer than `rounds`, never more than `max_rounds`
-    assert bench_peers.time_side(_SlowSide(), frames=1, rounds=4, warmup=0, min_time=0)["rounds"] == 4
-    assert bench_peers.time_side(_SlowSide(), frames=1, rounds=2, warmup=0, min_time=10, max_rounds=5)["rounds"] == 5
+    assert 20 <= len(turn["times"]) <= 60 and len(turn["threads"]) == len(turn["times"])
+    assert side.resets == len(turn["times"]) + 1 and side.frames_stepped == 1 + 2 * len(turn["times"])
+    assert min(turn["times"]) >= 1.0
+    # never fewer than `min_rounds`, never more than `max_rounds`
+    assert len(bench_peers.Turns(_SlowSide(), 1, 0).turn(4, 0.0, 2000)["times"]) == 4
+    assert len(bench_peers.Turns(_SlowSide(), 1, 0).turn(2, 10.0, 5)["times"]) == 5
+
+
+def test_the_sides_of_a_row_take_turns_and_each_gets_its_rounds_and_time():
+    log = []
+    fast, slow = _SlowSide(1.0, log, "fast"), _SlowSide(4.0, log, "slow")
+    got = bench_peers.alternate([_LoggedTurns(fast, 2, 1), _LoggedTurns(slow, 2, 1)], rounds=7, min_time=0.2,
+                                passes=4, settle=0)
+    assert log == ["fast", "slow"] * 4  # one turn each per pass, in turn
+    for side, g in zip((fast, slow), got):
+        # ceil(7 / 4) = 2 rounds and 0.05 s a turn at least: >= 8 rounds, >= 0.2 s of timed frames
+        # (the timed frames add up to at most rounds x 2 frames x the slowest round's ms per frame)
+        assert g["rounds"] >= 8 and g["rounds"] * 2 * g["ms_max"] * 1e-3 >= 0.2
+        assert g["rounds"] <= 0.2 / (2 * side.ms * 1e-3) + 4  # and not much more: one round a turn over
+        assert side.ms <= g["ms_min"] <= g["ms_per_frame"] <= g["ms_max"] and len(g["threads"]) == g["rounds"]
+    assert got[0]["rounds"] > 2 * got[1]["rounds"]  # the same time in shorter rounds
+    # at most ceil(max_rounds / passes) rounds a turn
+    capped = bench_peers.alternate([bench_peers.Turns(_SlowSide(), 1, 0)], rounds=1, min_time=10, passes=3,
+                                   max_rounds=7, settle=0)
+    assert capped[0]["rounds"] == 9
+
+
+def test_a_side_that_fails_midway_leaves_the_others_timed():
+    good = _SlowSide(0.5, [], "good")
+    bad = _FailingTurns(after=1)
+    got = bench_peers.alternate([bench_peers.Turns(good, 1, 0), bad], rounds=3, min_time=0.0, passes=3, settle=0)
+    assert got[1] == {"failed": "exit -9: killed"} and bad.turns == 2  # asked once more, then left out
+    assert got[0]["rounds"] == 3
+
+
+def test_a_side_process_answers_its_turns_and_checks_its_cloth():
+    import io
+    import json
+
+    out = io.StringIO()
+    assert bench_peers.serve("csb", 8, 10, 1, frames=2, warmup=1, stdin=io.StringIO("turn 2 0 5\nfinish 3\n"),
+                             stdout=out) == 0
+    lines = out.getvalue().splitlines()
+    assert [line.split()[0] for line in lines] == ["CSB_PEERS_READY", "CSB_PEERS_TURN", "CSB_PEERS_DONE"]
+    ready, turn, done = (json.loads(line.split(" ", 1)[1]) for line in lines)
+    assert ready["counts"]["particles"] == 64 and ready["verified"]["substeps"] == 10
+    assert len(turn["times"]) == 2 and turn["threads"] == [1, 1]
+    assert done["check"]["ok"] and done["check"]["frames"] == 2 and done["hold"]["frames"] == 3
+    with pytest.raises(ValueError, match="unknown command 'jump'"):
+        bench_peers.serve("csb", 8, 10, 1, 2, 1, stdin=io.StringIO("jump\n"), stdout=io.StringIO())
 
 
 def _same_fall_as_csb(arrays, side, frames=3):
@@ -150,8 +212,8 @@ def test_bench_peers_command_prints_a_table():
     # csb's threads per timed round are printed: one, since an 8 x 8 cloth is a model of one part
     assert [row[-2:] for row in rows[:2]] == [["threads", "1"], ["threads", "1"]]
     assert "substeps and iterations read back from the peer as asked" in r.stdout
-    assert "as many as fill 0.05 s of timed frames" in r.stdout
-    assert all(int(row[11]) >= 2 for row in rows[:2])  # the rounds column
+    assert "The sides of a row take turns, 10 each" in r.stdout and "filling at least 0.05 s" in r.stdout
+    assert all(int(row[11]) >= 10 for row in rows[:2])  # the rounds column: one round a turn at least
 
 
 @pytest.mark.parametrize("option, value, message", [

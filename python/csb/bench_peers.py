@@ -8,18 +8,25 @@ bending constraint on every interior edge. The peers are built from csb's own ar
 triangles, masses, pins, the distance pairs and the bending quadruples), so every side has the
 same particles and constraints; the counts in the table are read back from each peer's objects.
 
-Each side runs in its own subprocess (``python -m csb.bench_peers --worker SIDE``), so that
+Each side runs in its own process (``python -m csb.bench_peers --serve SIDE ...``), so that
 OMP_NUM_THREADS reaches pypbd's OpenMP runtime before it starts and Warp's kernel cache can be
-a fresh directory; the driver interleaves them (for each cloth and case, every side in turn, a
-fresh process each), so that the sides of one row run under the same load of a shared machine. A missing peer is reported and skipped. The peers are the optional ``bench``
-extra (``pip install csb[bench]``), never a core dependency.
+a fresh directory. For each cloth and case the driver builds every side, each in a fresh
+process, one after the other, and then lets them take turns: PASSES passes, in each of which
+every side times one turn while the others wait, SETTLE_S seconds apart (so that one side's
+spinning threads are asleep before the next side starts). A slow spell of the shared machine,
+which lasts a second or more, then falls on every side's rounds alike instead of on the one
+side that happened to be timed during it. A missing peer is reported and skipped. The peers are
+the optional ``bench`` extra (``pip install csb[bench]``), never a core dependency.
 
-Timing: after a warm-up, every round starts again from the cloth at rest and times the same
-first ``frames`` frames of the motion on every side (so no side is timed on a cloth that has
-drifted into a different state); the figure is the median over rounds, in ms per frame: at
-least ``rounds`` of them, and as many more as fill ``min_time`` seconds of timed frames. After
-the timed frames each side's cloth is checked: finite, pins where they were, fallen under
-gravity no faster than free fall, mean edge strain below 10 % (the largest strain is printed).
+Timing: every turn begins with ``warmup`` untimed frames (the side sat idle while the others
+had their turns); then each round starts again from the cloth at rest and times the same first
+``frames`` frames of the motion on every side (so no side is timed on a cloth that has drifted
+into a different state). A turn is at least ceil(rounds / PASSES) rounds and min_time / PASSES
+seconds of timed frames, so a side ends with at least ``rounds`` rounds (of each at least one
+per turn) and ``min_time`` seconds. The figure is the median over all of a side's rounds, in ms
+per frame. After the last turn each side's cloth is checked: finite, pins where they were,
+fallen under gravity no faster than free fall, mean edge strain below 10 % (the largest strain
+is printed).
 
 What each side projects, and the parameter mapping, is in ``papers/benchmarks.md`` ("Against the
 peers (issue 7)") and in :data:`MAPPING`.
@@ -30,7 +37,9 @@ from __future__ import annotations
 import argparse
 import importlib.util
 import json
+import math
 import os
+import select
 import statistics
 import subprocess
 import sys
@@ -57,6 +66,9 @@ NEWTON_SPRING_RELAXATION = 4.0
 # timed frames (at most MAX_ROUNDS), so that each median rests on about a second of stepping.
 MIN_TIME = 1.0
 MAX_ROUNDS = 2000
+# The sides of a row take turns: PASSES turns each, SETTLE_S seconds apart (module docstring).
+PASSES = 10
+SETTLE_S = 0.05
 
 MAPPING = {
     "csb": "method 'pbd' (the bundled scene): stretch k = 1, bending k = 0.1, corrected per iteration "
@@ -325,94 +337,143 @@ def check_cloth(arrays: dict[str, Any], x: np.ndarray, frames: int) -> dict[str,
     return out
 
 
-def time_side(side: Any, frames: int, rounds: int, warmup: int, min_time: float = 0.0,
-              max_rounds: int = MAX_ROUNDS) -> dict[str, Any]:
-    """Median ms per frame over rounds that each start from rest and step `frames` frames: at
-    least `rounds` rounds, and more (up to `max_rounds`) until the timed frames add up to
-    `min_time` seconds. On a shared machine a slow spell of a second or so would otherwise be
-    the whole sample of a side whose rounds last a millisecond; every side gets the same rule."""
-    side.reset()
-    side.frames(warmup)
-    times, threads = [], []
-    timed = 0.0
-    while len(times) < rounds or (timed < min_time and len(times) < max_rounds):
+class Turns:
+    """One side in this process, taking its turns: each turn starts with `warmup` untimed frames
+    (the side has been idle while the others had theirs), then times rounds that each start
+    from rest and step `frames` frames."""
+
+    def __init__(self, side: Any, frames: int, warmup: int):
+        self.side, self.frames, self.warmup = side, frames, warmup
+
+    def turn(self, min_rounds: int, seconds: float, max_rounds: int) -> dict[str, list]:
+        """At least `min_rounds` rounds, more until the timed frames add up to `seconds`, at most
+        `max_rounds`: ms per frame of each round, and the threads of each (csb's, else None)."""
+        side = self.side
         side.reset()
-        t0 = time.perf_counter()
-        side.frames(frames)
-        dt = time.perf_counter() - t0
-        timed += dt
-        times.append(dt / frames * 1e3)
-        threads.append(side.threads_used())
-    return dict(ms_per_frame=statistics.median(times), ms_min=min(times), ms_max=max(times), rounds=len(times),
-                threads=threads)
+        side.frames(self.warmup)
+        times: list[float] = []
+        threads: list[int | None] = []
+        timed = 0.0
+        while len(times) < max_rounds and (len(times) < min_rounds or timed < seconds):
+            side.reset()
+            t0 = time.perf_counter()
+            side.frames(self.frames)
+            dt = time.perf_counter() - t0
+            timed += dt
+            times.append(dt / self.frames * 1e3)
+            threads.append(side.threads_used())
+        return dict(times=times, threads=threads)
 
 
-def run_worker(side_name: str, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int, rounds: int,
-               warmup: int, hold_frames: int = 0, min_time: float = 0.0) -> dict[str, Any]:
-    """Everything one side does, in this process: returns JSON-able results."""
-    out: dict[str, Any] = dict(side=side_name, rows=[], threads=os.environ.get("OMP_NUM_THREADS"))
-    t0 = time.perf_counter()
+def alternate(sides: Sequence[Any], rounds: int, min_time: float, passes: int = PASSES,
+              max_rounds: int = MAX_ROUNDS, settle: float = SETTLE_S) -> list[dict[str, Any]]:
+    """Time every side of one row in `passes` passes; in each pass every side takes one turn, in
+    order, with `settle` seconds between turns. A turn is at least ceil(rounds / passes) rounds
+    and min_time / passes seconds of timed frames (at most ceil(max_rounds / passes) rounds), so
+    each side ends with at least `rounds` rounds and `min_time` seconds, and a slow spell of the
+    shared machine falls on every side's rounds alike, not on the one side timed during it.
+    Returns, per side, the median ms per frame over all its rounds, min, max and the rounds."""
+    per_turn = max(1, math.ceil(rounds / passes))
+    cap = max(per_turn, math.ceil(max_rounds / passes))
+    got: list[dict[str, list]] = [dict(times=[], threads=[]) for _ in sides]
+    failed: list[Exception | None] = [None] * len(sides)
+    for _ in range(passes):
+        for i, (side, acc) in enumerate(zip(sides, got)):
+            if failed[i] is not None:
+                continue
+            try:
+                part = side.turn(per_turn, min_time / passes, cap)
+            except WorkerFailed as e:  # that side is out of the row; the others go on
+                failed[i] = e
+                continue
+            acc["times"] += part["times"]
+            acc["threads"] += part["threads"]
+            if settle > 0:
+                time.sleep(settle)  # the side's spinning threads (OpenMP's, csb's) go to sleep
+    return [dict(failed=str(e)) if e is not None else
+            dict(ms_per_frame=statistics.median(a["times"]), ms_min=min(a["times"]), ms_max=max(a["times"]),
+                 rounds=len(a["times"]), threads=a["threads"]) for a, e in zip(got, failed)]
+
+
+# ---------------------------------------------------------------------------------------------
+# A side in its own process, taking its turns on the driver's word: one line in, one line out.
+
+
+def _side_versions(side_name: str) -> dict[str, str]:
     if side_name == "newton":
         import warp as wp
 
         wp.config.quiet = True
         import newton
 
-        out["versions"] = dict(newton=newton.__version__, warp=wp.__version__)
-        out["kernel_cache"] = wp.config.kernel_cache_dir
-    elif side_name == "pypbd":
+        return dict(newton=newton.__version__, warp=wp.__version__)
+    if side_name == "pypbd":
         from importlib.metadata import version
 
         import pypbd  # noqa: F401
 
-        out["versions"] = dict(pypbd=version("pypbd"))
-    else:
-        from . import _core
+        return dict(pypbd=version("pypbd"))
+    from . import _core
 
-        out["versions"] = dict(csb=_core.build_info()["csb"])
-    out["import_s"] = time.perf_counter() - t0
-    for n in sizes:
-        arrays = cloth_arrays(n)
-        for substeps, iterations in cases:
-            t_build = time.perf_counter()
-            side = SIDE_CLASSES[side_name](arrays, substeps, iterations)
-            build_s = time.perf_counter() - t_build
-            t_first = time.perf_counter()
-            side.frames(1)  # the first frame: Newton compiles its kernels here
-            first_frame_s = time.perf_counter() - t_first
-            timing = time_side(side, frames, rounds, warmup, min_time)
+    return dict(csb=_core.build_info()["csb"])
+
+
+def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, warmup: int,
+          stdin: Any = None, stdout: Any = None) -> int:
+    """Build one side's cloth, say READY, then answer ``turn MIN_ROUNDS SECONDS MAX_ROUNDS`` and
+    finally ``finish HOLD_FRAMES`` (check the cloth after the last timed round, then hold it)."""
+    stdin, stdout = stdin or sys.stdin, stdout or sys.stdout
+
+    def say(tag: str, payload: dict[str, Any]) -> None:
+        stdout.write(f"CSB_PEERS_{tag} " + json.dumps(payload) + "\n")
+        stdout.flush()
+
+    t0 = time.perf_counter()
+    versions = _side_versions(side_name)
+    import_s = time.perf_counter() - t0
+    arrays = cloth_arrays(n)
+    t_build = time.perf_counter()
+    side = SIDE_CLASSES[side_name](arrays, substeps, iterations)
+    build_s = time.perf_counter() - t_build
+    t_first = time.perf_counter()
+    side.frames(1)  # the first frame: Newton compiles its kernels here
+    first_frame_s = time.perf_counter() - t_first
+    say("READY", dict(side=side_name, versions=versions, import_s=import_s, counts=side.counts,
+                      verified=side.verified, build_s=build_s, first_frame_s=first_frame_s))
+    turns = Turns(side, frames, warmup)
+    for line in stdin:
+        word, *args = line.split()
+        if word == "turn":
+            say("TURN", turns.turn(int(args[0]), float(args[1]), int(args[2])))
+        elif word == "finish":
             check = check_cloth(arrays, side.positions(), frames)
             hold = None
+            hold_frames = int(args[0])
             if hold_frames > 0:  # longer: does the cloth hang, or fall, or diverge?
                 side.reset()
                 side.frames(hold_frames)
                 hold = check_cloth(arrays, side.positions(), hold_frames)
-            out["rows"].append(dict(n=n, substeps=substeps, iterations=iterations, counts=side.counts,
-                                    verified=side.verified, build_s=build_s, first_frame_s=first_frame_s,
-                                    check=check, hold=hold, **timing))
-            del side
-    return out
+            say("DONE", dict(check=check, hold=hold))
+            return 0
+        else:
+            raise ValueError(f"csb.bench_peers --serve: unknown command {line.strip()!r}")
+    return 1  # the driver went away
 
 
 def _worker_main(argv: Sequence[str]) -> int:
     p = argparse.ArgumentParser(prog="python -m csb.bench_peers")
-    p.add_argument("--worker", required=True, choices=sorted(SIDE_CLASSES))
-    p.add_argument("--sizes", type=int, nargs="+", default=list(SIZES))
-    p.add_argument("--cases", nargs="+", default=[f"{s}x{i}" for s, i in CASES])
+    p.add_argument("--serve", required=True, choices=sorted(SIDE_CLASSES))
+    p.add_argument("--size", type=int, required=True)
+    p.add_argument("--case", required=True, help="SUBSTEPSxITERATIONS")
     p.add_argument("--frames", type=int, default=5)
-    p.add_argument("--rounds", type=int, default=7)
     p.add_argument("--warmup", type=int, default=2)
-    p.add_argument("--min-time", type=float, default=0.0)
-    p.add_argument("--hold-frames", type=int, default=0)
     a = p.parse_args(argv)
-    cases = [tuple(int(v) for v in c.split("x")) for c in a.cases]
-    result = run_worker(a.worker, a.sizes, cases, a.frames, a.rounds, a.warmup, a.hold_frames, a.min_time)
-    print("CSB_PEERS_JSON " + json.dumps(result))
-    return 0
+    substeps, iterations = (int(v) for v in a.case.split("x"))
+    return serve(a.serve, a.size, substeps, iterations, a.frames, a.warmup)
 
 
 # ---------------------------------------------------------------------------------------------
-# The driver: one subprocess per side (and per thread count for pypbd)
+# The driver: for each row, one live process per side (and per thread count for pypbd)
 
 
 @dataclass
@@ -422,26 +483,97 @@ class Run:
     env: dict[str, str] = field(default_factory=dict)
     result: dict[str, Any] | None = None
     error: str | None = None
-    wall_s: float = 0.0
 
 
-def run_side_subprocess(run: Run, sizes: Sequence[int], cases: Sequence[tuple[int, int]], frames: int,
-                        rounds: int, warmup: int, hold_frames: int = 0, min_time: float = 0.0,
-                        timeout: float = 7200) -> Run:
-    cmd = [sys.executable, "-m", "csb.bench_peers", "--worker", run.side, "--sizes", *map(str, sizes),
-           "--cases", *[f"{s}x{i}" for s, i in cases], "--frames", str(frames), "--rounds", str(rounds),
-           "--warmup", str(warmup), "--hold-frames", str(hold_frames), "--min-time", str(min_time)]
-    env = {**os.environ, **run.env}
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=timeout)
-    run.wall_s = time.perf_counter() - t0
-    for line in r.stdout.splitlines():
-        if line.startswith("CSB_PEERS_JSON "):
-            run.result = json.loads(line[len("CSB_PEERS_JSON "):])
-    if r.returncode != 0 or run.result is None:
-        tail = (r.stderr or r.stdout).strip().splitlines()[-5:]
-        run.error = f"exit {r.returncode}: " + " | ".join(tail)
-    return run
+class WorkerFailed(RuntimeError):
+    pass
+
+
+class Worker:
+    """The driver's end of one side's process for one row (``python -m csb.bench_peers --serve``).
+    Its turns go through the pipe; the process is built and ready before the row's first turn."""
+
+    def __init__(self, run: Run, n: int, case: tuple[int, int], frames: int, warmup: int,
+                 timeout: float = 3600):
+        self.run, self.timeout = run, timeout
+        self.stderr = tempfile.TemporaryFile(mode="w+")
+        cmd = [sys.executable, "-m", "csb.bench_peers", "--serve", run.side, "--size", str(n),
+               "--case", f"{case[0]}x{case[1]}", "--frames", str(frames), "--warmup", str(warmup)]
+        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
+                                     text=True, env={**os.environ, **run.env})
+        self.ready = self._read("READY")
+
+    def _read(self, tag: str) -> dict[str, Any]:
+        deadline = time.monotonic() + self.timeout
+        out = self.proc.stdout
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0 or not select.select([out], [], [], left)[0]:
+                self.close()
+                raise WorkerFailed(f"no answer in {self.timeout:g} s")
+            line = out.readline()
+            if not line:  # the process ended
+                self.proc.wait()
+                self.stderr.seek(0)
+                tail = self.stderr.read().strip().splitlines()[-5:]
+                raise WorkerFailed(f"exit {self.proc.returncode}: " + " | ".join(tail))
+            if line.startswith(f"CSB_PEERS_{tag} "):
+                return json.loads(line[len(tag) + 11:])
+
+    def _ask(self, line: str, tag: str) -> dict[str, Any]:
+        try:
+            self.proc.stdin.write(line + "\n")
+            self.proc.stdin.flush()
+        except BrokenPipeError:
+            pass  # the process ended: _read says how
+        return self._read(tag)
+
+    def turn(self, min_rounds: int, seconds: float, max_rounds: int) -> dict[str, list]:
+        return self._ask(f"turn {min_rounds} {seconds!r} {max_rounds}", "TURN")
+
+    def finish(self, hold_frames: int) -> dict[str, Any]:
+        done = self._ask(f"finish {hold_frames}", "DONE")
+        self.close()
+        return done
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        self.stderr.close()
+
+
+def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rounds: int, warmup: int,
+            hold_frames: int = 0, min_time: float = MIN_TIME, passes: int = PASSES) -> None:
+    """One cloth and case: every run's side in its own process, built one after the other, timed
+    in alternating turns (:func:`alternate`), checked; results and errors go to the runs."""
+    workers: list[Worker] = []
+    for run in runs:
+        print(f"building {run.label} {n}x{n} {case[0]}x{case[1]} ...", file=sys.stderr, flush=True)
+        try:
+            workers.append(Worker(run, n, case, frames, warmup))
+        except WorkerFailed as e:
+            run.error = (run.error + "; " if run.error else "") + f"{n} {case}: {e}"
+    if not workers:
+        return
+    print(f"timing {n}x{n} {case[0]}x{case[1]}: {len(workers)} sides in {passes} alternating turns ...",
+          file=sys.stderr, flush=True)
+    timings = alternate(workers, rounds, min_time, passes)
+    for w, timing in zip(workers, timings):
+        try:
+            if "failed" in timing:
+                raise WorkerFailed(timing["failed"])
+            done = w.finish(hold_frames)
+        except WorkerFailed as e:
+            w.close()
+            w.run.error = (w.run.error + "; " if w.run.error else "") + f"{n} {case}: {e}"
+            continue
+        r = w.ready
+        row = dict(n=n, substeps=case[0], iterations=case[1], counts=r["counts"], verified=r["verified"],
+                   build_s=r["build_s"], first_frame_s=r["first_frame_s"], **done, **timing)
+        if w.run.result is None:
+            w.run.result = dict(side=w.run.side, versions=r["versions"], import_s=r["import_s"], rows=[])
+        w.run.result["rows"].append(row)
 
 
 def plan_runs(sides: Sequence[str], pypbd_threads: Sequence[int], newton_cold: bool,
@@ -522,17 +654,22 @@ def format_hold_table(runs: Sequence[Run]) -> str:
     return f"\nAfter {frames} frames ({frames / 60:.2f} s) from rest, untimed:\n" + "\n".join(lines)
 
 
-def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, min_time: float = 0.0) -> str:
+def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, min_time: float = 0.0,
+                  passes: int = PASSES) -> str:
     versions: dict[str, str] = {}
     for r in runs:
         if r.result:
             versions.update(r.result.get("versions", {}))
     info = ", ".join(f"{k} {v}" for k, v in versions.items())
-    return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame; "
-            f"each round starts at rest and times frames 1-{frames} (after {warmup} warm-up frames); "
-            + (f"median of at least {rounds} rounds, and of as many as fill {min_time:g} s of timed frames "
-               f"(column 'rounds'). " if min_time > 0 else f"median of {rounds} rounds. ")
-            + f"'/ csb': ms/frame over csb's. {info}")
+    per_turn = max(1, math.ceil(rounds / passes))
+    return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame. "
+            f"The sides of a row take turns, {passes} each, one side at a time; a turn is {warmup} untimed "
+            f"warm-up frames, then rounds that each start at rest and time frames 1-{frames}: at least "
+            f"{per_turn} round{'s' if per_turn > 1 else ''}"
+            + (f" and {min_time / passes:g} s of timed frames" if min_time > 0 else "")
+            + f". ms/frame: the median over all of a side's rounds (column 'rounds'; at least {per_turn * passes}"
+            + (f", filling at least {min_time:g} s" if min_time > 0 else "")
+            + f"). '/ csb': ms/frame over csb's. {info}")
 
 
 def format_notes(runs: Sequence[Run]) -> str:
@@ -566,28 +703,16 @@ def format_notes(runs: Sequence[Run]) -> str:
 
 def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES, frames: int = 5, rounds: int = 7,
          warmup: int = 2, min_time: float = MIN_TIME, sides: Sequence[str] = ("csb", "pypbd", "newton"), pypbd_threads: Sequence[int] = (1, 2),
-         newton_cold: bool = True, hold_frames: int = 0, newton_launches: bool = True) -> list[Run]:
+         newton_cold: bool = True, hold_frames: int = 0, newton_launches: bool = True,
+         passes: int = PASSES) -> list[Run]:
     with tempfile.TemporaryDirectory(prefix="csb-warp-cache-") as cache:
         runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches)
         for s in skipped:
             print(s)
-        # Interleaved: for each cloth and case every side in turn, each in a fresh subprocess, so
-        # that the sides of one row are timed minutes apart at most, under the same load.
         for n in sizes:
             for case in cases:
-                for run in runs:
-                    print(f"running {run.label} {n}x{n} {case[0]}x{case[1]} ...", file=sys.stderr, flush=True)
-                    part = run_side_subprocess(Run(run.label, run.side, run.env), [n], [case], frames, rounds,
-                                               warmup, hold_frames, min_time)
-                    run.wall_s += part.wall_s
-                    if part.error:
-                        run.error = (run.error + "; " if run.error else "") + f"{n} {case}: {part.error}"
-                    elif run.result is None:
-                        run.result = part.result
-                        run.result["first_frame_first_run_s"] = part.result["rows"][0]["first_frame_s"]
-                    else:
-                        run.result["rows"].extend(part.result["rows"])
-    print(format_header(runs, frames, rounds, warmup, min_time))
+                run_row(runs, n, case, frames, rounds, warmup, hold_frames, min_time, passes)
+    print(format_header(runs, frames, rounds, warmup, min_time, passes))
     print(format_peer_table(runs))
     print(format_notes(runs))
     hold = format_hold_table(runs)
