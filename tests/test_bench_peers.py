@@ -232,3 +232,22 @@ def test_impossible_bench_options_are_refused_by_name(capsys, option, value, mes
         cli.main(["bench", "--peers", "--sides", "csb", option, value])
     assert exit_.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_a_side_process_that_fails_is_reported_with_its_error(monkeypatch):
+    # a 1 x 1 cloth is refused by cloth_grid in the side's process: the driver says how it ended
+    with pytest.raises(bench_peers.WorkerFailed) as failed:
+        bench_peers.Worker(bench_peers.Run("csb", "csb"), 1, (10, 1), frames=2, warmup=1)
+    message = str(failed.value)
+    assert message.startswith("exit 1: ") and message.split(" | ")[-1].startswith("csb.ParameterError: cloth_grid")
+
+    # in a row, the side that failed is noted and the others are timed
+    class OneBadSize(bench_peers.Worker):
+        def __init__(self, run, n, *args, **kwargs):
+            super().__init__(run, 1 if run.label == "bad" else n, *args, **kwargs)
+
+    monkeypatch.setattr(bench_peers, "Worker", OneBadSize)
+    good, bad = bench_peers.Run("csb", "csb"), bench_peers.Run("bad", "csb")
+    bench_peers.run_row([good, bad], 8, (10, 1), frames=2, rounds=2, warmup=1, min_time=0.02, passes=2)
+    assert good.error is None and len(good.result["rows"]) == 1 and good.result["rows"][0]["rounds"] >= 2
+    assert bad.result is None and bad.error.startswith("8 (10, 1): exit 1: ")

@@ -22,8 +22,8 @@ Timing: every turn begins with ``warmup`` untimed frames (the side sat idle whil
 had their turns); then each round starts again from the cloth at rest and times the same first
 ``frames`` frames of the motion on every side (so no side is timed on a cloth that has drifted
 into a different state). A turn is at least ceil(rounds / PASSES) rounds and min_time / PASSES
-seconds of timed frames, so a side ends with at least ``rounds`` rounds (of each at least one
-per turn) and ``min_time`` seconds. The figure is the median over all of a side's rounds, in ms
+seconds of timed frames, so a side ends with at least max(rounds, PASSES) rounds and
+``min_time`` seconds. The figure is the median over all of a side's rounds, in ms
 per frame. After the last turn each side's cloth is checked: finite, pins where they were,
 fallen under gravity no faster than free fall, mean edge strain below 10 % (the largest strain
 is printed).
@@ -39,11 +39,12 @@ import importlib.util
 import json
 import math
 import os
-import select
+import queue
 import statistics
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -501,21 +502,31 @@ class Worker:
                "--case", f"{case[0]}x{case[1]}", "--frames", str(frames), "--warmup", str(warmup)]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
                                      text=True, env={**os.environ, **run.env})
+        self.lines: queue.Queue[str | None] = queue.Queue()
+        self.pump = threading.Thread(target=self._pump, daemon=True)
+        self.pump.start()
         self.ready = self._read("READY")
+
+    def _pump(self) -> None:
+        # The process's lines, read by a thread: a select() on the pipe would not see lines
+        # already in the reader's buffer.
+        for line in self.proc.stdout:
+            self.lines.put(line)
+        self.lines.put(None)
 
     def _read(self, tag: str) -> dict[str, Any]:
         deadline = time.monotonic() + self.timeout
-        out = self.proc.stdout
         while True:
-            left = deadline - time.monotonic()
-            if left <= 0 or not select.select([out], [], [], left)[0]:
+            try:
+                line = self.lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
                 self.close()
-                raise WorkerFailed(f"no answer in {self.timeout:g} s")
-            line = out.readline()
-            if not line:  # the process ended
+                raise WorkerFailed(f"no answer in {self.timeout:g} s") from None
+            if line is None:  # the process ended
                 self.proc.wait()
                 self.stderr.seek(0)
                 tail = self.stderr.read().strip().splitlines()[-5:]
+                self.close()
                 raise WorkerFailed(f"exit {self.proc.returncode}: " + " | ".join(tail))
             if line.startswith(f"CSB_PEERS_{tag} "):
                 return json.loads(line[len(tag) + 11:])
@@ -540,7 +551,12 @@ class Worker:
         if self.proc.poll() is None:
             self.proc.kill()
         self.proc.wait()
-        self.stderr.close()
+        self.pump.join(timeout=10)  # it reads to the end of the pipe, then stops
+        for f in (self.proc.stdin, self.proc.stdout, self.stderr):
+            try:
+                f.close()
+            except OSError:  # stdin's last write to a process that has gone
+                pass
 
 
 def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rounds: int, warmup: int,
