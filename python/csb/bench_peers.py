@@ -366,6 +366,11 @@ class Turns:
         return dict(times=times, threads=threads)
 
 
+def rounds_per_turn(rounds: int, passes: int) -> int:
+    """The fewest rounds of a turn: `rounds` spread over `passes` turns, at least one."""
+    return max(1, math.ceil(rounds / passes))
+
+
 def alternate(sides: Sequence[Any], rounds: int, min_time: float, passes: int = PASSES,
               max_rounds: int = MAX_ROUNDS, settle: float = SETTLE_S) -> list[dict[str, Any]]:
     """Time every side of one row in `passes` passes; in each pass every side takes one turn, in
@@ -374,7 +379,7 @@ def alternate(sides: Sequence[Any], rounds: int, min_time: float, passes: int = 
     each side ends with at least `rounds` rounds and `min_time` seconds, and a slow spell of the
     shared machine falls on every side's rounds alike, not on the one side timed during it.
     Returns, per side, the median ms per frame over all its rounds, min, max and the rounds."""
-    per_turn = max(1, math.ceil(rounds / passes))
+    per_turn = rounds_per_turn(rounds, passes)
     cap = max(per_turn, math.ceil(max_rounds / passes))
     got: list[dict[str, list]] = [dict(times=[], threads=[]) for _ in sides]
     failed: list[Exception | None] = [None] * len(sides)
@@ -398,6 +403,11 @@ def alternate(sides: Sequence[Any], rounds: int, min_time: float, passes: int = 
 
 # ---------------------------------------------------------------------------------------------
 # A side in its own process, taking its turns on the driver's word: one line in, one line out.
+
+
+def _line_prefix(tag: str) -> str:
+    """How a side's process starts its answer lines: READY, TURN, DONE and their JSON follow."""
+    return f"CSB_PEERS_{tag} "
 
 
 def _side_versions(side_name: str) -> dict[str, str]:
@@ -426,7 +436,7 @@ def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, w
     stdin, stdout = stdin or sys.stdin, stdout or sys.stdout
 
     def say(tag: str, payload: dict[str, Any]) -> None:
-        stdout.write(f"CSB_PEERS_{tag} " + json.dumps(payload) + "\n")
+        stdout.write(_line_prefix(tag) + json.dumps(payload) + "\n")
         stdout.flush()
 
     t0 = time.perf_counter()
@@ -528,8 +538,9 @@ class Worker:
                 tail = self.stderr.read().strip().splitlines()[-5:]
                 self.close()
                 raise WorkerFailed(f"exit {self.proc.returncode}: " + " | ".join(tail))
-            if line.startswith(f"CSB_PEERS_{tag} "):
-                return json.loads(line[len(tag) + 11:])
+            prefix = _line_prefix(tag)
+            if line.startswith(prefix):
+                return json.loads(line[len(prefix):])
 
     def _ask(self, line: str, tag: str) -> dict[str, Any]:
         try:
@@ -677,7 +688,7 @@ def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, mi
         if r.result:
             versions.update(r.result.get("versions", {}))
     info = ", ".join(f"{k} {v}" for k, v in versions.items())
-    per_turn = max(1, math.ceil(rounds / passes))
+    per_turn = rounds_per_turn(rounds, passes)
     return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame. "
             f"The sides of a row take turns, {passes} each, one side at a time; a turn is {warmup} untimed "
             f"warm-up frames, then rounds that each start at rest and time frames 1-{frames}: at least "
