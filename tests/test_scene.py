@@ -97,6 +97,30 @@ def test_run_writes_readable_outputs(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
 
 
+@pytest.mark.parametrize("method, solver, label", [
+    ("pbd", "gauss-seidel", "PBD Gauss-Seidel"),
+    ("xpbd", "jacobi", "XPBD Jacobi"),
+    ("jakobsen", "gauss-seidel", "Jakobsen (Verlet) Gauss-Seidel"),
+])
+def test_summary_png_is_titled_with_the_method_that_ran(tmp_path, monkeypatch, method, solver, label):
+    import csb.runner
+
+    titles = []
+    real = csb.runner.plot_summary
+
+    def spy(path, rows, title):
+        titles.append(title)
+        return real(path, rows, title)
+
+    monkeypatch.setattr(csb.runner, "plot_summary", spy)
+    text = GOOD.replace("[solver]\n", f'[solver]\nmethod = "{method}"\nsolver = "{solver}"\n')
+    text = text.replace("fps = 20\n", "fps = 20\nxdmf = false\nvtu = false\n")
+    text = text.replace("bending = { stiffness = 0.2 }", "bending = { stiffness = 0.2, compliance = 1.0 }")  # 1/(N m), for XPBD
+    result = csb.load_scene(scene_file(tmp_path, text)).run(tmp_path / "out")
+    assert titles == [f"tiny: 36 particles, {label}, dt = 10 ms, 2 substeps x 5 iterations"]
+    assert tmp_path / "out" / "summary.png" in result.files
+
+
 def test_two_runs_of_a_scene_give_identical_bits(tmp_path):
     path = scene_file(tmp_path, GOOD)
     a = csb.load_scene(path).run(None)

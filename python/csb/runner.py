@@ -47,6 +47,19 @@ class RunResult:
         )
 
 
+_METHODS = {"pbd": "PBD", "xpbd": "XPBD", "jakobsen": "Jakobsen (Verlet)"}
+_SOLVERS = {"gauss-seidel": "Gauss-Seidel", "jacobi": "Jacobi", "jacobi-summed": "Jacobi (summed)"}
+
+
+def summary_title(scene: "Scene", num_particles: int) -> str:
+    """The title of a run's ``summary.png``: the scene, its size and how it was stepped (the
+    method, the sweep, dt in ms, sub-steps x iterations)."""
+    s = scene.solver
+    return (f"{scene.name}: {num_particles} particles, {_METHODS.get(s.method, s.method)} "
+            f"{_SOLVERS.get(s.solver, s.solver)}, dt = {1e3 * s.dt:.3g} ms, "
+            f"{s.substeps} substeps x {s.iterations} iterations")
+
+
 def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progress: bool = False) -> RunResult:
     sim = scene.build()
     steps = scene.steps
@@ -101,9 +114,7 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         if scene.output.csv:
             result.files.append(write_csv(out / "metrics.csv", result.rows))
         if scene.output.plot:
-            s = scene.solver
-            title = (f"{scene.name}: {sim.model.num_particles} particles, PBD dt = {1e3 * s.dt:.3g} ms, "
-                     f"{s.substeps} substeps x {s.iterations} iterations")
+            title = summary_title(scene, sim.model.num_particles)
             result.files.append(plot_summary(out / "summary.png", result.rows, title))
             result.files.append(plot_snapshot(out / "snapshot.png", sim.model, sim.state,
                                               f"{scene.name} at t = {sim.state.t:.2f} s"))
