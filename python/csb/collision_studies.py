@@ -198,8 +198,9 @@ def rest_jitter(method: str, *, settle: float = 2.0, seconds: float = 10.0, dt: 
     return dict(max_speed=speed, max_drift=drift, max_below_thickness=max(below, 0.0))
 
 
-def slope_slide(mu: float, theta: float, *, method: str = "pbd", seconds: float = 1.0, dt: float = 1 / 60,
-                substeps: int = 10, iterations: int = 10, size: float = 0.1, height: float = 0.03) -> float:
+def slope_slide(mu: float, theta: float, *, method: str = "pbd", solver: str = "gauss-seidel", seconds: float = 1.0,
+                dt: float = 1 / 60, substeps: int = 10, iterations: int = 10, size: float = 0.1,
+                height: float = 0.03) -> float:
     """A rigid box of 8 particles (every pair linked by a hard distance constraint), ``size`` m
     square and ``height`` m high (flat, so that it slides before it tips over, which takes
     tan θ > size/height), on a plane inclined at theta (rad) with μs = μk = mu; returns how far (m)
@@ -221,7 +222,7 @@ def slope_slide(mu: float, theta: float, *, method: str = "pbd", seconds: float 
     model = b.build()
     state = model.initial_state()
     c0 = np.asarray(state.x).mean(axis=0)
-    _core.PbdStepper(method=method, dt=dt, substeps=substeps, iterations=iterations, gravity=G).step(
+    _core.PbdStepper(method=method, solver=solver, dt=dt, substeps=substeps, iterations=iterations, gravity=G).step(
         model, state, int(round(seconds / dt)))
     return float(-(np.asarray(state.x).mean(axis=0) - c0) @ t)
 

@@ -110,6 +110,7 @@ struct Contact {
   bool started_inside = false;      // x was inside: the static fallback
   Real lambda = 0;                  // XPBD multiplier, kg m (the contact force is λ/h² along n)
   Real normal_correction = 0;       // m, what the contact pushed the particle along n this sub-step
+  Real sweep_move = 0;              // m, PBD with averaged Jacobi: this sweep's push, before the averaging
 };
 
 // Appends the contact of particle i (at x, predicted at p, thickness r, speculative margin in m)

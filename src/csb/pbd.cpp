@@ -44,12 +44,43 @@ Index first_non_finite(const Positions& x, Index begin = 0, Index end = -1) {
 struct Local {
   Real p[3];
   void load(const Real* from) { p[0] = from[0], p[1] = from[1], p[2] = from[2]; }
-  void add_to(const Real* from, Real* delta) const {
-    delta[0] += p[0] - from[0];
-    delta[1] += p[1] - from[1];
-    delta[2] += p[2] - from[2];
+  // om: XPBD with averaged Jacobi, the constraint's relaxation (else 1, which changes no bit).
+  void add_to(const Real* from, Real* delta, Real om = 1) const {
+    delta[0] += om * (p[0] - from[0]);
+    delta[1] += om * (p[1] - from[1]);
+    delta[2] += om * (p[2] - from[2]);
   }
 };
+
+// Jacobi: how many projections reach each particle in one sweep of the model's batches
+// (contacts aside).
+void jacobi_counts(const Model& model, std::vector<Real>& count) {
+  count.assign(model.num_particles(), 0);
+  for (const auto& e : model.distance.particles)
+    for (Index i : e) count[i] += 1;
+  for (const auto& q : model.bending.particles)
+    for (Index i : q) count[i] += 1;
+  for (const auto& q : model.volume.particles)
+    for (Index i : q) count[i] += 1;
+  for (Index i : model.balloons.particles) count[i] += 1;
+  for (Index i : model.attachments.particle) count[i] += 1;
+}
+
+// XPBD with averaged Jacobi: the relaxation of a constraint on particles ids, the smallest of
+// their 1/count (PbdStepper::set_relaxation); 1 without relaxation (relax null).
+template <std::size_t N>
+Real relaxation(const Real* relax, const std::array<Index, N>& ids) {
+  if (!relax) return 1;
+  Real om = 1;
+  for (Index i : ids) om = std::min(om, relax[i]);
+  return om;
+}
+Real balloon_relaxation(const Real* relax, const Index* ids, Index count) {
+  if (!relax) return 1;
+  Real om = 1;
+  for (Index k = 0; k < count; ++k) om = std::min(om, relax[ids[k]]);
+  return om;
+}
 
 // The volume and balloon coefficients of one sweep, in the roles the distance ones have: PBD
 // stiffness (corrected or not), XPBD α̃ = α/h² and γ = α β / h; and the balloon gradient workspace.
@@ -438,7 +469,8 @@ void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
 
 // One sweep over all constraints, one batch at a time in model order. M picks the projection,
 // Jacobi whether the kernels see the positions at the sweep's start (corrections collected in
-// delta_ and count_) or each other's corrections as they come (Gauss-Seidel).
+// delta_ and count_) or each other's corrections as they come (Gauss-Seidel). relax (XPBD with
+// averaged Jacobi, else null): each constraint's Δλ and correction scaled by its relaxation.
 template <Method M, bool Jacobi>
 static void sweep_batches(const Model& model, const Real* w, const PbdSettings& settings, Real* p, const Real* from,
                           const Real* x_start, Real* delta, Real* count, const std::vector<Real>& k_dist,
@@ -446,11 +478,16 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
                           const std::vector<Real>& a_dist, const std::vector<Real>& a_bend,
                           const std::vector<Real>& a_att, const std::vector<Real>& g_dist,
                           const std::vector<Real>& g_bend, const std::vector<Real>& g_att, Multipliers& lambda,
-                          const VolumeTerms& vt) {
+                          const VolumeTerms& vt, const Real* relax) {
   const auto& dist = model.distance;
   const auto& bend = model.bending;
   const auto& att = model.attachments;
   Local local[4];
+  Real om = 1;  // the relaxation of the constraint being projected
+  // XPBD, relaxed: λ moves by om times the kernel's Δλ (after its sign clamp), like the positions.
+  const auto relax_lambda = [&](Real& l, Real before) {
+    if (relax) l = before + om * (l - before);
+  };
   // Where the kernel works on particle `slot`'s position: in place, or a local copy.
   const auto at = [&](int slot, Index i) -> Real* {
     if constexpr (Jacobi) {
@@ -462,7 +499,7 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
   };
   const auto collect = [&](int slot, Index i) {
     if constexpr (Jacobi) {
-      local[slot].add_to(from + 3 * i, delta + 3 * i);
+      local[slot].add_to(from + 3 * i, delta + 3 * i, om);
       count[i] += 1;
     }
   };
@@ -471,8 +508,11 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     Real* a = at(0, i);
     Real* b = at(1, j);
     if constexpr (M == Method::Xpbd) {
+      om = relaxation(relax, dist.particles[c]);
+      const Real before = lambda.distance[c];
       project_distance_xpbd(a, b, x_start + 3 * i, x_start + 3 * j, w[i], w[j], dist.rest_length[c], a_dist[c],
                             g_dist[c], lambda.distance[c], dist.sense[c]);
+      relax_lambda(lambda.distance[c], before);
     } else if constexpr (M == Method::Jakobsen) {
       if (settings.sqrt_approximation)
         project_distance_jakobsen(a, b, w[i], w[j], dist.rest_length[c], k_dist[c], dist.sense[c]);
@@ -488,9 +528,12 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     const auto& q = bend.particles[c];
     Real* r[4] = {at(0, q[0]), at(1, q[1]), at(2, q[2]), at(3, q[3])};
     if constexpr (M == Method::Xpbd) {
+      om = relaxation(relax, q);
+      const Real before = lambda.bending[c];
       project_bending_xpbd(r[0], r[1], r[2], r[3], x_start + 3 * q[0], x_start + 3 * q[1], x_start + 3 * q[2],
                            x_start + 3 * q[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], bend.rest_angle[c], a_bend[c],
                            g_bend[c], lambda.bending[c]);
+      relax_lambda(lambda.bending[c], before);
     } else {
       project_bending(r[0], r[1], r[2], r[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], bend.rest_angle[c], k_bend[c]);
     }
@@ -501,9 +544,12 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     const auto& q = vol.particles[c];
     Real* r[4] = {at(0, q[0]), at(1, q[1]), at(2, q[2]), at(3, q[3])};
     if constexpr (M == Method::Xpbd) {
+      om = relaxation(relax, q);
+      const Real before = lambda.volume[c];
       project_volume_xpbd(r[0], r[1], r[2], r[3], x_start + 3 * q[0], x_start + 3 * q[1], x_start + 3 * q[2],
                           x_start + 3 * q[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], vol.rest_volume[c], vt.a_volume[c],
                           vt.g_volume[c], lambda.volume[c]);
+      relax_lambda(lambda.volume[c], before);
     } else {
       project_volume(r[0], r[1], r[2], r[3], w[q[0]], w[q[1]], w[q[2]], w[q[3]], vol.rest_volume[c], vt.k_volume[c]);
     }
@@ -521,19 +567,25 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     Real* counts = Jacobi ? count : nullptr;
     if constexpr (M == Method::Xpbd)
       project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0, x_start,
-                      vt.a_balloon[c], vt.g_balloon[c], &lambda.balloon[c], vt.grad);
+                      vt.a_balloon[c], vt.g_balloon[c], &lambda.balloon[c], vt.grad,
+                      balloon_relaxation(relax, ids, bal.num_particles(c)));
     else
       project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
                       vt.k_balloon[c], nullptr, 0, 0, nullptr, vt.grad);
   }
+  om = 1;
   for (Index c = 0; c < att.size(); ++c) {
     const Index i = att.particle[c];
     Real* a = at(0, i);
-    if constexpr (M == Method::Xpbd)
+    if constexpr (M == Method::Xpbd) {
+      om = relaxation(relax, std::array<Index, 1>{i});
+      const Real before = lambda.attachment[c];
       project_attachment_xpbd(a, x_start + 3 * i, w[i], att.target.col(c).data(), a_att[c], g_att[c],
                               lambda.attachment[c]);
-    else
+      relax_lambda(lambda.attachment[c], before);
+    } else {
       project_attachment(a, w[i], att.target.col(c).data(), k_att[c]);
+    }
     collect(0, i);
   }
 }
@@ -543,6 +595,8 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
   const bool jacobi = solver != Solver::GaussSeidel;
   const Index n = model.num_particles();
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  set_relaxation(model);
+  const Real* relax = relax_.empty() ? nullptr : relax_.data();
   for (int it = 0; it < settings_.iterations; ++it) {
     if (jacobi) {
       p_start_ = p_;
@@ -557,7 +611,7 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
     const auto run = [&](auto method, auto jacobi_tag) {
       sweep_batches<decltype(method)::value, decltype(jacobi_tag)::value>(
           model, w, settings_, p, from, x_start.data(), delta, count, k_distance_, k_bending_, k_attachment_,
-          a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_, vt);
+          a_distance_, a_bending_, a_attachment_, g_distance_, g_bending_, g_attachment_, lambda_, vt, relax);
     };
     using Pbd = std::integral_constant<Method, Method::Pbd>;
     using Xpbd = std::integral_constant<Method, Method::Xpbd>;
@@ -575,13 +629,15 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
     }
     if (!contacts_.empty() || !self_contacts_.empty()) project_contacts(model, jacobi);
     if (jacobi) {
-      // Averaged Jacobi moves each particle by the mean of the corrections it received; summed
-      // Jacobi by their sum, which overshoots where constraints pull the same way.
-      const bool average = solver == Solver::Jacobi;
+      // Averaged Jacobi moves each particle by the mean of the corrections it received (XPBD: by
+      // the sum of its relaxed ones); summed Jacobi by their sum, which overshoots where
+      // constraints pull the same way.
+      const bool average = solver == Solver::Jacobi && !relax;
       for (Index i = 0; i < n; ++i) {
         const Real scale = average ? (count_[i] > 0 ? 1 / count_[i] : 0) : 1;
         p_.col(i) = p_start_.col(i) + scale * delta_.col(i);
       }
+      if (!contacts_.empty() && settings_.method != Method::Xpbd) settle_contact_moves(average);
     }
     project_grabs(x_start);
   }
@@ -776,7 +832,11 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
 #endif
 
 // XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
-CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x) {
+// Relaxed (averaged Jacobi): Δλ, after its sign clamp, scaled by the constraint's relaxation
+// min(relax_i, relax_j) (PbdStepper::set_relaxation).
+template <bool Relaxed = false>
+CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x,
+                              const Real* relax = nullptr) {
   const Index i = 3 * b.i[c], j = 3 * b.j[c];
   const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
@@ -794,6 +854,7 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
   const Real clamped = sense > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
   dl = sense == 0 ? dl : clamped - lambda;
   dl = len > 0 ? dl : Real(0);
+  if constexpr (Relaxed) dl *= std::min(relax[b.i[c]], relax[b.j[c]]);
   b.lambda[c] = lambda + dl;
   const Real di = b.ci[c] * dl, dj = b.cj[c] * dl;
   o[i] += di * nx;
@@ -807,8 +868,10 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
 // Dihedral bending: csb/coloured_bending.hpp (SIMD blocks, polynomial atan2).
 
 // Tet volume: the kernels of constraints/volume.hpp, on local copies for Jacobi.
+// relax (XPBD with averaged Jacobi, else null): Δλ and the corrections scaled by the
+// constraint's relaxation (PbdStepper::set_relaxation).
 template <Method M, bool Jacobi>
-CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x) {
+CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x, const Real* relax) {
   const auto& q = b.q[k];
   const auto& w = b.w[k];
   Real local[4][3];
@@ -821,18 +884,45 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
       at[s] = o + 3 * q[s];
     }
   }
-  if constexpr (M == Method::Xpbd)
+  Real om = 1;
+  if constexpr (M == Method::Xpbd) {
+    const Real before = b.lambda[k];
     project_volume_xpbd(at[0], at[1], at[2], at[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3], w[0], w[1],
                         w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
-  else
+    if (Jacobi && relax) {
+      om = relaxation(relax, q);
+      b.lambda[k] = before + om * (b.lambda[k] - before);
+    }
+  } else {
     project_volume(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
+  }
   if constexpr (Jacobi)
     for (int s = 0; s < 4; ++s)
-      for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += local[s][e] - r[3 * q[s] + e];
+      for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
+}
+
+// Dihedral bending with XPBD and averaged Jacobi: the scalar kernel of constraints/bending.hpp
+// on local copies, relaxed like volume_one (the blocks of coloured_bending.hpp serve every other
+// case).
+CSB_INLINE void bending_xpbd_relaxed(ColouredFour& b, Index k, const Real* r, Real* o, const Real* x,
+                                     const Real* relax) {
+  const auto& q = b.q[k];
+  const auto& w = b.w[k];
+  Real local[4][3];
+  for (int s = 0; s < 4; ++s)
+    for (int e = 0; e < 3; ++e) local[s][e] = r[3 * q[s] + e];
+  const Real before = b.lambda[k];
+  project_bending_xpbd(local[0], local[1], local[2], local[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3],
+                       w[0], w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
+  const Real om = relaxation(relax, q);
+  b.lambda[k] = before + om * (b.lambda[k] - before);
+  for (int s = 0; s < 4; ++s)
+    for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
 }
 
 template <Method M, bool Jacobi>
-CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, Real* o, const Real* x) {
+CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, Real* o, const Real* x,
+                               const Real* relax) {
   const Index i = b.i[k];
   Real local[3];
   Real* at = o + 3 * i;
@@ -840,12 +930,19 @@ CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, R
     for (int e = 0; e < 3; ++e) local[e] = r[3 * i + e];
     at = local;
   }
-  if constexpr (M == Method::Xpbd)
+  Real om = 1;
+  if constexpr (M == Method::Xpbd) {
+    const Real before = b.lambda[k];
     project_attachment_xpbd(at, x + 3 * i, b.w[k], b.target[k].data(), b.alpha[k], b.gamma[k], b.lambda[k]);
-  else
+    if (Jacobi && relax) {
+      om = relax[i];
+      b.lambda[k] = before + om * (b.lambda[k] - before);
+    }
+  } else {
     project_attachment(at, b.w[k], b.target[k].data(), b.k[k]);
+  }
   if constexpr (Jacobi)
-    for (int e = 0; e < 3; ++e) o[3 * i + e] += local[e] - r[3 * i + e];
+    for (int e = 0; e < 3; ++e) o[3 * i + e] += om * (local[e] - r[3 * i + e]);
 }
 
 // Constraints per dynamically scheduled range: a few microseconds of work, so that taking a
@@ -918,11 +1015,18 @@ void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk
 
 // One coloured sweep over distance, bending, volume and attachment constraints.
 // start(g): called at the start of group g's task (a part's interior or an interface).
+// relax: XPBD with averaged Jacobi (else null), see PbdStepper::set_relaxation.
 template <Method M, bool Jacobi, class Start>
 void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o,
-                    const Real* x, Start&& start) {
+                    const Real* x, const Real* relax, Start&& start) {
   ColouredDistance& d = cb.distance;
   const auto distance = [&](Index begin, Index end, bool independent) {
+    if constexpr (M == Method::Xpbd && Jacobi) {
+      if (relax) {
+        for (Index c = begin; c < end; ++c) distance_xpbd<true>(d, c, r, o, x, relax);
+        return;
+      }
+    }
     if constexpr (M == Method::Xpbd) {
       if (independent) {
 #pragma omp simd
@@ -956,15 +1060,21 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
   };
   ColouredFour& bend = cb.bending;
   const auto bending = [&](Index begin, Index end, bool independent) {
+    if constexpr (M == Method::Xpbd && Jacobi) {
+      if (relax) {
+        for (Index c = begin; c < end; ++c) bending_xpbd_relaxed(bend, c, r, o, x, relax);
+        return;
+      }
+    }
     project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, r, o, x);
   };
   ColouredFour& vol = cb.volume;
   const auto volume = [&](Index begin, Index end, bool) {
-    for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x);
+    for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x, relax);
   };
   ColouredAttachments& att = cb.attachments;
   const auto attachment = [&](Index begin, Index end, bool) {
-    for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x);
+    for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x, relax);
   };
   const auto group = [&](Index g) {
     start(g);
@@ -1221,17 +1331,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   // Jacobi: how many projections reach each particle in one sweep (the averaging's divisor);
   // contacts add theirs as they are projected.
   cb.count.clear();
-  if (settings_.solver != Solver::GaussSeidel) {
-    cb.count.assign(model.num_particles(), 0);
-    for (const auto& e : model.distance.particles)
-      for (Index i : e) cb.count[i] += 1;
-    for (const auto& q : model.bending.particles)
-      for (Index i : q) cb.count[i] += 1;
-    for (const auto& q : model.volume.particles)
-      for (Index i : q) cb.count[i] += 1;
-    for (Index i : model.balloons.particles) cb.count[i] += 1;
-    for (Index i : model.attachments.particle) cb.count[i] += 1;
-  }
+  if (settings_.solver != Solver::GaussSeidel) jacobi_counts(model, cb.count);
   if (xpbd) {
     coloured_order_.distance = cb.distance_colours.order;
     coloured_order_.bending = model.bending.colours.order;
@@ -1317,7 +1417,9 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const bool tail = model.balloons.size() > 0 || contacts;
   bool compliant_grabs = false;
   for (const Grab& g : grabs_) compliant_grabs = compliant_grabs || g.compliance > 0;
-  const bool average = settings_.solver == Solver::Jacobi;
+  set_relaxation(model);
+  const Real* relax = relax_.empty() ? nullptr : relax_.data();
+  const bool average = settings_.solver == Solver::Jacobi && !relax;
   const bool approx = settings_.sqrt_approximation;
   const auto& bal = model.balloons;
   const int iterations = settings_.iterations;
@@ -1398,7 +1500,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
             }
           });
         }
-        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x, start);
+        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x, relax, start);
         if (tail) {
           share.single([&] {
             // Balloons: one constraint over many particles each, serial (see sweep_batches).
@@ -1408,7 +1510,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
               const Real target = bal.pressure[c] * bal.rest_volume[c];
               if constexpr (M == Method::Xpbd)
                 project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0,
-                                x, a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data());
+                                x, a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data(),
+                                balloon_relaxation(relax, ids, bal.num_particles(c)));
               else
                 project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
                                 k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
@@ -1417,13 +1520,15 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
           });
         }
         if constexpr (Jacobi) {
-          // Averaged Jacobi moves each particle by the mean of its corrections, summed Jacobi by their sum.
+          // Averaged Jacobi moves each particle by the mean of its corrections (XPBD: by the sum
+          // of its relaxed ones), summed Jacobi by their sum.
           share.split(n, [&](Index begin, Index end) {
             for (Index i = begin; i < end; ++i) {
               const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
               for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
             }
           });
+          if (contacts && M != Method::Xpbd) share.single([&] { settle_contact_moves(average); });
         }
         if (compliant_grabs) share.single([&] { project_grabs(x_start); });
       }
@@ -1670,6 +1775,7 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x) 
 void PbdStepper::project_contacts(const Model& model, bool jacobi) {
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   const Real* from = jacobi ? p_start_.data() : p_.data();
+  const Real* relax = relax_.empty() ? nullptr : relax_.data();  // XPBD, averaged Jacobi
   const auto apply = [&](Index i, const Vec3& dp) {
     if (jacobi) {
       delta_.col(i) += dp;
@@ -1691,7 +1797,7 @@ void PbdStepper::project_contacts(const Model& model, bool jacobi) {
     const Vec3& bc = k.barycentric;
     const Real denom = w[q] + bc[0] * bc[0] * w[t[0]] + bc[1] * bc[1] * w[t[1]] + bc[2] * bc[2] * w[t[2]];
     if (!(denom > 0)) continue;
-    const Vec3 step = (-C / denom) * n;
+    const Vec3 step = (-C * relaxation(relax, std::array<Index, 4>{q, t[0], t[1], t[2]}) / denom) * n;
     apply(q, w[q] * step);
     for (int e = 0; e < 3; ++e) apply(t[e], -(w[t[e]] * bc[e]) * step);
   }
@@ -1702,16 +1808,62 @@ void PbdStepper::project_contacts(const Model& model, bool jacobi) {
     Real move;  // along n, m
     if (xpbd) {
       const Real next = std::max(k.lambda - C / w[i], Real(0));
-      move = w[i] * (next - k.lambda);
-      k.lambda = next;
+      const Real dl = relax ? relax[i] * (next - k.lambda) : next - k.lambda;
+      move = w[i] * dl;
+      k.lambda = relax ? k.lambda + dl : next;
       k.normal_correction = w[i] * k.lambda;
     } else {
       if (C >= 0) continue;
       move = -C;
-      k.normal_correction += move;
+      // Jacobi: the push counts once the sweep's corrections are combined (settle_contact_moves).
+      if (jacobi)
+        k.sweep_move = move;
+      else
+        k.normal_correction += move;
     }
     if (move != 0) apply(i, move * k.normal);
   }
+}
+
+// PBD and Jakobsen with Jacobi: a contact's push counts towards its normal correction (which
+// bounds friction) as the particle received it: averaged Jacobi moves a particle by the mean of
+// its corrections, so a contact's share is its push over the particle's count. (Counting the
+// whole push made the friction cone as many times too wide as there are constraints on the
+// particle.)
+void PbdStepper::settle_contact_moves(bool average) {
+  for (Contact& k : contacts_) {
+    const Real count = count_[k.particle];
+    k.normal_correction += average ? (count > 0 ? k.sweep_move / count : 0) : k.sweep_move;
+    k.sweep_move = 0;
+  }
+}
+
+// XPBD with averaged Jacobi: relax_[i] = 1/n_i, n_i the projections that reach particle i in one
+// sweep (contacts included), 1 where the particle cannot move. A constraint's Δλ is scaled by
+// ω = min over its particles of relax_, and each particle moves by the sum of its scaled
+// corrections, so λ and the positions move together and x - p = M⁻¹∇Cᵀλ holds as in
+// Gauss-Seidel: the fixed point is XPBD's (C + α̃λ = 0 with that λ). Averaging the positions
+// while λ took the whole Δλ kept a softer fixed point (a hanging chain stretched up to 5/3 of
+// its static stretch and λ/h² over-read the load). The scaled sum converges: per particle
+// (Σ_j y_j ∇_i C_j)² <= n_i Σ_j y_j² |∇_i C_j|² (Cauchy-Schwarz), so J M⁻¹ Jᵀ + α̃ <= Ω⁻¹ D,
+// D the diagonal of the kernels' denominators, and the Jacobi iteration ΩD⁻¹ has eigenvalues
+// in (0, 1] on the linearised system.
+void PbdStepper::set_relaxation(const Model& model) {
+  if (!(settings_.method == Method::Xpbd && settings_.solver == Solver::Jacobi)) {
+    relax_.clear();
+    return;
+  }
+  if (coloured_.model_id == model.id && !coloured_.count.empty())
+    relax_ = coloured_.count;
+  else
+    jacobi_counts(model, relax_);
+  for (const Contact& k : contacts_) relax_[k.particle] += 1;
+  for (const SelfContact& k : self_contacts_) {
+    relax_[k.particle] += 1;
+    for (Index i : k.triangle) relax_[i] += 1;
+  }
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  for (Index i = 0; i < model.num_particles(); ++i) relax_[i] = w[i] > 0 && relax_[i] > 0 ? 1 / relax_[i] : 1;
 }
 
 // Friction, before the velocity update (Müller 2007 §3.5 leaves its form open). Coulomb's law
@@ -1954,7 +2106,7 @@ DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions
     auto t0 = std::chrono::steady_clock::now();
     for (int s = 0; s < sweeps; ++s)
       sweep_batches<Method::Pbd, false>(model, w, settings, a.data(), a.data(), a.data(), nullptr, nullptr, kd, kb, ka,
-                                        none, none, none, none, none, none, unused, vt);
+                                        none, none, none, none, none, none, unused, vt, nullptr);
     auto t1 = std::chrono::steady_clock::now();
     t.batched_ns.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / t.projections);
     b = positions;

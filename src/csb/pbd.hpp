@@ -52,7 +52,11 @@ struct PbdSettings {
   // position (Jakobsen). Jakobsen's method always uses Verlet.
   FrontEnd front_end = FrontEnd::Euler;
   // How each sweep visits the constraints. Jacobi averages the corrections a particle receives
-  // (by their number); JacobiSummed adds them, and diverges on stiff networks (kept to show it).
+  // (by their number); with XPBD, whose multipliers must stay consistent with the positions
+  // (x - p = M⁻¹∇Cᵀλ), it instead scales each constraint's Δλ by 1/(the most projections that
+  // reach any of its moving particles) and adds the corrections, which converges to the same
+  // answer as Gauss-Seidel. JacobiSummed adds the full corrections, and diverges on stiff
+  // networks such as a cloth (kept to show it).
   Solver solver = Solver::GaussSeidel;
   // XPBD constraint damping β (Macklin 2016 Eq. 26), in N s/m for distance constraints and
   // attachments (J s for bending, J s/m⁶ for volumes and balloons); 0: none.
@@ -206,7 +210,9 @@ class PbdStepper {
   void damp_velocities(const Model& model, State& state) const;
   void generate_contacts(const Model& model, const Positions& x, Real h);
   void generate_self_contacts(const Model& model, const Positions& x);
+  void set_relaxation(const Model& model);
   void project_contacts(const Model& model, bool jacobi);
+  void settle_contact_moves(bool average);
   void apply_friction(const Model& model, const Positions& x);
   void apply_restitution(const Model& model, State& state, Real h);
 
@@ -219,6 +225,10 @@ class PbdStepper {
   std::vector<Real> accel_;              // a fused step: what a prediction adds, h g (Verlet h² g), 0 where w = 0
   Positions p_start_, delta_;            // Jacobi: positions at the sweep's start, summed corrections
   std::vector<Real> count_;              // Jacobi: corrections each particle received in the sweep
+  // XPBD with averaged Jacobi: per particle 1/(projections that reach it in a sweep, contacts
+  // included), 1 where it cannot move; a constraint's Δλ is scaled by the smallest over its
+  // particles, and positions move by the sum (see set_relaxation). Empty otherwise.
+  std::vector<Real> relax_;
   std::vector<Real> k_distance_, k_bending_, k_attachment_;  // PBD: stiffness used per iteration
   std::vector<Real> a_distance_, a_bending_, a_attachment_;  // XPBD: α̃ = α/h²
   std::vector<Real> g_distance_, g_bending_, g_attachment_;  // XPBD: γ = α β / h

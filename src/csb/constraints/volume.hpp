@@ -159,12 +159,14 @@ inline Real enclosed_volume_gradient(const Real* x, const Index* particles, Inde
 // One balloon projection. Reads the positions from `x`, and adds each particle's correction to
 // `out` (x itself for Gauss-Seidel; a correction sum for Jacobi, which then counts the particle in
 // `count` if given). XPBD when `lambda` is given (α̃, γ, x_start used), PBD with `stiffness`
-// otherwise. grad: workspace of num_particles vectors. Returns the violation V - k V0 before the
-// projection (m³). A surface whose gradient has vanished (collapsed) is left alone.
+// otherwise. grad: workspace of num_particles vectors. relax scales XPBD's Δλ (and so the
+// corrections: averaged Jacobi, see PbdSettings::solver; 1 changes nothing). Returns the
+// violation V - k V0 before the projection (m³). A surface whose gradient has vanished
+// (collapsed) is left alone.
 inline Real project_balloon(const Real* x, Real* out, Real* count, const Real* w, const Index* particles,
                             Index num_particles, const Triangle* triangles, Index num_triangles, Real target_volume,
                             Real stiffness, const Real* x_start, Real alpha_tilde, Real gamma, Real* lambda,
-                            Vec3* grad) {
+                            Vec3* grad, Real relax = 1) {
   const Real c = enclosed_volume_gradient(x, particles, num_particles, triangles, num_triangles, grad) - target_volume;
   Real wgrad = 0, g2 = 0, moved = 0;
   for (Index k = 0; k < num_particles; ++k) {
@@ -180,7 +182,7 @@ inline Real project_balloon(const Real* x, Real* out, Real* count, const Real* w
   if (!(wgrad > 0) || !(g2 > eps * eps * l4)) return c;
   Real scale;  // Δp_i = scale w_i grad_i
   if (lambda) {
-    const Real dl = (-c - alpha_tilde * *lambda - gamma * moved) / ((1 + gamma) * wgrad + alpha_tilde);
+    const Real dl = relax * (-c - alpha_tilde * *lambda - gamma * moved) / ((1 + gamma) * wgrad + alpha_tilde);
     *lambda += dl;
     scale = dl;
   } else {
