@@ -218,3 +218,36 @@ def test_cli_run_and_errors(tmp_path):
     assert r.returncode == 0 and "cloth_drop" in r.stdout
     r = run_cli("info", cwd=tmp_path)
     assert r.returncode == 0 and "sundials" in r.stdout and ".fbx" in r.stdout
+
+
+def info_lines(capsys) -> dict[str, str]:
+    from csb.cli import main
+
+    assert main(["info"]) == 0
+    return {line[:13].strip(): line[14:] for line in capsys.readouterr().out.splitlines()}
+
+
+def test_cli_info_reports_the_kernels_in_use_beside_the_compiled_baseline(tmp_path, capsys):
+    """`csb info` names the instruction set the build targets for all code (build_info's simd,
+    SSE2 in the portable build) and, apart from it, the copy of the blocked kernels that runs:
+    the one kernels.kernel_isa() reports, whichever is forced."""
+    r = run_cli("info", cwd=tmp_path)
+    lines = {line[:13].strip(): line[14:] for line in r.stdout.splitlines()}
+    baseline = csb.build_info()["simd"]
+    assert lines["simd baseline"] == f"{baseline} (compiled for all code)"
+    assert "simd" not in lines  # no unlabelled line to mistake for the kernels'
+    best = csb.kernels.kernel_isa("auto")  # what a fresh process picks, as `csb info` above did
+    assert lines["simd kernels"].startswith(f"{best}: ")
+    order = ("sse2", "avx2", "avx512")
+    isas = order[:order.index(best) + 1] if best in order else ("native",)
+    try:
+        for isa in isas:
+            if isa != "native":
+                assert csb.kernels.kernel_isa(isa) == isa
+            lines = info_lines(capsys)
+            assert lines["simd baseline"] == f"{baseline} (compiled for all code)"
+            assert lines["simd kernels"].startswith(f"{isa}: "), isa
+    finally:
+        csb.kernels.kernel_isa("auto")
+    if best == "avx512":
+        assert lines["simd kernels"].startswith("avx512: bending in AVX-512, distance in AVX2 (")

@@ -97,9 +97,26 @@ def _cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
+# What each copy of the blocked coloured kernels (bending; PBD distance) runs, by kernels.kernel_isa().
+_KERNEL_ISA = {
+    "avx512": "bending in AVX-512, distance in AVX2",
+    "avx2": "AVX2",
+    "sse2": "SSE2",
+    "native": "the baseline's (a native build, or not x86-64)",
+}
+
+
 def _cmd_info(args: argparse.Namespace) -> int:
     for k, v in _core.build_info().items():
-        print(f"{k:13s} {v}")
+        if k == "simd":
+            # The baseline the compiler targets for all code; the portable x86-64 build also carries
+            # SSE2, AVX2 and AVX-512 copies of the blocked kernels and picks one for the processor.
+            print(f"{'simd baseline':13s} {v} (compiled for all code)")
+            isa = _core.kernels.kernel_isa()
+            print(f"{'simd kernels':13s} {isa}: {_KERNEL_ISA.get(isa, isa)} (the blocked coloured kernels in use, "
+                  "chosen at run time)")
+        else:
+            print(f"{k:13s} {v}")
     print(f"{'mesh formats':13s} {' '.join(_core.readable_extensions())}")
     return 0
 
