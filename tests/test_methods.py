@@ -220,6 +220,107 @@ def test_force_based_methods_converge_to_the_reference():
         assert abs(observed - order) < 0.15, (method, errors)
 
 
+def verlet_two_evaluations(model, state, *, dt, substeps, steps, gravity, damping=0.0, drag=0.0):
+    """Velocity Verlet as written in force.hpp, evaluating a(x) afresh at the start of every
+    sub-step: y = [x; v] of the dynamic particles after `steps` steps, the same operations in
+    the same order as the C++ loop (numpy's element-wise IEEE arithmetic, no contraction)."""
+    net = csb.SpringNetwork(model, state, gravity=gravity, damping=damping, drag=drag)
+    y = net.pack(state)
+    n3, h = y.size // 2, dt / substeps
+    for _ in range(steps * substeps):
+        a = net.rhs(y)[n3:]
+        y2 = np.concatenate([y[:n3] + h * y[n3:] + 0.5 * h * h * a, y[n3:] + h * a])
+        a2 = net.rhs(y2)[n3:]
+        y2[n3:] = y[n3:] + 0.5 * h * (a + a2)
+        y = y2
+    return y
+
+
+def same_bits(a, b) -> bool:
+    return np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+def test_velocity_verlet_evaluates_the_forces_once_per_substep_with_the_same_bits():
+    """a(x') at the end of a sub-step is a(x) of the next: reusing it is the same arithmetic as
+    evaluating it again, so the state must match the two-evaluation loop bit for bit, across
+    calls too, and one call of n steps must equal n calls of one."""
+    model = swinging_chain(links=4, compliance=1e-3)
+    dt, sub, g = 2e-4, 3, (0.0, -9.81, 0.0)
+    net = csb.SpringNetwork(model, model.initial_state(), gravity=g)
+    stepper = csb.ForceStepper(method="velocity-verlet", dt=dt, substeps=sub, gravity=g)
+    one_call, many_calls = model.initial_state(), model.initial_state()
+    stepper.step(model, one_call, 40)
+    assert stepper.force_evaluations == 1 + 40 * sub  # the first a(x), then one per sub-step
+    other = csb.ForceStepper(method="velocity-verlet", dt=dt, substeps=sub, gravity=g)
+    other.step(model, many_calls)
+    for k in range(39):
+        before = other.force_evaluations
+        other.step(model, many_calls)
+        assert other.force_evaluations - before == sub  # the cache holds between calls
+    expected = verlet_two_evaluations(model, model.initial_state(), dt=dt, substeps=sub, steps=40, gravity=g)
+    assert same_bits(net.pack(one_call), expected)
+    assert same_bits(net.pack(many_calls), expected)
+    assert same_bits(one_call.x, many_calls.x) and same_bits(one_call.v, many_calls.v)
+
+
+def test_force_stepper_cache_misses_when_the_state_or_the_model_changes():
+    """A state written between calls (positions, velocities, time), or another model, must get
+    its own a(x): the result then equals a fresh stepper's, and it cost a second evaluation."""
+    model = swinging_chain(links=4, compliance=1e-3)
+    stiffer = swinging_chain(links=4, compliance=1e-4)  # same particles, other springs
+    dt, g = 2e-4, (0.0, -9.81, 0.0)
+    stepper = csb.ForceStepper(method="velocity-verlet", dt=dt, gravity=g)
+    state = model.initial_state()
+    stepper.step(model, state, 10)
+
+    def edit_x(s):
+        s.x[3, 0] += 1e-4
+
+    def edit_v(s):
+        s.v[2, 1] += 1e-3
+
+    def edit_t(s):
+        s.t += 1.0
+
+    for m, edit in ((model, edit_x), (model, edit_v), (model, edit_t), (stiffer, lambda s: None)):
+        edit(state)
+        fresh = state.copy()
+        csb.ForceStepper(method="velocity-verlet", dt=dt, gravity=g).step(m, fresh, 5)
+        before = stepper.force_evaluations
+        stepper.step(m, state, 5)
+        assert stepper.force_evaluations - before == 1 + 5
+        assert same_bits(state.x, fresh.x) and same_bits(state.v, fresh.v)
+        assert state.t == fresh.t
+
+
+@pytest.mark.parametrize("method", ["explicit-euler", "symplectic-euler"])
+def test_euler_methods_evaluate_the_forces_once_per_substep(method):
+    model = swinging_chain(links=4, compliance=1e-3)
+    stepper = csb.ForceStepper(method=method, dt=1e-4, substeps=2)
+    state = model.initial_state()
+    stepper.step(model, state, 30)
+    stepper.step(model, state, 20)
+    assert stepper.force_evaluations == 2 * 50
+
+
+def test_damped_velocity_verlet_evaluates_twice_and_keeps_its_bits():
+    """With damping or drag a(x', v') is not a(x', v + h a): two evaluations a sub-step."""
+    model = swinging_chain(links=4, compliance=1e-3)
+    dt, g = 2e-4, (0.0, -9.81, 0.0)
+    for damping, drag in ((0.05, 0.0), (0.0, 0.5)):
+        stepper = csb.ForceStepper(method="velocity-verlet", dt=dt, gravity=g, damping=damping, drag=drag)
+        state = model.initial_state()
+        stepper.step(model, state, 20)
+        stepper.step(model, state, 20)
+        assert stepper.force_evaluations == 2 * 40
+        expected = verlet_two_evaluations(model, model.initial_state(), dt=dt, substeps=1, steps=40, gravity=g,
+                                          damping=damping, drag=drag)
+        assert same_bits(csb.SpringNetwork(model, state, gravity=g).pack(state), expected)
+
+
+# ------------------------------------------------------------------------------ bad settings
+
+
 # ------------------------------------------------------------------------------ bad settings
 
 

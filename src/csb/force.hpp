@@ -39,8 +39,23 @@ class ForceStepper {
   // finite sub-step).
   void step(const Model& model, State& state, std::int64_t steps = 1);
 
+  // Evaluations of the network's right-hand side since construction: one per sub-step for every
+  // method (undamped velocity Verlet reuses a(x') as the next sub-step's a(x)); two per sub-step
+  // for velocity Verlet with damping or drag, whose a(x', v') cannot be a(x', v + h a).
+  std::int64_t force_evaluations() const { return force_evaluations_; }
+
  private:
   ForceSettings settings_;
+  std::int64_t force_evaluations_ = 0;
+  // Velocity Verlet's last a(x') and what it was evaluated for: the model, the whole state it
+  // belongs to (positions, velocities, time), bit for bit. Any other state misses.
+  struct Cache {
+    bool valid = false;
+    std::uint64_t model_id = 0;
+    Positions x, v;
+    Real t = 0;
+    std::vector<Real> accel;  // m/s², 3 per dynamic particle
+  } cache_;
 };
 
 }  // namespace csb

@@ -942,7 +942,11 @@ PYBIND11_MODULE(_core, m) {
       .def("step", [](ForceStepper& s, const Model& model, State& state, std::int64_t steps) {
         py::gil_scoped_release release;
         s.step(model, state, steps);
-      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1);
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1)
+      .def_property_readonly("force_evaluations", &ForceStepper::force_evaluations,
+           "Evaluations of the spring network's forces since construction: one per sub-step (velocity Verlet "
+           "reuses the end of a sub-step's forces at the start of the next, unless damping or drag make them "
+           "depend on the velocity: then two).");
 
   m.def("benchmark_dispatch", [](const Model& model, py::handle positions, int sweeps, int repeats) {
     const Positions x = to_positions(positions, "positions");

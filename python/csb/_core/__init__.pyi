@@ -620,6 +620,11 @@ class ForceStepper:
         """
     def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
         ...
+    @property
+    def force_evaluations(self) -> int:
+        """
+        Evaluations of the spring network's forces since construction: one per sub-step (velocity Verlet reuses the end of a sub-step's forces at the start of the next, unless damping or drag make them depend on the velocity: then two).
+        """
 class SpringNetwork:
     """
     The reference's first-order system y' = f(y), y = [x; v] of the dynamic particles: for tests and studies.
