@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import warnings
 from dataclasses import dataclass, field
 from typing import Any, Sequence
@@ -17,6 +18,22 @@ __all__ = ["Mesh", "MeshReport", "MeshWarning", "load_mesh", "clean", "transform
 
 class MeshWarning(UserWarning):
     """Something in a mesh was dropped or skipped (degenerate triangles, non-manifold edges, ...)."""
+
+
+_PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
+
+
+def warn_mesh(message: str) -> None:
+    """Issue a :class:`MeshWarning` that points at the user's line: the first caller outside the
+    csb package (``load_mesh``, ``add_mesh``, a scene's ``build``, ...), however deep in csb it
+    was found."""
+    if sys.version_info >= (3, 12):
+        warnings.warn(message, MeshWarning, skip_file_prefixes=(_PACKAGE,))
+        return
+    level, frame = 1, sys._getframe(0)  # stacklevel 1 is this function
+    while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
+        level, frame = level + 1, frame.f_back
+    warnings.warn(message, MeshWarning, stacklevel=level)
 
 
 @dataclass(frozen=True)
@@ -42,9 +59,9 @@ class MeshReport:
         d["warnings"] = tuple(d["warnings"])
         return cls(**d)
 
-    def _emit(self, stacklevel: int = 3) -> None:
+    def _emit(self) -> None:
         for message in self.warnings:
-            warnings.warn(message, MeshWarning, stacklevel=stacklevel)
+            warn_mesh(message)
 
 
 def load_mesh(

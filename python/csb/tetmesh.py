@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import os
-import warnings
 
 import numpy as np
 
 from . import _core
 from ._core import TetMesh, tet_box
-from .mesh import MeshWarning
+from .mesh import warn_mesh
 
 __all__ = ["TetMesh", "tet_box", "load_tet_mesh"]
 
@@ -45,9 +44,7 @@ def load_tet_mesh(path: str | os.PathLike[str]) -> TetMesh:
         if block.type == "tetra":
             blocks.append(data)
         elif block.type == "tetra10":
-            warnings.warn(
-                f"{name}: {len(data)} quadratic tets (tetra10) reduced to their 4 corner nodes", MeshWarning, stacklevel=2
-            )
+            warn_mesh(f"{name}: {len(data)} quadratic tets (tetra10) reduced to their 4 corner nodes")
             blocks.append(data[:, :4])
     if not blocks:
         found = ", ".join(f"{b.type} x {len(b.data)}" for b in m.cells) or "no cells"
@@ -63,9 +60,7 @@ def load_tet_mesh(path: str | os.PathLike[str]) -> TetMesh:
     if not used.all():
         # Renumber so that only the points the tets use become particles.
         new_index = np.cumsum(used) - 1
-        warnings.warn(
-            f"{name}: {int((~used).sum())} points that no tet uses were dropped", MeshWarning, stacklevel=2
-        )
+        warn_mesh(f"{name}: {int((~used).sum())} points that no tet uses were dropped")
         points = points[used]
         tets = new_index[tets]
     return TetMesh(points, tets, name=name)
