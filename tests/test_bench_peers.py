@@ -1,4 +1,4 @@
-"""The peer comparison (`csb bench --peers`, issue 7) builds the same cloth on every side and
+"""The peer comparison (`csb bench --peers`) builds the same cloth on every side and
 counts it correctly; its timings are printed, never asserted. The peers are the optional `bench`
 extra: without it, their tests skip and the command says it skipped them."""
 

@@ -1,4 +1,4 @@
-"""Issue 7: graph colouring of the constraint batches, the coloured sweep on several threads,
+"""Graph colouring of the constraint batches, the coloured sweep on several threads,
 and the memory report. Timings are the benchmark's business (`csb bench`), never asserted here."""
 
 from __future__ import annotations

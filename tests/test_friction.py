@@ -148,7 +148,7 @@ def _box_table_energy(substeps: int, iterations: int, ordering: str = "coloured"
 
 @pytest.mark.parametrize("substeps, iterations, ordering", [
     (20, 2, "coloured"),  # the bundled setting
-    (40, 1, "coloured"),  # the coloured sweep (issue 7) has no row-by-row order for the oscillation to follow
+    (40, 1, "coloured"),  # the coloured sweep has no row-by-row order for the oscillation to follow
     pytest.param(40, 1, "sequential", marks=pytest.mark.xfail(strict=True, reason=(
         "known instability of the sequential sweep: with one Gauss-Seidel iteration per sub-step in the order "
         "the constraints were built, a hard cloth bent over a box edge oscillates (one row per sub-step, against "

@@ -206,7 +206,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
 
 
 # ------------------------------------------------------------------------------------------------
-# Issue 7: colouring, SIMD, threads, scaling, memory, the reference's cost. Functions other code can
+# Colouring, SIMD, threads, scaling, memory, the reference's cost. Functions other code can
 # call (e.g. a peer comparison) return plain numbers; the format_* ones print tables.
 
 PARTS_ISSUE7 = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu")
@@ -543,12 +543,13 @@ def format_klu(rows: Sequence[dict]) -> str:
 
 
 def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
-    """Prints the tables of issue 7 that `parts` names; returns their rows."""
+    """Prints the tables of the coloured sweep, memory and the reference that `parts` names; returns
+    their rows."""
     import os
 
     info = _core.build_info()
     out: dict = {}
-    print(f"\ncsb {info['csb']} issue 7 benchmarks ({info['compiler']}, {info['simd']} build, "
+    print(f"\ncsb {info['csb']} benchmarks of the coloured sweep ({info['compiler']}, {info['simd']} build, "
           f"blocked kernels {_core.kernels.kernel_isa()}, "
           f"{os.cpu_count()} cores, CSB_WAIT={os.environ.get('CSB_WAIT', 'adaptive')}); medians of {rounds} rounds")
     if "fps" in parts:

@@ -1,4 +1,4 @@
-"""csb against its peers (issue 7): the same square cloth in csb, Bender's PositionBasedDynamics
+"""csb against its peers: the same square cloth in csb, Bender's PositionBasedDynamics
 (``pypbd``) and NVIDIA's Newton XPBD solver on the CPU, in one run.
 
 The cloth is the bundled scene ``cloth_grid`` at N x N particles (1 m x 1 m in the xz plane, two
@@ -29,7 +29,7 @@ fallen under gravity no faster than free fall, mean edge strain below 10 % (the 
 is printed).
 
 What each side projects, and the parameter mapping, is in ``papers/benchmarks.md`` ("Against the
-peers (issue 7)") and in :data:`MAPPING`.
+peers") and in :data:`MAPPING`.
 """
 
 from __future__ import annotations
@@ -689,7 +689,7 @@ def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, mi
             versions.update(r.result.get("versions", {}))
     info = ", ".join(f"{k} {v}" for k, v in versions.items())
     per_turn = rounds_per_turn(rounds, passes)
-    return (f"csb against its peers (issue 7): cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame. "
+    return (f"csb against its peers: cloth_grid at N x N, 2 pinned corners, dt = 1/60 s per frame. "
             f"The sides of a row take turns, {passes} each, one side at a time; a turn is {warmup} untimed "
             f"warm-up frames, then rounds that each start at rest and time frames 1-{frames}: at least "
             f"{per_turn} round{'s' if per_turn > 1 else ''}"

@@ -161,14 +161,14 @@ def main(argv: list[str] | None = None) -> int:
                    choices=["step", "front-ends", "dispatch", "viewer", "fps", "types", "threads", "busy", "particles",
                             "memory", "big", "klu"],
                    help="which tables to print (default: all): the step, front ends, virtual dispatch, the viewer's "
-                        "frame time; issue 7: fps of 128x128 and 256x256 cloths, projections per second by type "
+                        "frame time; fps of 128x128 and 256x256 cloths, projections per second by type "
                         "against a plain loop, 1 against 2 threads, the same with a busy core, cost per particle "
                         "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size")
     p.add_argument("--front-end-sizes", type=_at_least(2), nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.add_argument("--peers", action="store_true",
                    help="instead: the same cloth in csb, pypbd and newton (CPU), 10 substeps x 1 iteration and "
-                        "1 x 10 (issue 7); a peer that is not installed is skipped (pip install 'csb[bench]')")
+                        "1 x 10; a peer that is not installed is skipped (pip install 'csb[bench]')")
     p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton"], choices=["csb", "pypbd", "newton"],
                    help="with --peers: which sides to run")
     p.add_argument("--pypbd-threads", type=_at_least(1), nargs="+", default=[1, 2],

@@ -1,4 +1,4 @@
-// csb — a branch-free, deterministic atan2 for SIMD kernels (issue 7).
+// csb — a branch-free, deterministic atan2 for SIMD kernels.
 //
 // libm's atan2 is a call the compiler cannot put in SIMD lanes (no vector variant without
 // -ffast-math), and it was 22 % of a cloth frame. This one is a pure function of its two inputs

@@ -1,4 +1,4 @@
-// csb — moving particle positions into and out of AVX2 lanes (issue 7).
+// csb — moving particle positions into and out of AVX2 lanes.
 //
 // Positions are stored x, y, z per particle; the blocked kernels want them as rows (x of four
 // constraints in one register, then y, then z). Done one coordinate at a time that is twelve

@@ -1,4 +1,4 @@
-// csb — the stepper's copy of a model's constraint batches in colour order (issue 7).
+// csb — the stepper's copy of a model's constraint batches in colour order.
 //
 // Model::distance.colours (and the others) say in which order to project; this workspace holds
 // each batch permuted into that order as plain arrays (structure of arrays), with what the

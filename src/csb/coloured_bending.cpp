@@ -1,4 +1,4 @@
-// csb — the coloured bending blocks, dispatched by instruction set (issue 7).
+// csb — the coloured bending blocks, dispatched by instruction set.
 //
 // The three loops of bending_block (geometry, angle, multiplier) are ~150 flops, six divisions
 // and a square root per constraint in SIMD lanes: two lanes of doubles with SSE2, the portable
@@ -112,7 +112,7 @@ __attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Ind
 // 512-bit ones were no faster on the Zen 4 this was measured on, which splits them in two), but
 // 32 registers instead of 16 and mask registers for the selects. Bending: 14.6 → 13.3 ns per
 // projection. The distance blocks were slower so (3.94 → 4.25 ns) and keep the AVX2 copy
-// (papers/benchmarks.md, stop 13).
+// (papers/benchmarks.md).
 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_avx512(
     ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
   blocks_rows(b, xpbd, begin, end, r, o, x);

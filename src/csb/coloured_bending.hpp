@@ -1,4 +1,4 @@
-// csb — the coloured dihedral bending projection in SIMD blocks (issue 7).
+// csb — the coloured dihedral bending projection in SIMD blocks.
 //
 // The kernel of constraints/bending.hpp (signed angle, Bridson et al.'s gradient, Müller 2007
 // §3.3's projection, Macklin 2016's XPBD update), written out on scalars for a range of

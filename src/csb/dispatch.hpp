@@ -40,7 +40,7 @@ struct DispatchTiming {
 // the batched kernels and once through polymorphic_constraints(); `repeats` timed runs of each.
 DispatchTiming benchmark_dispatch(const Model& model, const Positions& positions, int sweeps, int repeats);
 
-// The baseline issue 7 measures the steppers against: `sweeps` passes of a plain loop over the
+// The baseline the coloured sweep is measured against: `sweeps` passes of a plain loop over the
 // model's distance constraints in build order, one after the other, in double precision, with
 // Müller's projection at stiffness 1 (p_i -= w_i/(w_i + w_j) C n, p_j += w_j/(w_i + w_j) C n),
 // starting from `positions` (3 x N); ns per projection of each of `repeats` timed runs.

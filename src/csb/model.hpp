@@ -25,7 +25,7 @@ namespace csb {
 //    volumes, whose C is in m³). It is what
 //    the reference integrator (and XPBD) use, so that they model the same material.
 
-// Graph colouring of one constraint batch (issue 7): the constraints of one colour share no
+// Graph colouring of one constraint batch: the constraints of one colour share no
 // particle, so that a Gauss-Seidel sweep may project them in any order, or at once (SIMD lanes,
 // threads), with the same result. Computed when the Model is built; the batch's arrays stay in
 // the order the constraints were added (every index into a batch is that order's), `order`

@@ -645,7 +645,7 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
 
 // ------------------------------------------------------------------------------ coloured sweep
 //
-// Issue 7. Each batch is projected colour by colour (Model's `colours`); the constraints of one
+// Each batch is projected colour by colour (Model's `colours`); the constraints of one
 // colour share no particle, so within a colour a range of constraints is a loop whose iterations
 // are independent: `omp simd` lets the compiler put one constraint in each SIMD lane (the kernels
 // below are branch-free in the common case: masks instead of early returns, coefficients

@@ -1,4 +1,4 @@
-// csb — the threads of the coloured projection (issue 7).
+// csb — the threads of the coloured projection.
 //
 // A small fork-join team made for the coloured Gauss-Seidel sweep: a step forks it once (once
 // per sub-step when contacts, grabs or Müller damping keep the sub-step's other work serial)

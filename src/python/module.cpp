@@ -994,7 +994,7 @@ PYBIND11_MODULE(_core, m) {
     }
     return ns;
   }, py::arg("model"), py::arg("positions"), py::arg("sweeps"), py::arg("repeats"),
-     "The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in "
+     "The baseline the coloured sweep is measured against: a plain sequential loop over the model's distance constraints in build order, in "
      "double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.");
   m.def("benchmark_jacobian", [](const SpringNetwork& net, const State& state, int repeats) {
     std::vector<double> y(net.size()), values(net.jacobian_row_indices().size());

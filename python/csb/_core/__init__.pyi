@@ -670,7 +670,7 @@ def benchmark_jacobian(network: ..., state: State, repeats: typing.SupportsInt |
     """
 def benchmark_plain_distance(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
     """
-    The baseline of issue 7: a plain sequential loop over the model's distance constraints in build order, in double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.
+    The baseline the coloured sweep is measured against: a plain sequential loop over the model's distance constraints in build order, in double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.
     """
 def bending_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
