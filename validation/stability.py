@@ -11,12 +11,18 @@
    and found by bisection for symplectic Euler and velocity Verlet on the chain hanging at rest
    (the threshold is where 4000 steps from a nudge grow the energy tenfold).
 3. Gauss-Seidel, averaged Jacobi and summed Jacobi on a 10 x 10 cloth whose edges start 20 %
-   too long: the largest violation after each sweep.
+   too long, and summed Jacobi on the map's 5-link chain (hard links) stretched 20 % about its
+   pin: the largest violation after each sweep. Beside them the spectral radius ρ of one
+   summed-Jacobi sweep (PBD, k = 1) linearised at rest: the constraint errors go e ← (I - A D⁻¹) e,
+   A = J W Jᵀ, D = diag(A), so ρ = max |1 - λ| over the eigenvalues λ of D^-1/2 A D^-1/2 (numpy).
+   On a chain the links form a path, so the eigenvalues 1 - λ are symmetric about 0, and λ > 0
+   (independent links) bounds them by 1: ρ < 1, it converges, slowly (cos(π/2n) for n equal
+   links). The cloth's triangles break that symmetry: λ_max > 2, ρ > 1, it diverges.
 4. PBD's stiffness k above 1: the violation left after n projections of one constraint,
    |1 - k|^n of the first, overshooting for 1 < k < 2 and diverging beyond.
 
-Writes stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_overshoot.csv
-and stability.png.
+Writes stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_jacobi_radius.csv,
+stability_overshoot.csv and stability.png.
 
     python validation/stability.py [--out out/validation] [--quick]
 """
@@ -93,22 +99,50 @@ def found_limit(method: str, k: float) -> tuple[float, float]:
     return predicted, 0.5 * (lo + hi)
 
 
-def jacobi_sweeps(max_iterations: int):
+def jacobi_scenes() -> dict[str, csb.Model]:
+    """The 10 x 10 cloth (1 m, 0.2 kg/m², free) and the map's 5-link chain with hard links."""
     b = csb.ModelBuilder()
     b.add_mesh(csb.cloth_grid(1, 1, 10, 10), density=0.2)
-    model = b.build()
+    cloth = b.build()
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.chain(5, 0.1, direction=(math.sin(math.radians(30)), -math.cos(math.radians(30)), 0)),
+               particle_mass=0.01)
+    b.pin(0)
+    return {"cloth": cloth, "chain": b.build()}
+
+
+def jacobi_sweeps(max_iterations: int):
     rows = []
-    for solver in ("gauss-seidel", "jacobi", "jacobi-summed"):
-        for it in range(1, max_iterations + 1):
-            s = model.initial_state()
-            s.x = s.x * 1.2
-            try:
-                csb.PbdStepper(dt=1 / 60, iterations=it, gravity=(0, 0, 0), solver=solver).step(model, s)
-                residual = float(np.abs(csb.distance_violations(model, s)).max())
-            except csb.SimulationError:
-                residual = float("inf")
-            rows.append(dict(solver=solver, iterations=it, max_violation_m=residual))
+    for scene, model in jacobi_scenes().items():
+        solvers = ("gauss-seidel", "jacobi", "jacobi-summed") if scene == "cloth" else ("jacobi-summed",)
+        for solver in solvers:
+            for it in range(1, max_iterations + 1):
+                s = model.initial_state()
+                x = np.asarray(s.x)
+                s.x = x[0] + (x - x[0]) * 1.2  # every edge 20 % too long (the cloth's x[0] is a corner)
+                try:
+                    csb.PbdStepper(dt=1 / 60, iterations=it, gravity=(0, 0, 0), solver=solver).step(model, s)
+                    residual = float(np.abs(csb.distance_violations(model, s)).max())
+                except csb.SimulationError:
+                    residual = float("inf")
+                rows.append(dict(scene=scene, solver=solver, iterations=it, max_violation_m=residual))
     return rows
+
+
+def summed_jacobi_radius(model: csb.Model) -> tuple[float, float]:
+    """(ρ, λ_max) of one summed-Jacobi sweep of the distance constraints (k = 1) linearised at
+    the rest positions (module docstring)."""
+    x = np.asarray(model.rest_positions)
+    pairs = np.asarray(model.distance["particles"])
+    w = np.repeat(np.asarray(model.inv_mass), 3)
+    J = np.zeros((len(pairs), x.size))
+    for c, (a, b) in enumerate(pairs):
+        n = (x[a] - x[b]) / np.linalg.norm(x[a] - x[b])
+        J[c, 3 * a:3 * a + 3], J[c, 3 * b:3 * b + 3] = n, -n
+    A = (J * w) @ J.T
+    d = np.sqrt(np.diag(A))
+    lam = np.linalg.eigvalsh(A / np.outer(d, d))
+    return float(np.abs(1 - lam).max()), float(lam.max())
 
 
 def overshoot(max_projections: int):
@@ -143,6 +177,17 @@ def main() -> None:
     write_csv(out / "stability_limits.csv", limits)
     jacobi = jacobi_sweeps(20 if args.quick else 60)
     write_csv(out / "stability_jacobi.csv", jacobi)
+    radius = []
+    for scene, model in jacobi_scenes().items():
+        rho, lam_max = summed_jacobi_radius(model)
+        v = [r["max_violation_m"] for r in jacobi if r["scene"] == scene and r["solver"] == "jacobi-summed"]
+        finite = sum(1 for x in v if math.isfinite(x))  # a diverging sweep ends in the stepper's error
+        half = finite // 2  # the measured factor per sweep over the second half of the finite sweeps
+        rate = (v[finite - 1] / v[half - 1]) ** (1 / (finite - half))
+        radius.append(dict(scene=scene, constraints=len(model.distance["rest_length"]), spectral_radius=rho,
+                           lambda_max=lam_max, measured_factor_per_sweep=rate,
+                           measured_from_sweep=half, measured_to_sweep=finite, sweeps=len(v)))
+    write_csv(out / "stability_jacobi_radius.csv", radius)
     over = overshoot(10)
     write_csv(out / "stability_overshoot.csv", over)
 
@@ -172,12 +217,16 @@ def main() -> None:
         ax.set_xlabel("time step (s)")
         ax.set_ylabel("stiffness k = 1/α (N/m)")
     ax = fig.add_subplot(grid[0, 3])
-    for solver in ("gauss-seidel", "jacobi", "jacobi-summed"):
-        pts = [r for r in jacobi if r["solver"] == solver and math.isfinite(r["max_violation_m"])]
-        ax.semilogy([r["iterations"] for r in pts], [r["max_violation_m"] for r in pts], label=solver)
+    rho = {r["scene"]: r["spectral_radius"] for r in radius}
+    for scene, solver in (("cloth", "gauss-seidel"), ("cloth", "jacobi"), ("cloth", "jacobi-summed"),
+                          ("chain", "jacobi-summed")):
+        pts = [r for r in jacobi if r["scene"] == scene and r["solver"] == solver and math.isfinite(r["max_violation_m"])]
+        label = f"{scene}: {solver}" + (f" (ρ = {rho[scene]:.4g})" if solver == "jacobi-summed" else "")
+        ax.semilogy([r["iterations"] for r in pts], [r["max_violation_m"] for r in pts], label=label,
+                    ls=":" if scene == "chain" else "-")
     ax.set_xlabel("sweeps")
     ax.set_ylabel("largest violation (m)")
-    ax.set_title("cloth stretched 20 %: sweeps", fontsize="medium")
+    ax.set_title("stretched 20 %: sweeps", fontsize="medium")
     ax.legend(fontsize="x-small")
     ax = fig.add_subplot(grid[1, 3])
     for k in sorted({r["stiffness"] for r in over}):
@@ -200,12 +249,23 @@ def main() -> None:
     for lim in limits:
         print(f"{lim['method']:18s} k = {lim['stiffness']:.0e} N/m: 2/ω_max = {lim['predicted_dt']:.4e} s, found "
               f"{lim['found_dt']:.6e} s ({100 * (lim['found_over_predicted'] - 1):+.4f} %)")
-    last = {s: [r for r in jacobi if r["solver"] == s][-1]["max_violation_m"] for s in ("gauss-seidel", "jacobi", "jacobi-summed")}
-    print("after the last sweep: " + ", ".join(f"{s} {v:.2e} m" for s, v in last.items()))
+    last = {s: [r for r in jacobi if r["scene"] == "cloth" and r["solver"] == s][-1]["max_violation_m"]
+            for s in ("gauss-seidel", "jacobi", "jacobi-summed")}
+    print("cloth after the last sweep: " + ", ".join(f"{s} {v:.2e} m" for s, v in last.items()))
+    for r in radius:
+        v = [x["max_violation_m"] for x in jacobi if x["scene"] == r["scene"] and x["solver"] == "jacobi-summed"]
+        end = r["measured_to_sweep"]
+        print(f"summed Jacobi on the {r['scene']}: spectral radius of a sweep {r['spectral_radius']:.6g} "
+              f"(λ_max {r['lambda_max']:.4g}, {r['constraints']} constraints), "
+              + ("converges" if r["spectral_radius"] < 1 else "diverges")
+              + f": violation {v[0]:.2e} m after 1 sweep, {v[end - 1]:.2e} m after {end}"
+              + (f" (from {end + 1} on the step stops as diverging)" if end < r["sweeps"] else "")
+              + f"; measured factor per sweep (sweeps {r['measured_from_sweep']}-{end}) "
+              f"{r['measured_factor_per_sweep']:.6g}")
     print("one constraint after 10 projections: " + ", ".join(
         f"k={r['stiffness']} {r['violation_m']:+.2e} m" for r in over if r["projections"] == 10))
-    print(f"  wrote {out}/stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_overshoot.csv, "
-          f"stability.png")
+    print(f"  wrote {out}/stability_map.csv, stability_limits.csv, stability_jacobi.csv, stability_jacobi_radius.csv, "
+          f"stability_overshoot.csv, stability.png")
 
 
 if __name__ == "__main__":
