@@ -49,7 +49,7 @@ def test_bench_command_prints_a_table():
                                              for kind in ("stretch+bending", "stretch", "bending")]
 
 
-def test_issue7_bench_helpers_run_and_report_consistent_memory():
+def test_cost_helpers_time_frames_and_projections_and_report_consistent_memory():
     from csb.bench import (cloth_ms_per_frame, format_memory, format_projection_rates, make_stepper, memory_report,
                            projection_rates)
 

@@ -168,7 +168,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
          front_end_sizes: Sequence[int] = (32, 128, 512)) -> dict:
     """Prints the tables named in `parts` (default: all of them)."""
     if parts is None:
-        parts = ("step", "front-ends", "dispatch", "viewer") + PARTS_ISSUE7
+        parts = ("step", "front-ends", "dispatch", "viewer") + COST_PARTS
     info = _core.build_info()
     out: dict = {}
     if "step" in parts:
@@ -199,9 +199,9 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
             print(format_frame_times(out["viewer"]))
         else:
             print(f"\nViewer frame time: not measured, the viewer was not built ({viewer_missing()})")
-    issue7_parts = [p for p in parts if p in PARTS_ISSUE7]
-    if issue7_parts:
-        out.update(issue7(issue7_parts, rounds=rounds))
+    cost_parts = [p for p in parts if p in COST_PARTS]
+    if cost_parts:
+        out.update(cost_tables(cost_parts, rounds=rounds))
     return out
 
 
@@ -209,7 +209,10 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
 # Colouring, SIMD, threads, scaling, memory, the reference's cost. Functions other code can
 # call (e.g. a peer comparison) return plain numbers; the format_* ones print tables.
 
-PARTS_ISSUE7 = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu")
+# What the coloured sweep and the reference cost: ms per frame and frames per second of 128x128 and
+# 256x256 cloths, projections per second by constraint type, one against two threads (also beside a
+# busy core), cost per particle from 1k to 1M particles, memory, a 1024x1024 cloth, the reference's KLU cost.
+COST_PARTS = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu")
 
 
 def make_stepper(sim: Simulation, *, substeps: int, iterations: int, threads: int = 0, ordering: str = "coloured",
@@ -542,9 +545,9 @@ def format_klu(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def issue7(parts: Sequence[str] = PARTS_ISSUE7, *, rounds: int = 5) -> dict:
-    """Prints the tables of the coloured sweep, memory and the reference that `parts` names; returns
-    their rows."""
+def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
+    """Prints the cost tables (`COST_PARTS`) that `parts` names: time per frame, per projection and
+    per particle of the coloured sweep, its memory, and the reference's cost; returns their rows."""
     import os
 
     info = _core.build_info()
