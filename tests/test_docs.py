@@ -2,8 +2,10 @@
 docs/, papers/) name no development milestone and link nothing outside the repository, and the
 comments, docstrings and strings of the sources (python/csb, src, validation, tests, scripts, the
 scenes and the build files) name no milestone either. A milestone is the word "issue" or "stop"
-followed by a number (optionally "#", optionally across a line break), so "stop" as a verb and
-identifiers in code are not flagged. These tests read the checkout, not the installed package."""
+followed by a number (optionally "#", optionally across a line break), so "stop" as a verb is not
+flagged. Names in code say what a thing is, not the step that made it: an identifier holding
+"issue" or "stop" glued to a number (`issue7`, `PARTS_ISSUE7`, `kStop15`) is flagged in code
+and prose alike. These tests read the checkout, not the installed package."""
 
 from __future__ import annotations
 
@@ -18,6 +20,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 MILESTONE = re.compile(r"\b(?:issue|stop)s?(?:[ \t]*\n)?[ \t*]*#?[0-9]+\b", re.IGNORECASE)
 LINK = re.compile(r"\bhttps?://", re.IGNORECASE)
+# "issue"/"stop" starting a word, after an underscore or as a camelCase part, then an optional
+# underscore and a number: a name built from a milestone.
+IDENTIFIER = re.compile(r"(?:(?<![A-Za-z])(?i:issue|stop)|(?<=[a-z0-9])(?:Issue|Stop))_?[0-9]+")
 
 DOCS = sorted([ROOT / "README.md", *(ROOT / "docs").rglob("*.md"), *(ROOT / "papers").glob("*.md")])
 PYTHON = sorted(p for p in [*(ROOT / "python" / "csb").rglob("*.py"), *(ROOT / "python" / "csb").rglob("*.pyi"),
@@ -112,6 +117,13 @@ def test_the_scanners_keep_prose_and_drop_code():
         assert not MILESTONE.search(fine), fine
 
 
+def test_the_identifier_pattern_finds_names_built_from_milestones():
+    for bad in ("issue7(parts)", "PARTS_ISSUE7", "test_issue7_bench", "issue_7", "kStop15", "stop12 = 1"):
+        assert IDENTIFIER.search(bad), bad
+    for fine in ("reissue2", "nonstop3", "stop_time", "stops", "COST_PARTS", "Stopwatch1", "x = stop - 15"):
+        assert not IDENTIFIER.search(fine), fine
+
+
 def test_the_scanned_sets_are_not_empty():
     assert len(DOCS) >= 5 and len(PYTHON) >= 20 and len(CPP) >= 20 and len(WHOLE) >= 10
 
@@ -134,3 +146,10 @@ def test_source_comments_name_no_milestone(path: Path):
         prose = text
     found = offences(MILESTONE, prose, text, path)
     assert not found, "development milestones in comments or strings:\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize("path", PYTHON + CPP + WHOLE, ids=lambda p: str(p.relative_to(ROOT)))
+def test_source_names_are_not_built_from_milestones(path: Path):
+    text = path.read_text(encoding="utf-8")
+    found = offences(IDENTIFIER, text, text, path)
+    assert not found, "names built from development milestones:\n" + "\n".join(found)
