@@ -32,7 +32,8 @@ def test_energy_drift_reference_conserves_and_pbd_dissipates_less_with_substeps(
     model = pendulum_model(math.radians(30), compliance=1e-8)
     start = model.initial_state()
     times = np.arange(0, 61) / 60
-    reference = energy_series(model, start, times, G, method="reference")
+    # The swing (sqrt(g/L)) carries the energy: the rod's fast mode starts at its static stretch.
+    reference = energy_series(model, start, times, G, method="reference", reference=dict(frequency=math.sqrt(9.81)))
     coarse = energy_series(model, start, times, G, method="pbd", dt=1 / 60, substeps=1, iterations=1)
     fine = energy_series(model, start, times, G, method="pbd", dt=1 / 60, substeps=10, iterations=1)
     swing = model.mass[1] * 9.81 * (1 - math.cos(math.radians(30)))  # kinetic energy at the bottom, J
@@ -88,6 +89,7 @@ def is_png(path: Path) -> bool:
         ("energy_drift.py", ["--quick"], ["energy_drift.csv", "energy_drift_series.csv", "energy_drift.png"]),
         ("convergence.py", ["--quick"], ["convergence_iterations.csv", "convergence_dt.csv", "convergence.png"]),
         ("reference_self_convergence.py", ["--quick"], ["reference_self_convergence.csv"]),
+        ("reference_energy.py", ["--quick"], ["reference_energy.csv", "reference_energy_auto.csv", "reference_energy.png"]),
         ("stability.py", ["--quick"], ["stability_map.csv", "stability_limits.csv", "stability_jacobi.csv",
                                        "stability_overshoot.csv", "stability.png"]),
         ("pareto.py", ["--quick"], ["pareto_chain.csv", "pareto_cloth.csv", "pareto.png"]),
@@ -130,8 +132,31 @@ def test_study_scripts_write_their_csv_and_charts(tmp_path, script, args, output
         for row in rows(tmp_path / "reference_self_convergence.csv"):
             assert float(row["spread_over_error"]) < 0.01
             assert float(row["energy_drift"]) < 1e-6
+    if script == "reference_energy.py":
+        table = rows(tmp_path / "reference_energy.csv")
+        bdf5 = [r for r in table if r["max_order"] == "5"]
+        assert all(float(r["energy_change"]) < 0 for r in bdf5)  # BDF5 loses energy ...
+        # ... at c rtol^(5/6) per period, whatever ω and duration, c within the rule's constant
+        assert all(float(r["c"]) <= csb.reference.ENERGY_CONSTANT for r in bdf5 if float(r["amplitude_m"]) >= 1e-3)
+        grid = [r for r in bdf5 if r["sweep"] == "rtol x omega x periods"]
+        rates = [abs(float(r["per_period"])) for r in grid if float(r["rtol"]) == 1e-8]
+        assert max(rates) < 1.5 * min(rates)  # the rate per period does not depend on ω or the duration
+        assert 0.78 < np.polyfit(np.log([float(r["rtol"]) for r in grid]),
+                                 np.log([abs(float(r["per_period"])) for r in grid]), 1)[0] < 0.88  # 5/6
+        assert all(float(r["energy_change"]) > 0 for r in table if r["max_order"] == "3")  # BDF3 gains
+        for row in rows(tmp_path / "reference_energy_auto.csv"):
+            change, bound = abs(float(row["energy_change"])), float(row["energy_bound"])
+            assert change <= bound
+            if row["settings"].startswith("auto"):
+                assert bound == pytest.approx(1e-6)
+            else:
+                assert change > 1e-5  # rtol 1e-8, the former default, breaks the 1e-6 bound on each
     if script == "energy_drift.py":
-        by = {(row["scene"], row["method"]): float(row["drift_per_second"]) for row in rows(tmp_path / "energy_drift.csv")}
+        table = rows(tmp_path / "energy_drift.csv")
+        by = {(row["scene"], row["method"]): float(row["drift_per_second"]) for row in table}
+        for row in table:
+            if row["method"] == "reference":  # within the bound rtol="auto" was asked for
+                assert abs(float(row["final_change"])) <= float(row["energy_bound"]) == pytest.approx(1e-6)
         for scene in ("pendulum", "chain", "free cloth"):
             assert abs(by[(scene, "reference")]) < 1e-6
             assert by[(scene, "PBD 1x" + ("1" if scene == "pendulum" else "20" if scene == "chain" else "10"))] < 0

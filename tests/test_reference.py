@@ -104,6 +104,54 @@ def test_harmonic_oscillator_matches_the_exact_solution_over_fifty_periods():
     assert r.stats["linear_solver"] == "klu" and r.stats["steps"] > 0
 
 
+def fast_oscillator(omega: float = 100.0, amplitude: float = 0.1) -> csb.Model:
+    b = csb.ModelBuilder()
+    g = b.add_group("oscillator")
+    b.add_particle([0, 0, 0], 1.0, g)
+    b.add_particle([1.0 + amplitude, 0, 0], 1.0, g)
+    b.add_distance(0, 1, rest_length=1.0, compliance=1 / omega**2)
+    b.pin(0)
+    return b.build()
+
+
+def test_the_default_keeps_a_fast_oscillators_energy_within_its_bound():
+    """100 rad/s for 100 periods: rtol 1e-8 (BDF up to order 5) loses ~3e-4 of the energy (BDF5
+    loses ~13 rtol^(5/6) a period, validation/reference_energy.py); the default rtol="auto" takes
+    the tolerance that bounds the loss by energy_tolerance = 1e-6 and keeps it."""
+    omega = 100.0
+    model = fast_oscillator(omega)
+    times = np.linspace(0, 100 * 2 * math.pi / omega, 801)
+
+    def change(**kwargs):
+        r = csb.integrate_reference(model, model.initial_state(), times, gravity=(0, 0, 0), **kwargs)
+        e = [csb.measure(model, s, (0, 0, 0))["total_energy"] for s in r.states(model)]
+        return abs(e[-1] / e[0] - 1), r.stats
+
+    former, _ = change(rtol=1e-8, atol=1e-10)
+    assert former > 1e-4
+    now, stats = change()
+    assert stats["energy_bound"] == pytest.approx(1e-6) and stats["frequency"] == pytest.approx(omega)
+    assert stats["rtol"] < 1e-11 and stats["atol"] == stats["rtol"] / 100
+    assert now <= 1e-6
+    tighter, stats = change(energy_tolerance=1e-8)  # the bound follows the setting
+    assert tighter <= 1e-8 and stats["energy_bound"] == pytest.approx(1e-8)
+
+
+def test_energy_rule_and_frequency_bound():
+    from csb.reference import ENERGY_CONSTANT, energy_bound, energy_rtol, frequency_bound
+
+    model = fast_oscillator(100.0)
+    assert frequency_bound(model, model.initial_state(), (0, 0, 0)) == pytest.approx(100.0, rel=1e-12)
+    chain = csb.studies.swinging_chain(links=5, compliance=1e-5)
+    w_max = csb.studies.omega_max(chain, chain.initial_state())
+    assert w_max <= frequency_bound(chain, chain.initial_state()) <= 2 * w_max  # an upper bound, not a loose one
+    rtol = energy_rtol(100.0, 2 * math.pi, 1e-6)  # 100 periods
+    assert energy_bound(rtol, 100.0, 2 * math.pi) == pytest.approx(1e-6)
+    assert rtol == pytest.approx((1e-6 / (ENERGY_CONSTANT * 100)) ** 1.2)
+    assert energy_rtol(1.0, 1e-3, 1e-6) == 1e-8  # never looser than the trajectories' tolerance
+    assert energy_rtol(0.0, 10.0) == 1e-8
+
+
 @pytest.mark.parametrize("degrees, exact", [(30, 1.017409), (90, 1.180341), (120, 1.372881)])
 def test_reference_pendulum_period_is_the_elliptic_integral(degrees, exact):
     """T/T0 = (2/π) K(sin²(θ0/2)). The rod is a spring of compliance 1e-8 m/N: with m = 1 kg and
@@ -211,7 +259,8 @@ def quick_cloth() -> csb.Model:
 @pytest.mark.parametrize("make, duration, solver", [(quick_chain, 1.0, "klu"), (quick_cloth, 0.5, "gmres")])
 def test_reference_self_convergence(make, duration, solver):
     """A tolerance sweep moves the trajectory by less than 1% of the smallest PBD error measured
-    against it (PBD at 1/960 s here), and the undamped energy drifts by less than 1e-6."""
+    against it (PBD at 1/960 s here, whose constraints are hard: the models declare only
+    compliances), and the undamped energy drifts by less than 1e-6."""
     model = make()
     start = model.initial_state()
     times = np.linspace(0, duration, 11)
@@ -221,7 +270,10 @@ def test_reference_self_convergence(make, duration, solver):
     state = model.initial_state()
     stepper = csb.PbdStepper(dt=duration / 10 / 96, iterations=20)
     smallest = np.inf
-    for k in range(1, len(times)):
+    with pytest.warns(csb.MaterialWarning, match="PBD reads stiffness, not compliance: .* so PBD makes them rigid"):
+        stepper.step(model, state, 96)
+    smallest = np.linalg.norm(state.x - runs[1e-12].x[1], axis=1).max()
+    for k in range(2, len(times)):
         stepper.step(model, state, 96)
         smallest = min(smallest, np.linalg.norm(state.x - runs[1e-12].x[k], axis=1).max())
     assert spread < 0.01 * smallest
@@ -255,6 +307,17 @@ def small_model(compliance: float = 1e-3) -> csb.Model:
         (dict(times=[0.2, 0.1]), r"output times must increase"),
         (dict(times=[-0.1, 0.1]), r"output time 0 \(-0\.1 s\) is before the start time 0 s"),
         (dict(times=[float("inf")]), r"output time 0 is not finite"),
+        (dict(rtol="fast"), r"rtol must be 'auto' or a finite tolerance > 0, got 'fast'"),
+        (dict(atol="small"), r"atol must be 'auto' or a finite tolerance > 0"),
+        (dict(energy_tolerance=0.0), r"energy_tolerance must be a finite number > 0"),
+        (dict(energy_tolerance=float("nan")), r"energy_tolerance must be a finite number > 0"),
+        (dict(energy_tolerance=1.5), r"energy_tolerance must be below 1"),
+        (dict(energy_tolerance=0.0, rtol=1e-8), r"energy_tolerance must be a finite number > 0"),
+        (dict(frequency=-1.0), r"frequency must be a finite angular frequency > 0 rad/s, got -1"),
+        (dict(frequency="fast"), r"frequency must be a finite angular frequency > 0 rad/s"),
+        (dict(max_order=3), r"rtol='auto' follows BDF5's energy law and needs max_order=5"),
+        (dict(times=[1e4], frequency=1e3), r"rtol='auto' cannot keep the energy within energy_tolerance=1e-06 over "
+                                           r".* periods of frequency=1000 rad/s .*needs rtol=.*below 1e-14"),
     ],
 )
 def test_bad_reference_input(kwargs, message):

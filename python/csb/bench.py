@@ -526,7 +526,7 @@ def klu_scaling(sizes: Sequence[int] = (16, 32, 64), *, duration: float = 0.02, 
         net = _core.SpringNetwork(model, state)
         jac = statistics.median(_core.benchmark_jacobian(net, state, repeats))
         t0 = time.perf_counter()
-        res = integrate_reference(model, state, [duration], linear_solver="klu")
+        res = integrate_reference(model, state, [duration], rtol=1e-8, atol=1e-10, linear_solver="klu")
         wall = time.perf_counter() - t0
         rows.append(dict(n=n, particles=n * n, unknowns=net.size, nnz=len(net.jacobian(net.pack(state))[1]),
                          jacobian_ms=jac, wall_s=wall, per_simulated_s=wall / duration, steps=res.stats["steps"],

@@ -191,12 +191,14 @@ def method_energy(model: _core.Model, state: _core.State, gravity, *, reference:
 
 
 def energy_series(model: _core.Model, start: _core.State, times: np.ndarray, gravity, *,
-                  method: str, dt: float = 1 / 60, substeps: int = 1, iterations: int = 10) -> np.ndarray:
-    """Energy at ``times`` (multiples of dt) for ``method`` "reference" or "pbd" (undamped)."""
+                  method: str, dt: float = 1 / 60, substeps: int = 1, iterations: int = 10,
+                  reference: dict | None = None) -> np.ndarray:
+    """Energy at ``times`` (multiples of dt) for ``method`` "reference" (with the settings of
+    ``reference``, e.g. its ``frequency``) or "pbd" (undamped)."""
     if method == "reference":
         from .reference import integrate_reference
 
-        r = integrate_reference(model, start, times, gravity=gravity)
+        r = integrate_reference(model, start, times, gravity=gravity, **(reference or {}))
         return np.array([method_energy(model, s, gravity, reference=True) for s in r.states(model)])
     state = start.copy()
     stepper = _core.PbdStepper(dt=dt, substeps=substeps, iterations=iterations, gravity=gravity)
