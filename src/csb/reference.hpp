@@ -31,10 +31,16 @@ struct ReferenceSettings {
   Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
   // Tolerances of CVODE's local error test. At the defaults a chain's and a cloth's trajectories
   // are within 1e-8 m of those at rtol 1e-12 (papers/reference.md), far below any error a study
-  // measures; analytic tests ask for tighter ones.
+  // measures; analytic tests ask for tighter ones. The energy is another matter: BDF5 loses about
+  // c rtol^(5/6) (c <= 40 measured) of a spring mode's energy per period of that mode, 2.8e-4 of a
+  // 100 rad/s spring's in 100 periods at rtol 1e-8; Python's rtol="auto" chooses rtol from a
+  // stated energy tolerance, the fastest mode and the duration (validation/reference_energy.py).
   Real rtol = 1e-8;                  // relative tolerance, > 0
   Real atol = 1e-10;                 // absolute tolerance on positions (m) and velocities (m/s), > 0
-  Real damping = 0;                  // N s/m: dashpot along each distance constraint and on attachments
+  // N s/m: dashpot along each distance constraint and an isotropic one on each attachment; bending,
+  // volume and balloon constraints are not damped (XPBD's damping, Macklin 2016 Eq. 26, acts along
+  // every constraint's gradient: the two agree on distance constraints only).
+  Real damping = 0;
   Real drag = 0;                     // 1/s: force -drag m v on every particle
   int max_order = 5;                 // BDF order cap, 1..5
   // CVODE's BDF stability limit detection (STALD): lowers the order when a mode near the
