@@ -36,6 +36,61 @@ def warn_mesh(message: str) -> None:
     warnings.warn(message, MeshWarning, stacklevel=level)
 
 
+# Elements that make a Gauss-Seidel sweep with few iterations unstable: a sliver's altitude is so
+# short beside its longest edge that its bending gradient (~1/altitude) throws its apex far in one
+# projection; a vertex with very many neighbours receives that many corrections in a row, each
+# undoing the last. Ratios past these are warned of when a mesh is added (csb's regular meshes
+# have ratios under 2 and at most 8 neighbours).
+SLIVER_RATIO = 100.0     # longest edge over its altitude
+HIGH_VALENCE = 32        # neighbours of a vertex
+
+
+def element_quality(vertices: np.ndarray, triangles: np.ndarray) -> dict:
+    """Per mesh: the triangles' largest ratio of longest edge to its altitude (zero-area triangles
+    aside), how many exceed :data:`SLIVER_RATIO` and the worst; the vertices' largest valence
+    (distinct neighbours), how many exceed :data:`HIGH_VALENCE` and the worst."""
+    v = np.asarray(vertices, dtype=float)
+    t = np.asarray(triangles, dtype=np.int64).reshape(-1, 3)
+    out = {"slivers": 0, "worst_ratio": 0.0, "worst_triangle": -1,
+           "high_valence": 0, "worst_valence": 0, "worst_vertex": -1}
+    if len(t) == 0:
+        return out
+    a, b, c = v[t[:, 0]], v[t[:, 1]], v[t[:, 2]]
+    longest2 = np.max(np.stack([np.sum((b - a) ** 2, 1), np.sum((c - b) ** 2, 1), np.sum((a - c) ** 2, 1)]), axis=0)
+    twice_area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    ok = twice_area > 0
+    ratio = np.zeros(len(t))
+    ratio[ok] = longest2[ok] / twice_area[ok]  # L / altitude, altitude = 2 A / L
+    if ok.any():
+        out["worst_triangle"] = int(np.argmax(ratio))
+        out["worst_ratio"] = float(ratio[out["worst_triangle"]])
+        out["slivers"] = int(np.count_nonzero(ratio > SLIVER_RATIO))
+    edges = np.sort(np.concatenate([t[:, [0, 1]], t[:, [1, 2]], t[:, [2, 0]]]), axis=1)
+    edges = np.unique(edges, axis=0)
+    valence = np.bincount(edges.ravel(), minlength=len(v))
+    out["worst_vertex"] = int(np.argmax(valence))
+    out["worst_valence"] = int(valence[out["worst_vertex"]])
+    out["high_valence"] = int(np.count_nonzero(valence > HIGH_VALENCE))
+    return out
+
+
+def warn_element_quality(name: str, vertices: np.ndarray, triangles: np.ndarray) -> dict:
+    """A :class:`MeshWarning` naming the mesh's slivers and high-valence vertices, if any."""
+    q = element_quality(vertices, triangles)
+    parts = []
+    if q["slivers"]:
+        parts.append(f"{q['slivers']} sliver triangle(s) whose longest edge exceeds {SLIVER_RATIO:g} times its "
+                     f"altitude (worst: triangle {q['worst_triangle']}, {q['worst_ratio']:.3g} times)")
+    if q["high_valence"]:
+        parts.append(f"{q['high_valence']} vertex(es) with more than {HIGH_VALENCE} neighbours (worst: vertex "
+                     f"{q['worst_vertex']}, {q['worst_valence']})")
+    if parts:
+        warn_mesh(f"mesh {name!r} has " + " and ".join(parts) + ": Gauss-Seidel with few iterations per sub-step "
+                  "can blow up on such elements (more sub-steps or iterations, or remeshing, keep it stable; the "
+                  "stepper's divergence guard stops a run that runs away)")
+    return q
+
+
 @dataclass(frozen=True)
 class MeshReport:
     """What clean-up did to a mesh, so that nothing the user gave disappears silently."""

@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from . import _core
-from .mesh import Mesh, MeshReport
+from .mesh import Mesh, MeshReport, warn_element_quality
 from .tetmesh import TetMesh
 
 __all__ = ["ModelBuilder", "MeshInstance"]
@@ -92,6 +92,7 @@ class ModelBuilder(_core.ModelBuilder):
             bending_compliance=bending_compliance,
             thickness=thickness,
         )
+        warn_element_quality(mesh.name or "mesh", mesh.vertices, mesh.triangles)
         return _instance(d, mesh.vertices)
 
     def add_tet_mesh(

@@ -8,6 +8,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from . import _core
 from .output import FrameWriter, metrics_row, plot_snapshot, plot_summary, volume_errors, write_csv
 
@@ -30,6 +32,51 @@ class RunResult:
     def final(self) -> dict[str, float]:
         return self.rows[-1]
 
+    @property
+    def largest_strain(self) -> float:
+        """The largest edge strain of any recorded frame."""
+        return max(r["max_strain"] for r in self.rows)
+
+    @property
+    def energy_growth(self) -> float:
+        """J: how far the kinetic + gravitational energy of any recorded frame rose above the
+        first frame's (0 if it never did)."""
+        e0 = self.rows[0]["mechanical_energy"]
+        return max(0.0, max(r["mechanical_energy"] for r in self.rows) - e0)
+
+    def checks(self) -> list[str]:
+        """What the run did that its scene's materials do not allow; empty when nothing did.
+
+        - Strain: an edge whose material the method reads as hard (PBD, Jakobsen: stiffness 1;
+          XPBD: compliance 0) allows none; a compliant one (XPBD) at most what the whole body's
+          weight would stretch it by, α m |g| / L; a soft PBD edge (k < 1) has no strain in SI
+          units, so it allows any. Flagged past that plus 10 % (what a converged solver keeps
+          well under), or past the tearing threshold in a tearing scene.
+        - Energy: the scene has no driver (no grabs, only static colliders), so its kinetic +
+          gravitational energy can only fall from the first frame, which starts at rest shape
+          (no elastic energy to release); flagged when it rises by more than 1 % of m |g| D,
+          D the body's rest bounding-box diagonal."""
+        sim = self.simulation
+        model = sim.model
+        out = []
+        allowed = strain_allowed(model, sim.scene.solver)
+        if sim.scene.tearing is not None:
+            allowed = max(allowed, sim.scene.tearing.max_strain)
+        limit = allowed + 0.10
+        if self.largest_strain > limit:
+            out.append(f"the largest strain, {100 * self.largest_strain:.3g} %, exceeds the {100 * limit:.3g} % its "
+                       f"materials allow under {sim.scene.solver.method.upper()} (converge further: more sub-steps "
+                       f"or iterations)")
+        mass = float(np.sum(np.asarray(model.mass)))
+        rest = np.asarray(model.rest_positions)
+        size = float(np.linalg.norm(rest.max(axis=0) - rest.min(axis=0))) if len(rest) else 0.0
+        scale = 0.01 * mass * float(np.linalg.norm(sim.scene.solver.gravity)) * size
+        if scale > 0 and self.energy_growth > scale:
+            out.append(f"its kinetic + gravitational energy rose by {self.energy_growth:.3g} J, more than 1 % of "
+                       f"m |g| D = {100 * scale:.3g} J, which a scene without drivers cannot gain (unstable: "
+                       f"smaller sub-steps or more iterations)")
+        return out
+
     def summary(self) -> str:
         sim = self.simulation
         s = sim.scene.solver
@@ -44,11 +91,26 @@ class RunResult:
             + (f", balloon volume error {100 * f['balloon_volume_error']:+.3g} %"
                if sim.model.balloons["rest_volume"].size else "")
             + (f", {self.tears} vertices torn" if sim.scene.tearing is not None else "")
+            + f"; largest strain {100 * self.largest_strain:.3g} %, energy growth {self.energy_growth:.3g} J"
+            + "".join(f"\n  CHECK: {c}" for c in self.checks())
         )
 
 
 _METHODS = {"pbd": "PBD", "xpbd": "XPBD", "jakobsen": "Jakobsen (Verlet)"}
 _SOLVERS = {"gauss-seidel": "Gauss-Seidel", "jacobi": "Jacobi", "jacobi-summed": "Jacobi (summed)"}
+
+
+def strain_allowed(model: "_core.Model", solver) -> float:
+    """The largest strain any distance constraint's material allows under the solver's method
+    (see RunResult.checks): 0 for hard edges, α m |g| / L for compliant ones (XPBD), any (inf)
+    for soft PBD edges (stiffness < 1)."""
+    d = model.distance
+    if len(d["rest_length"]) == 0:
+        return 0.0
+    if solver.method == "xpbd":
+        weight = float(np.sum(np.asarray(model.mass))) * float(np.linalg.norm(solver.gravity))
+        return float(np.max(np.asarray(d["compliance"]) * weight / np.asarray(d["rest_length"])))
+    return float("inf") if np.any(np.asarray(d["stiffness"]) < 1) else 0.0
 
 
 def summary_title(scene: "Scene", num_particles: int) -> str:

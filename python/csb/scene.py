@@ -131,9 +131,11 @@ class _Table:
         return self.data[key]
 
     def number(self, key: str, default: Any = _MISSING, *, check: Callable[[float], bool] | None = None,
-               expect: str = "a number") -> float:
+               expect: str = "a number", allow_inf: bool = False) -> float:
         v = self.raw(key, default)
         if v is default and default is not _MISSING:
+            return v
+        if allow_inf and isinstance(v, float) and v == math.inf:
             return v
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
             raise self.error(key, f"must be {expect}, got {v!r}")
@@ -238,6 +240,7 @@ class SolverSpec:
     sqrt_approximation: bool = False  # Jakobsen's stick relaxation without square roots
     ordering: str = "coloured"      # or "sequential" (the batches as built, one thread)
     threads: int = 0                # threads per colour; 0: the free cores (the result does not depend on it)
+    max_speed: float = 0.0          # m/s, the divergence guard; 0: automatic (the model's size per sub-step, ...), inf: off
 
     def stepper(self) -> _core.PbdStepper:
         return _core.PbdStepper(
@@ -245,7 +248,7 @@ class SolverSpec:
             gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
             front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
             verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation, ordering=self.ordering,
-            threads=self.threads,
+            threads=self.threads, max_speed=self.max_speed,
         )
 
 
@@ -732,6 +735,8 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         sqrt_approximation=so.boolean("sqrt_approximation", False),
         ordering=so.string("ordering", "coloured", choices=("coloured", "sequential")),
         threads=so.integer("threads", 0, minimum=0),
+        max_speed=so.number("max_speed", 0.0, check=lambda x: x >= 0, allow_inf=True,
+                            expect="a speed >= 0 m/s (0: automatic divergence guard, inf: off)"),
     )
     so.finish()
     try:

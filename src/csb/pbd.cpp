@@ -116,6 +116,9 @@ void validate(const PbdSettings& s) {
     throw InvalidArgument("sqrt_approximation is part of Jakobsen's method only");
   if (s.threads < 0)
     throw InvalidArgument("threads must be >= 0 (0: automatic, from the free cores), got " + std::to_string(s.threads));
+  if (!(s.max_speed >= 0))
+    throw InvalidArgument("max_speed must be a speed >= 0 m/s (0: automatic, inf: no divergence guard), got " +
+                          str(s.max_speed));
 }
 
 Real corrected_stiffness(Real k, int iterations) {
@@ -208,6 +211,14 @@ void PbdStepper::prepare(const Model& model) {
   contact_summary_ = {};
   coloured_.model_id = 0;  // the coloured batches follow in step()
   lambda_stale_ = false;
+  // The divergence guard's size: the rest bounding box's diagonal, plus the thickest collision
+  // layer on either side (contacts push a particle out of it within a sub-step).
+  guard_size_ = n > 0 ? (model.rest_positions.rowwise().maxCoeff() - model.rest_positions.rowwise().minCoeff()).norm() : 0;
+  Real thickest = 0;
+  for (const Real t : model.thickness) thickest = std::max(thickest, t);
+  for (const Real t : model.self_collision_thickness) thickest = std::max(thickest, t);
+  guard_size_ += 2 * thickest;
+  guard_started_ = false;
   model_id_ = model.id;
 }
 
@@ -226,6 +237,12 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   const Real h = substep_size();
   const bool verlet = settings_.front_end == FrontEnd::Verlet;
   const Index n3 = 3 * n;
+  if (!guard_started_ || state.t < guard_t0_) {  // the divergence guard's baseline: the first state stepped
+    guard_v0_ = 0;
+    for (Index i = 0; i < n; ++i) guard_v0_ = std::max(guard_v0_, state.v.col(i).norm());
+    guard_t0_ = state.t;
+    guard_started_ = true;
+  }
   Real* x = state.x.data();
   Real* v = state.v.data();
   for (Index i : stop_)  // a pin let go stays where it was put
@@ -309,8 +326,58 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
     ++state.step;
     state.t += settings_.dt;
     for (Grab& g : grabs_) g.from = g.target;
+    if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
   }
   if (verlet) state.v = (state.x - x_prev_) / h;
+}
+
+void PbdStepper::check_divergence(const Model& model, State& state, Real h) {
+  const Index n = model.num_particles();
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  const Real elapsed = std::max(state.t - guard_t0_, Real(0));
+  const Real g = settings_.gravity.norm();
+  // What a stable run can reach: the start's fastest speed, what gravity adds since, and a swing
+  // over the model's size (sqrt(2 g D), a pendulum's lowest point), twice over; plus a crossing
+  // of the whole model in one sub-step, which the constraints and contacts cannot follow.
+  const Real natural = guard_v0_ + g * elapsed + std::sqrt(2 * g * guard_size_);
+  const Real limit = settings_.max_speed > 0 ? settings_.max_speed : 2 * natural + guard_size_ / h;
+  // Squared speeds (Verlet: from the last sub-step's displacement), no square root per particle.
+  const Real limit2 = limit * limit;
+  Index worst = -1;
+  Real worst2 = limit2;
+  for (Index i = 0; i < n; ++i) {
+    if (!(w[i] > 0)) continue;
+    const Vec3 v = verlet ? Vec3((state.x.col(i) - x_prev_.col(i)) / h) : Vec3(state.v.col(i));
+    const Real v2 = v.squaredNorm();
+    if (v2 > worst2) worst2 = v2, worst = i;
+  }
+  if (worst < 0) return;
+  // The particle's most strained distance constraint, for the message (the error path only).
+  Real strain = 0;
+  const auto& d = model.distance;
+  for (Index c = 0; c < d.size(); ++c) {
+    const auto& e = d.particles[c];
+    if (e[0] != worst && e[1] != worst) continue;
+    const Real len = (state.x.col(e[0]) - state.x.col(e[1])).norm();
+    if (d.rest_length[c] > 0) strain = std::max(strain, len / d.rest_length[c]);
+  }
+  std::ostringstream msg;
+  msg << "step " << state.step << " (t = " << state.t << " s): particle " << worst << " moves at "
+      << std::sqrt(worst2) << " m/s, beyond the divergence guard's " << limit << " m/s (";
+  if (settings_.max_speed > 0)
+    msg << "max_speed";
+  else
+    msg << "automatic: the model's size " << guard_size_ << " m per sub-step of " << h << " s, plus twice "
+        << natural << " m/s, the start's fastest " << guard_v0_ << " m/s, |g| t = " << g * elapsed
+        << " m/s and sqrt(2 |g| size) = " << std::sqrt(2 * g * guard_size_) << " m/s";
+  msg << "): the simulation is diverging";
+  if (strain > 0) msg << "; its most stretched distance constraint is at " << strain << " times its rest length";
+  msg << ". Usual causes: a time step or sub-step too large for the stiffness, too few iterations for sliver "
+         "triangles or vertices of very high valence (csb warns of them when the mesh is added), or summed Jacobi. "
+         "The state is left at the end of this step; max_speed sets the guard (inf turns it off).";
+  if (verlet) state.v = (state.x - x_prev_) / h;
+  throw SimulationError(msg.str());
 }
 
 void PbdStepper::predict(const Model& model, State& state, Real h) {

@@ -77,6 +77,17 @@ struct PbdSettings {
   // part: under 1024 particles). The result does not depend on the number: the parts and their
   // colouring fix the order of every update.
   int threads = 0;
+  // The divergence guard, m/s: a step after which a particle that can move is faster than this
+  // throws SimulationError naming the step, the particle, its speed, its most strained
+  // constraint and what the limit is made of, with the state left at the end of that step.
+  // 0 (default): automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)): D the model's size (its rest
+  // bounding-box diagonal plus twice its thickest collision layer, m) and h the sub-step, v0 the fastest particle of the state the
+  // stepper first stepped, t the time since. A stable simulation stays below it (the second
+  // term bounds what the start, gravity and a swing over the model's size give, twice over; a
+  // particle that crosses the whole model in one sub-step has left what the constraints and
+  // contacts can follow); a runaway, which grows geometrically, trips it within a few steps,
+  // long before positions reach 1e14 m or NaN. Infinity turns the guard off.
+  Real max_speed = 0;
 };
 
 // Throws InvalidArgument naming the first impossible setting.
@@ -183,6 +194,12 @@ class PbdStepper {
   // accel_ for particles [begin, end).
   void set_accel(const Model& model, Real h, Index begin, Index end);
   [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
+  // The divergence guard (PbdSettings::max_speed) after a step; guard_size_ is the model's
+  // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
+  // (s) of the state the stepper first stepped on this model.
+  void check_divergence(const Model& model, State& state, Real h);
+  Real guard_size_ = 0, guard_v0_ = 0, guard_t0_ = 0;
+  bool guard_started_ = false;
   // XPBD: share `share` of `shares` (equal runs) of every coloured batch's multipliers, and the
   // balloons', set to zero (at the start of a sub-step).
   void zero_coloured_multipliers(int share, int shares);

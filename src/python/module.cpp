@@ -727,6 +727,7 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("gravity", [](const PbdSettings& s) { return vec3_array(s.gravity); }, "m/s²")
       .def_readonly("damping", &PbdSettings::damping, "Müller 2007 §3.5 k_damping per substep, [0, 1]")
       .def_readonly("stiffness_correction", &PbdSettings::stiffness_correction)
+      .def_readonly("max_speed", &PbdSettings::max_speed, "m/s, the divergence guard (0: automatic, inf: off)")
       .def_property_readonly("front_end", [](const PbdSettings& s) { return s.front_end == FrontEnd::Euler ? "euler" : "verlet"; })
       .def_property_readonly("solver", [](const PbdSettings& s) {
         return s.solver == Solver::GaussSeidel ? "gauss-seidel" : s.solver == Solver::Jacobi ? "jacobi" : "jacobi-summed";
@@ -748,7 +749,8 @@ PYBIND11_MODULE(_core, m) {
           << (s.solver == Solver::GaussSeidel ? "gauss-seidel" : s.solver == Solver::Jacobi ? "jacobi" : "jacobi-summed")
           << "', xpbd_damping=" << s.xpbd_damping << ", verlet_drag=" << s.verlet_drag
           << ", sqrt_approximation=" << (s.sqrt_approximation ? "True" : "False") << ", ordering='"
-          << (s.ordering == Ordering::Coloured ? "coloured" : "sequential") << "', threads=" << s.threads << ")";
+          << (s.ordering == Ordering::Coloured ? "coloured" : "sequential") << "', threads=" << s.threads
+          << ", max_speed=" << s.max_speed << ")";
         return o.str();
       });
 
@@ -757,7 +759,7 @@ PYBIND11_MODULE(_core, m) {
       .def(py::init([](const std::string& method, double dt, int substeps, int iterations, py::handle gravity,
                        double damping, bool stiffness_correction, const std::string& front_end,
                        const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation,
-                       const std::string& ordering, int threads) {
+                       const std::string& ordering, int threads, double max_speed) {
              PbdSettings s;
              if (method == "pbd") s.method = Method::Pbd;
              else if (method == "xpbd") s.method = Method::Xpbd;
@@ -784,6 +786,7 @@ PYBIND11_MODULE(_core, m) {
              else if (ordering == "sequential") s.ordering = Ordering::Sequential;
              else throw InvalidArgument("ordering must be 'coloured' or 'sequential', got '" + ordering + "'");
              s.threads = threads;
+             s.max_speed = max_speed;
              return PbdStepper(s);
            }),
            py::kw_only(), py::arg("method") = "pbd", py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1,
@@ -791,6 +794,7 @@ PYBIND11_MODULE(_core, m) {
            py::arg("damping") = 0.0, py::arg("stiffness_correction") = true, py::arg("front_end") = "auto",
            py::arg("solver") = "gauss-seidel", py::arg("xpbd_damping") = 0.0, py::arg("verlet_drag") = 0.0,
            py::arg("sqrt_approximation") = false, py::arg("ordering") = "coloured", py::arg("threads") = 0,
+           py::arg("max_speed") = 0.0,
            "method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: "
            "sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: "
            "Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's "
@@ -800,7 +804,9 @@ PYBIND11_MODULE(_core, m) {
            "without square roots. ordering: 'coloured' (the model's parts and interfaces as the "
            "threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one "
            "thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the "
-           "result does not depend on it).")
+           "result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable "
+           "particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) "
+           "with D the model's size and v0 the fastest start speed; inf: off).")
       .def_property_readonly("settings", &PbdStepper::settings)
       .def_property_readonly("threads_used", &PbdStepper::threads_used, "threads the last step used")
       .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,
