@@ -91,11 +91,12 @@ def _model(kind: str):
         for i in cube.particles:
             if cube.vertices[i - cube.first_particle][1] > 0.04:
                 b.pin(int(i))
-    elif kind == "attachment":  # two particles on soft springs to points above them
+    elif kind == "attachment":  # two particles on soft springs to points above them, linked by a third
         g = b.add_group("bobs")
-        for x in (0.0, 0.5):
-            p = b.add_particle([x, 0.0, 0.0], 0.2, g)
-            b.attach(p, [x, 0.1, 0.0], compliance=1e-2)
+        bobs = [b.add_particle([x, 0.0, 0.0], 0.2, g) for x in (0.0, 0.5)]
+        for p, x in zip(bobs, (0.0, 0.5)):
+            b.attach(p, [x - 0.1, 0.1, 0.0], compliance=1e-2)
+        b.add_distance(bobs[0], bobs[1], rest_length=0.4, compliance=1e-2)
     elif kind == "balloon":  # a closed surface with a compliant overpressure, hanging from its top cap
         body = b.add_mesh(icosphere(0.2, 1), mass=0.3, stretch_stiffness=1.0, stretch_compliance=1e-3)
         b.add_balloon(body, pressure=1.2, stiffness=1.0, compliance=1e-4)
