@@ -85,7 +85,7 @@ def test_compliant_grab_is_a_spring_of_stiffness_one_over_alpha():
 
 def test_grabs_are_deterministic_and_do_not_touch_the_model():
     def run():
-        model = cloth_model(10)
+        model = cloth_model(10, bending_compliance=10.0)  # XPBD's bending: 1/(N m), as the cloth_sphere scene
         state = model.initial_state()
         stepper = csb.PbdStepper(method="xpbd", dt=1 / 60, substeps=2, iterations=5, gravity=G)
         h = stepper.grab(model, state, 55, state.x[55])

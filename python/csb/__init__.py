@@ -23,6 +23,7 @@ from . import _core  # noqa: F401  (csb._core, the compiled module)
 from ._core import (
     Error,
     ForceStepper,
+    MaterialWarning,
     MeshError,
     Model,
     ParameterError,
@@ -61,7 +62,7 @@ from .view import CameraPose, RenderResult, open_viewer, render, view, viewer_av
 __version__ = build_info()["csb"]
 
 __all__ = [
-    "Error", "ParameterError", "MeshError", "SimulationError", "SceneError", "MeshWarning",
+    "Error", "ParameterError", "MeshError", "SimulationError", "SceneError", "MeshWarning", "MaterialWarning",
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",

@@ -6,6 +6,7 @@
 #include "csb/mesh.hpp"
 #include "csb/metrics.hpp"
 #include "csb/model.hpp"
+#include "csb/material.hpp"
 #include "csb/pbd.hpp"
 #include "csb/reference.hpp"
 #include "csb/force.hpp"

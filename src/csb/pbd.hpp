@@ -23,11 +23,13 @@
 #pragma once
 
 #include "csb/coloured.hpp"
+#include "csb/material.hpp"
 #include "csb/model.hpp"
 #include "csb/spatial_hash.hpp"
 #include "csb/team.hpp"
 
 #include <cstdint>
+#include <unordered_set>
 
 namespace csb {
 
@@ -179,6 +181,10 @@ class PbdStepper {
   const std::vector<Contact>& contacts() const { return contacts_; }
   const std::vector<SelfContact>& self_contacts() const { return self_contacts_; }
   const ContactSummary& contact_summary() const { return contact_summary_; }
+  // What this method cannot read of `model`'s material (material.hpp); empty once
+  // material_reported(model) was called: the Python binding warns once per model and stepper.
+  std::vector<MaterialNote> material_notes_to_report(const Model& model) const;  // material.cpp
+  void material_reported(const Model& model) { reported_models_.insert(model.id); }
 
  private:
   void prepare(const Model& model);
@@ -289,6 +295,7 @@ class PbdStepper {
   std::vector<Real> margin_;  // m, per group
   std::vector<std::uint32_t> stamps_;
   std::uint32_t stamp_ = 0;
+  std::unordered_set<std::uint64_t> reported_models_;  // models whose material notes were reported
 };
 
 // The stiffness used in each of n iterations so that n of them act like one of stiffness k:

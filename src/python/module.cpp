@@ -226,6 +226,9 @@ PYBIND11_MODULE(_core, m) {
   static PyObject* param_error = new_exception("ParameterError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
   static PyObject* mesh_error = new_exception("MeshError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
   static PyObject* sim_error = new_exception("SimulationError", py::make_tuple(py::handle(error_base), py::handle(PyExc_RuntimeError)));
+  // A method that cannot read the form a constraint's material was declared in (material.hpp):
+  // a UserWarning, which the warnings filter can turn into an error.
+  static PyObject* material_warning = new_exception("MaterialWarning", PyExc_UserWarning);
   py::register_exception_translator([](std::exception_ptr p) {
     // Messages may quote bytes of a corrupt file: decode them leniently.
     const auto raise = [](PyObject* type, const char* what) {
@@ -813,10 +816,17 @@ PYBIND11_MODULE(_core, m) {
                              "bytes of the stepper's per-model workspace (from the vectors' capacities)")
       .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
       .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
+        // Once per model and stepper, at the caller's line: what the method ignores of the material.
+        for (const MaterialNote& note : s.material_notes_to_report(model))
+          if (PyErr_WarnEx(material_warning, note.message.c_str(), 1) < 0) throw py::error_already_set();
+        s.material_reported(model);
         py::gil_scoped_release release;
         s.step(model, state, steps);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
-         "Advances state by `steps` steps of dt (the GIL is released meanwhile).")
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile). The first time this stepper "
+         "steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot "
+         "read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 "
+         "(k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.")
       .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"))
       .def("multipliers", [](const PbdStepper& s) {
         const Multipliers& l = s.multipliers();

@@ -4,6 +4,7 @@ csb compiled core: meshes, models, states and the PBD stepper
 from __future__ import annotations
 import collections.abc
 from csb import Error
+from csb import MaterialWarning
 from csb import MeshError
 from csb import ParameterError
 from csb import SimulationError
@@ -11,7 +12,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MaterialWarning', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Camera:
     """
     The viewer's orbit camera (m, rad; pixels from the top-left corner).
@@ -157,6 +158,11 @@ class Viewer:
     def held_particle(self) -> int:
         """
         The particle under the mouse's grab, or -1.
+        """
+    @property
+    def message(self) -> str:
+        """
+        The overlay's last notice: a method switch (with what the method cannot read of the model's material), a screenshot written, a simulation error.
         """
     @property
     def model(self) -> ...:
@@ -570,7 +576,7 @@ class PbdStepper:
         """
     def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
         """
-        Advances state by `steps` steps of dt (the GIL is released meanwhile).
+        Advances state by `steps` steps of dt (the GIL is released meanwhile). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
         """
     @property
     def grabs(self) -> list:
