@@ -164,6 +164,9 @@ void bind_viewer(py::module_& m) {
       .def("reset", &Viewer::reset)
       .def_property("method", [](const Viewer& v) { return method_str(v.method()); },
                     [](Viewer& v, const std::string& m) { v.set_method(parse_method(m)); })
+      .def_property_readonly("message", [](const Viewer& v) { return v.message(); },
+                             "The overlay's last notice: a method switch (with what the method cannot read of the "
+                             "model's material), a screenshot written, a simulation error.")
       .def_property("wireframe", [](Viewer& v) { return v.draw_options().wireframe; },
                     [](Viewer& v, bool on) { v.draw_options().wireframe = on; })
       .def_property("particles", [](Viewer& v) { return v.draw_options().particles; },

@@ -46,6 +46,17 @@ const char* method_name(Method m) {
   return "?";
 }
 
+// What `method` cannot read of the model's material (material.hpp), a line per constraint family
+// for the overlay; printed too, so that the terminal keeps it after the overlay changes.
+std::string material_message(const Model& model, Method method) {
+  std::string out;
+  for (const MaterialNote& note : material_notes(model, method)) {
+    std::fprintf(stderr, "csb: warning: %s\n", note.message.c_str());
+    out += "\n" + note.message;
+  }
+  return out;
+}
+
 // Exponential moving average: smooth enough to read, quick enough to follow a change.
 void smooth(double& average, double sample, std::int64_t n) { average = n <= 1 ? sample : 0.9 * average + 0.1 * sample; }
 
@@ -217,6 +228,8 @@ Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settin
                           std::to_string(model.num_particles()));
   validate(settings);
   stepper_ = std::make_unique<PbdStepper>(settings_);
+  message_ = material_message(model, settings_.method);
+  if (!message_.empty()) message_.erase(0, 1);
   steps_per_frame_ = std::max(1, static_cast<int>(std::lround(options.frame_time / settings.dt)));
   paused_ = options.paused;
   draw_.wireframe = options.wireframe;
@@ -409,6 +422,7 @@ void Viewer::set_method(Method method) {
     settings_.front_end = FrontEnd::Euler;
   }
   stepper_ = std::make_unique<PbdStepper>(settings_);
+  message_ += material_message(*model_, method);
   stats_.step_ms = 0;
 }
 

@@ -117,6 +117,9 @@ class Viewer {
   void reset();        // the model and state given at construction; the camera stays
   void set_method(Method method);
   Method method() const { return settings_.method; }
+  // The overlay's last notice: a method switch (with what the method cannot read of the
+  // model's material, material.hpp), a screenshot written, a simulation error.
+  const std::string& message() const { return message_; }
   DrawOptions& draw_options() { return draw_; }
   void set_overlay(bool on) { options_.overlay = on; }
   void frame_scene();  // the camera frames the model and its colliders
