@@ -5,6 +5,13 @@ Only what a scene declares is built and stepped. The same scene files serve the 
 the key and, where it can be found, the line.
 
 See ``python/csb/scenes/*.toml`` for annotated examples and the README for the full schema.
+
+A constraint's material (``stretch``, ``bending``, ``volume``, ``balloon``, ``attach``) has two
+forms: ``stiffness`` in [0, 1], which the ``pbd`` and ``jakobsen`` methods read, and
+``compliance`` (SI units), which ``xpbd`` reads. A scene meant for every method declares both;
+stepped with a method that cannot read the form declared (compliance only under ``pbd`` or
+``jakobsen``, stiffness below 1 only under ``xpbd``), the constraints are rigid and the first
+step says so with a :class:`csb.MaterialWarning`.
 """
 
 from __future__ import annotations
