@@ -12,7 +12,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MaterialWarning', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Camera:
     """
     The viewer's orbit camera (m, rad; pixels from the top-left corner).
@@ -132,7 +132,7 @@ class Viewer:
         ...
     def run(self, max_frames: typing.SupportsInt | typing.SupportsIndex = 0) -> int:
         """
-        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released meanwhile.
+        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released during each frame; Python's signals (Ctrl-C: KeyboardInterrupt) are handled between frames.
         """
     def save_png(self, path: str) -> None:
         ...
@@ -512,6 +512,11 @@ class PbdSettings:
     def iterations(self) -> int:
         ...
     @property
+    def max_speed(self) -> float:
+        """
+        m/s, the divergence guard (0: automatic, inf: off)
+        """
+    @property
     def method(self) -> str:
         ...
     @property
@@ -548,9 +553,9 @@ class PbdStepper:
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0, max_speed: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the result does not depend on it).
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off).
         """
     def contacts(self) -> dict:
         """

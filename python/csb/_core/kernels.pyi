@@ -25,7 +25,7 @@ def enclosed_volume(points: typing.Any, triangles: typing.Any) -> float:
     """
 def kernel_isa(isa: str | None = None) -> str:
     """
-    The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx2' or 'sse2' (x86-64 portable build, chosen from the processor), 'native' (a CSB_NATIVE build, or not x86-64). isa='sse2' forces the SSE2 copy, 'avx2' the AVX2 one, 'auto' the processor's choice; returns the one in use.
+    The instruction set of the blocked coloured kernels (bending; PBD distance): 'avx512', 'avx2' or 'sse2' (x86-64 portable build, the best the processor has; 'avx512' runs bending in AVX-512 and distance in AVX2), 'native' (a CSB_NATIVE build, or not x86-64). isa='sse2', 'avx2' or 'avx512' forces that copy (an error if the processor lacks it), 'auto' the processor's choice; returns the one in use.
     """
 def project_attachment(p: typing.Any, w: typing.SupportsFloat | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0) -> tuple[numpy.ndarray, float]:
     ...
