@@ -57,8 +57,10 @@ struct PbdSettings {
   // (by their number); with XPBD, whose multipliers must stay consistent with the positions
   // (x - p = M⁻¹∇Cᵀλ), it instead scales each constraint's Δλ by 1/(the most projections that
   // reach any of its moving particles) and adds the corrections, which converges to the same
-  // answer as Gauss-Seidel. JacobiSummed adds the full corrections, and diverges on stiff
-  // networks such as a cloth (kept to show it).
+  // answer as Gauss-Seidel. JacobiSummed adds the full corrections: whether it converges depends
+  // on the constraint graph, not the stiffness (a sweep's spectral radius is cos(π/2n) < 1 on a
+  // chain of n links, about 2 on a cloth, where it diverges; validation/stability.py). Kept to
+  // show it.
   Solver solver = Solver::GaussSeidel;
   // XPBD constraint damping β (Macklin 2016 Eq. 26), in N s/m for distance constraints and
   // attachments (J s for bending, J s/m⁶ for volumes and balloons); 0: none.
