@@ -67,7 +67,8 @@ struct Csc {
 
 std::string hard_message(const std::string& what, Index c, const char* unit) {
   return what + " constraint " + std::to_string(c) +
-         " is hard (compliance 0); the reference integrator models every constraint as the potential "
+         " is hard (compliance 0); the spring network (the reference integrator, the force-based steppers) "
+         "models every constraint as the potential "
          "C²/(2α) and needs a compliance α > 0 (" + unit + "): give the model's constraints a compliance";
 }
 
