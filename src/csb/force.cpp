@@ -28,6 +28,7 @@ ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) 
 }
 
 void ForceStepper::step(const Model& model, State& state, std::int64_t steps) {
+  const UseGuard::Scope in_use(use_, "ForceStepper.step");
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
   ReferenceSettings rs;
   rs.gravity = settings_.gravity;

@@ -12,6 +12,7 @@
 #pragma once
 
 #include "csb/reference.hpp"
+#include "csb/use_guard.hpp"
 
 #include <memory>
 
@@ -33,7 +34,8 @@ class ForceStepper {
   explicit ForceStepper(const ForceSettings& settings);
   const ForceSettings& settings() const { return settings_; }
 
-  // Advances `state` by `steps` steps of dt. Pinned particles stay where `state` has them.
+  // Advances `state` by `steps` steps of dt. Pinned particles stay where `state` has them. One
+  // thread at a time (use_guard.hpp).
   // Throws InvalidArgument for a hard constraint (compliance 0), SimulationError naming the
   // step and particle when a position becomes non-finite (the state is then left at the last
   // finite sub-step).
@@ -56,6 +58,7 @@ class ForceStepper {
     Real t = 0;
     std::vector<Real> accel;  // m/s², 3 per dynamic particle
   } cache_;
+  UseGuard use_;  // one thread at a time (use_guard.hpp)
 };
 
 }  // namespace csb

@@ -222,7 +222,9 @@ void PbdStepper::prepare(const Model& model) {
   model_id_ = model.id;
 }
 
-void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
+void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
+                      const std::function<bool()>& interrupt) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.step");
   const Index n = model.num_particles();
   if (state.x.cols() != n || state.v.cols() != n)
     throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " positions and " +
@@ -283,52 +285,85 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps) {
   // forked for each projection.
   const bool fused = settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
                      self_groups_.empty() && (verlet || settings_.damping <= 0);
+  // Between sub-steps, whether the caller asked to stop (set_interrupt): the state is then left
+  // at the end of sub-step `sub` of the current step (its time included, its step count not).
+  const auto stop_if_asked = [&](int sub) {
+    if (!interrupt || !interrupt()) return;
+    state.t += (sub + 1) * h;
+    if (verlet) state.v = (state.x - x_prev_) / h;
+    throw Interrupted("interrupted during step " + std::to_string(state.step) + " after sub-step " +
+                      std::to_string(sub) + " (t = " + str(state.t) +
+                      " s): the state is left at the end of that sub-step");
+  };
+  // Sub-steps first .. first + count - 1 of a step, one at a time (each checked for finiteness).
+  const auto one_at_a_time = [&](int first, int count) {
+    for (int sub = first; sub < first + count; ++sub) {
+      one_substep(model, state, h, sub);
+      if (sub + 1 < settings_.substeps) stop_if_asked(sub);
+    }
+  };
   for (std::int64_t s = 0; s < steps; ++s) {
-    bool again = false;
     if (fused) {
       generate_contacts(model, state.x, h);  // (8): none, but the last step's are cleared
       if (settings_.method == Method::Xpbd) lambda_stale_ = true;
-      Fused f{&state, h, settings_.substeps};
-      project(model, state.x, &f);
-      if (f.bad >= 0 && f.bad_sub >= 0) fail_non_finite(state, f.bad_sub, f.bad, h);
-      // Checked once, after the last sub-step, and found non-finite: back to the step's start,
-      // then its sub-steps again one at a time, each checked (the same operations, so the same
-      // positions), which stop at the first non-finite one and leave the state at its start. (A
-      // non-finite position stays so to the step's end: every later operation that writes it
-      // has it as an operand; so the check once misses none.)
-      again = f.bad >= 0;
-      if (again) {
-        state.x = x_step_;
-        (verlet ? x_prev_ : state.v) = v_step_;
+      // At most kFusedSubsteps sub-steps a fork, so that a step of very many sub-steps can be
+      // interrupted between forks; a fork's last sub-step commits what the next would have
+      // updated in the same pass (the same operations), so the bits do not depend on the cut.
+      for (int first = 0; first < settings_.substeps; first += kFusedSubsteps) {
+        const int count = std::min(kFusedSubsteps, settings_.substeps - first);
+        Fused f{&state, h, count};
+        project(model, state.x, &f);
+        if (f.bad >= 0 && f.bad_sub >= 0) fail_non_finite(state, first + f.bad_sub, f.bad, h);
+        // Checked once, after the fork's last sub-step, and found non-finite: back to the fork's
+        // start, then its sub-steps again one at a time, each checked (the same operations, so
+        // the same positions), which stop at the first non-finite one and leave the state at its
+        // start. (A non-finite position stays so to the fork's end: every later operation that
+        // writes it has it as an operand; so the check once misses none.)
+        if (f.bad >= 0) {
+          state.x = x_step_;
+          (verlet ? x_prev_ : state.v) = v_step_;
+          one_at_a_time(first, count);
+        }
+        if (first + count < settings_.substeps) stop_if_asked(first + count - 1);
       }
-    }
-    const int substeps_here = fused && !again ? 0 : settings_.substeps;
-    for (int sub = 0; sub < substeps_here; ++sub) {
-      predict(model, state, h);
-      if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
-      if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
-        zero_coloured_multipliers(0, 1);
-        lambda_stale_ = true;
-      } else if (settings_.method == Method::Xpbd) {
-        std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
-        std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
-        std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
-        std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
-        std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
-      }
-      generate_contacts(model, state.x, h);  // (8)
-      project(model, state.x);
-      if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
-      if (!contacts_.empty()) apply_friction(model, state.x);
-      commit(state, h, 0, n);  // (12)-(15) of Algorithm 1
-      if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
+    } else {
+      one_at_a_time(0, settings_.substeps);
     }
     ++state.step;
     state.t += settings_.dt;
     for (Grab& g : grabs_) g.from = g.target;
     if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
+    if (s + 1 < steps && interrupt && interrupt()) {
+      if (verlet) state.v = (state.x - x_prev_) / h;
+      throw Interrupted("interrupted after step " + std::to_string(state.step) + " (t = " + str(state.t) +
+                        " s): the state is left at the end of that step");
+    }
   }
   if (verlet) state.v = (state.x - x_prev_) / h;
+}
+
+// One sub-step of Algorithm 1 outside a fused fork: (5)-(7) prediction, grabs, XPBD's multipliers
+// set to zero, (8) contacts, the projection, friction, (12)-(15) and restitution (16).
+void PbdStepper::one_substep(const Model& model, State& state, Real h, int sub) {
+  const Index n = model.num_particles();
+  predict(model, state, h);
+  if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
+  if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
+    zero_coloured_multipliers(0, 1);
+    lambda_stale_ = true;
+  } else if (settings_.method == Method::Xpbd) {
+    std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
+    std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
+    std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
+    std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
+    std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
+  }
+  generate_contacts(model, state.x, h);  // (8)
+  project(model, state.x);
+  if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
+  if (!contacts_.empty()) apply_friction(model, state.x);
+  commit(state, h, 0, n);  // (12)-(15) of Algorithm 1
+  if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
 }
 
 void PbdStepper::check_divergence(const Model& model, State& state, Real h) {
@@ -1667,6 +1702,7 @@ std::size_t PbdStepper::workspace_bytes() const {
 // ---------------------------------------------------------------------------------- interaction
 
 int PbdStepper::grab(const Model& model, const State& state, Index particle, const Vec3& target, Real compliance) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.grab");
   if (particle < 0 || particle >= model.num_particles())
     throw InvalidArgument("grab: particle " + std::to_string(particle) + " is out of range (the model has " +
                           std::to_string(model.num_particles()) + " particles)");
@@ -1696,11 +1732,13 @@ Grab& PbdStepper::find_grab(int handle) {
 }
 
 void PbdStepper::move_grab(int handle, const Vec3& target) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.move_grab");
   if (!target.allFinite()) throw InvalidArgument("move_grab: target must be finite, got " + str(target));
   find_grab(handle).target = target;
 }
 
 void PbdStepper::release(int handle) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.release");
   const Grab& g = find_grab(handle);
   if (g.pinned) stop_.push_back(g.particle);
   grabs_.erase(grabs_.begin() + (&g - grabs_.data()));

@@ -27,8 +27,10 @@
 #include "csb/model.hpp"
 #include "csb/spatial_hash.hpp"
 #include "csb/team.hpp"
+#include "csb/use_guard.hpp"
 
 #include <cstdint>
+#include <functional>
 #include <unordered_set>
 
 namespace csb {
@@ -152,8 +154,18 @@ class PbdStepper {
 
   // Advances `state` by `steps` steps of settings().dt. Throws SimulationError naming the step
   // and particle if a position becomes non-finite; the state is then left at the end of the
-  // last sub-step whose positions were all finite.
-  void step(const Model& model, State& state, std::int64_t steps = 1);
+  // last sub-step whose positions were all finite. One thread at a time (use_guard.hpp): a
+  // second thread's call while a step runs throws ConcurrentUse.
+  // `interrupt`, if given, is asked between sub-steps (every kFusedSubsteps of a fused step) and
+  // between steps whether to stop; when it returns true the step throws Interrupted, the state
+  // left at the end of the last completed sub-step. Python's binding asks its signal handlers
+  // (Ctrl-C) at most every 20 ms.
+  void step(const Model& model, State& state, std::int64_t steps = 1,
+            const std::function<bool()>& interrupt = {});
+  static constexpr int kFusedSubsteps = 64;
+
+  // Held by the bindings while they copy out what a step writes (contacts, multipliers).
+  const UseGuard& use_guard() const { return use_; }
 
   // Constraint projections one step performs on this model.
   std::int64_t projections_per_step(const Model& model) const;
@@ -206,6 +218,8 @@ class PbdStepper {
   // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
   // (s) of the state the stepper first stepped on this model.
   void check_divergence(const Model& model, State& state, Real h);
+  void one_substep(const Model& model, State& state, Real h, int sub);
+  UseGuard use_;
   Real guard_size_ = 0, guard_v0_ = 0, guard_t0_ = 0;
   bool guard_started_ = false;
   // XPBD: share `share` of `shares` (equal runs) of every coloured batch's multipliers, and the

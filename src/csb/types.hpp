@@ -56,4 +56,17 @@ class SimulationError : public Error {
   using Error::Error;
 };
 
+// An object used from two threads at once where it allows one (a stepper: see UseGuard).
+class ConcurrentUse : public Error {
+ public:
+  using Error::Error;
+};
+
+// A step stopped because its caller asked (PbdStepper::step's interrupt: Ctrl-C in Python); the
+// state is left at the end of the last completed sub-step.
+class Interrupted : public Error {
+ public:
+  using Error::Error;
+};
+
 }  // namespace csb

@@ -18,6 +18,7 @@
 
 #include <cstring>
 #include <chrono>
+#include <functional>
 #include <sstream>
 
 namespace py = pybind11;
@@ -119,6 +120,19 @@ Plane parse_plane(const std::string& s) {
   if (s == "xz") return Plane::XZ;
   if (s == "yz") return Plane::YZ;
   throw InvalidArgument("plane must be 'xy', 'xz' or 'yz', got '" + s + "'");
+}
+
+// A step's interrupt (PbdStepper::step): at most every 20 ms, the GIL taken back to run Python's
+// signal handlers; true once one raised (Ctrl-C: KeyboardInterrupt), which stays set for the
+// binding to re-raise when the step has stopped.
+std::function<bool()> python_interrupt() {
+  return [last = std::chrono::steady_clock::now()]() mutable {
+    const auto now = std::chrono::steady_clock::now();
+    if (now - last < std::chrono::milliseconds(20)) return false;
+    last = now;
+    py::gil_scoped_acquire gil;
+    return PyErr_CheckSignals() != 0;
+  };
 }
 
 Vec3 to_vec3(const py::handle& obj, const std::string& what) {
@@ -226,6 +240,7 @@ PYBIND11_MODULE(_core, m) {
   static PyObject* param_error = new_exception("ParameterError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
   static PyObject* mesh_error = new_exception("MeshError", py::make_tuple(py::handle(error_base), py::handle(PyExc_ValueError)));
   static PyObject* sim_error = new_exception("SimulationError", py::make_tuple(py::handle(error_base), py::handle(PyExc_RuntimeError)));
+  static PyObject* concurrent_error = new_exception("ConcurrentUseError", py::make_tuple(py::handle(error_base), py::handle(PyExc_RuntimeError)));
   // A method that cannot read the form a constraint's material was declared in (material.hpp):
   // a UserWarning, which the warnings filter can turn into an error.
   static PyObject* material_warning = new_exception("MaterialWarning", PyExc_UserWarning);
@@ -242,6 +257,8 @@ PYBIND11_MODULE(_core, m) {
       raise(PyExc_FileNotFoundError, e.what());
     } catch (const SimulationError& e) {
       raise(sim_error, e.what());
+    } catch (const ConcurrentUse& e) {
+      raise(concurrent_error, e.what());
     } catch (const MeshError& e) {
       raise(mesh_error, e.what());
     } catch (const InvalidArgument& e) {
@@ -816,19 +833,29 @@ PYBIND11_MODULE(_core, m) {
                              "bytes of the stepper's per-model workspace (from the vectors' capacities)")
       .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
       .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
-        // Once per model and stepper, at the caller's line: what the method ignores of the material.
-        for (const MaterialNote& note : s.material_notes_to_report(model))
-          if (PyErr_WarnEx(material_warning, note.message.c_str(), 1) < 0) throw py::error_already_set();
-        s.material_reported(model);
-        py::gil_scoped_release release;
-        s.step(model, state, steps);
+        {
+          // Once per model and stepper, at the caller's line: what the method ignores of the material.
+          const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.step");
+          for (const MaterialNote& note : s.material_notes_to_report(model))
+            if (PyErr_WarnEx(material_warning, note.message.c_str(), 1) < 0) throw py::error_already_set();
+          s.material_reported(model);
+        }
+        try {
+          py::gil_scoped_release release;
+          s.step(model, state, steps, python_interrupt());
+        } catch (const Interrupted&) {
+          throw py::error_already_set();  // the KeyboardInterrupt (or other) the signal handler raised
+        }
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
-         "Advances state by `steps` steps of dt (the GIL is released meanwhile). The first time this stepper "
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between "
+         "sub-steps, the state left at the end of the last completed one; a second thread stepping the same "
+         "stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper "
          "steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot "
          "read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 "
          "(k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.")
       .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"))
       .def("multipliers", [](const PbdStepper& s) {
+        const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.multipliers");
         const Multipliers& l = s.multipliers();
         py::dict d;
         d["distance"] = py::array_t<Real>(static_cast<py::ssize_t>(l.distance.size()), l.distance.data());
@@ -841,6 +868,7 @@ PYBIND11_MODULE(_core, m) {
          "the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a "
          "pressure, Pa).")
       .def("contacts", [](const PbdStepper& s) {
+        const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.contacts");
         const ContactSummary& sum = s.contact_summary();
         const auto& c = s.contacts();
         const py::ssize_t m = static_cast<py::ssize_t>(c.size());
