@@ -120,7 +120,12 @@ class MeshReport:
 
 
 def load_mesh(
-    path: str | os.PathLike[str], *, weld: bool = True, weld_tolerance: float = 1e-6, timeout: float = 0.0
+    path: str | os.PathLike[str],
+    *,
+    weld: bool = True,
+    weld_tolerance: float = 1e-6,
+    timeout: float = 0.0,
+    max_memory: int = 2 * 1024**3,
 ) -> Mesh:
     """Read every mesh in a file (any format Assimp reads: OBJ, glTF/GLB, FBX, DAE, PLY, STL, 3DS, OFF, ...).
 
@@ -132,9 +137,15 @@ def load_mesh(
     Raises FileNotFoundError for a missing file and :class:`csb.MeshError`, naming the file (and
     the line, for OBJ), for an empty, corrupt or unsupported file or one without triangles.
     Assimp runs in a child process (on POSIX systems): a file on which it would crash or loop
-    gives a MeshError after at most ``timeout`` seconds (0: 10 s + 2 s per MB of file).
+    gives a MeshError after at most ``timeout`` seconds (0: 10 s + 2 s per MB of file), and one
+    on which it would allocate more than ``max_memory`` bytes (default 2 GiB, beyond what this
+    process already has mapped; enforced on Linux) a MeshError naming that limit. Both errors say
+    how to raise the limit; a non-positive ``max_memory`` is a :class:`csb.ParameterError`.
     """
-    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance, timeout=timeout)
+    if isinstance(max_memory, bool) or not isinstance(max_memory, (int, float, np.integer, np.floating)):
+        raise _core.ParameterError(f"max_memory must be a number of bytes > 0, got {max_memory!r}")
+    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance, timeout=timeout,
+                                    max_memory=float(max_memory))
     mesh.report = MeshReport._from_core(report)
     mesh.report._emit()
     return mesh

@@ -16,9 +16,13 @@ namespace csb {
 // for an empty, corrupt or unsupported file, or one without triangles.
 //
 // On POSIX systems Assimp runs in a child process: a file on which it crashes or loops gives a
-// MeshError, after at most `timeout` seconds (0: 10 s + 2 s per MB of file).
+// MeshError, after at most `timeout` seconds (0: 10 s + 2 s per MB of file), and one on which it
+// would allocate more than `max_memory` bytes (beyond what the calling process already has
+// mapped; Linux enforces it) gives a MeshError naming that limit. Throws InvalidArgument for a
+// negative timeout or a max_memory that is not > 0.
+inline constexpr double kDefaultMaxMemory = 2.0 * 1024 * 1024 * 1024;  // bytes (2 GiB)
 Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr,
-               double timeout = 0);
+               double timeout = 0, double max_memory = kDefaultMaxMemory);
 
 // Writes the triangles of a mesh; the format follows the extension (.obj .stl .ply .gltf .glb
 // .dae .3ds .fbx .x .3mf ...). Throws MeshError if Assimp cannot write it.

@@ -13,12 +13,15 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <new>
 #include <sstream>
 
 #if defined(__unix__) || defined(__APPLE__)
 #define CSB_ISOLATED_IMPORT 1
 #include <csignal>
+#include <fcntl.h>
 #include <poll.h>
+#include <sys/resource.h>
 #include <sys/wait.h>
 #include <unistd.h>
 #else
@@ -81,6 +84,8 @@ RawScene read_in_process(const std::string& path) {
                          aiProcess_ValidateDataStructure;
   const aiScene* scene = importer.ReadFile(path, flags);
   if (!scene) {
+    // Assimp turns the std::bad_alloc of an exhausted memory limit into an error string.
+    if (std::strstr(importer.GetErrorString(), "bad_alloc")) throw std::bad_alloc();
     raw.error = std::string("cannot read the file: ") + importer.GetErrorString();
     return raw;
   }
@@ -118,7 +123,34 @@ RawScene read_in_process(const std::string& path) {
 // Collada index lists and PLY headers). The import therefore runs in a forked child that sends
 // the scene back through a pipe; the parent gives up at a deadline and reports a crash as an
 // error instead of dying with it. glibc's fork() keeps malloc usable in the child, which only
-// runs Assimp and then _exit()s.
+// runs Assimp and then _exit()s. The child's address space is capped (RLIMIT_AS) at what it
+// inherited plus max_memory: a header that declares 10^9 vertices makes Assimp allocate
+// gigabytes before it finds the data missing, and the cap turns that into std::bad_alloc.
+
+// Bytes of address space this process has mapped (0 where /proc is absent). Plain syscalls:
+// this runs in the forked child.
+std::uint64_t mapped_bytes() {
+  const int fd = ::open("/proc/self/statm", O_RDONLY);
+  if (fd < 0) return 0;
+  char text[64] = {};
+  const ssize_t n = ::read(fd, text, sizeof text - 1);
+  ::close(fd);
+  if (n <= 0) return 0;
+  std::uint64_t pages = 0;
+  for (const char* c = text; *c >= '0' && *c <= '9'; ++c) pages = 10 * pages + static_cast<std::uint64_t>(*c - '0');
+  return pages * static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+}
+
+void limit_memory(double max_memory) {
+  rlimit lim{};
+  if (::getrlimit(RLIMIT_AS, &lim) != 0) return;
+  rlim_t cap = static_cast<rlim_t>(mapped_bytes() + static_cast<std::uint64_t>(max_memory));
+  if (lim.rlim_max != RLIM_INFINITY) cap = std::min(cap, lim.rlim_max);
+  lim.rlim_cur = cap;
+  ::setrlimit(RLIMIT_AS, &lim);
+}
+
+constexpr std::uint64_t kOutOfMemory = 2;  // the result header's status when the cap was hit
 
 bool write_all(int fd, const void* data, std::size_t n) {
   const char* p = static_cast<const char*>(data);
@@ -132,16 +164,20 @@ bool write_all(int fd, const void* data, std::size_t n) {
   return true;
 }
 
-void child_import(const std::string& path, int fd) {
+void child_import(const std::string& path, int fd, double max_memory) {
+  limit_memory(max_memory);
   RawScene raw;
+  bool out_of_memory = false;
   try {
     raw = read_in_process(path);
+  } catch (const std::bad_alloc&) {
+    out_of_memory = true;
   } catch (const std::exception& e) {
     raw.error = std::string("cannot read the file: ") + e.what();
   } catch (...) {
     raw.error = "cannot read the file: Assimp failed with an unknown exception";
   }
-  const std::uint64_t header[7] = {raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
+  const std::uint64_t header[7] = {out_of_memory ? kOutOfMemory : raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
                                    raw.points, raw.lines, raw.polygons};
   const bool sent = write_all(fd, header, sizeof header) && write_all(fd, raw.error.data(), raw.error.size()) &&
                     write_all(fd, raw.vertices.data(), raw.vertices.size() * sizeof(float)) &&
@@ -150,7 +186,7 @@ void child_import(const std::string& path, int fd) {
   ::_exit(sent ? 0 : 3);
 }
 
-RawScene read_isolated(const std::string& path, double timeout) {
+RawScene read_isolated(const std::string& path, double timeout, double max_memory) {
   int fds[2];
   if (::pipe(fds) != 0) return read_in_process(path);
   const pid_t pid = ::fork();
@@ -161,7 +197,7 @@ RawScene read_isolated(const std::string& path, double timeout) {
   }
   if (pid == 0) {
     ::close(fds[0]);
-    child_import(path, fds[1]);
+    child_import(path, fds[1], max_memory);
   }
   ::close(fds[1]);
   std::string bytes;
@@ -190,6 +226,10 @@ RawScene read_isolated(const std::string& path, double timeout) {
   }
   RawScene raw;
   std::ostringstream why;
+  const auto raise_memory = [&] {
+    why << " and was stopped; the file is probably corrupt (pass a larger max_memory (bytes) to load_mesh if it "
+           "really is that large)";
+  };
   if (timed_out) {
     why << "reading the file took longer than " << timeout
         << " s and was stopped; the file is probably corrupt (Assimp can loop forever on damaged input)";
@@ -197,7 +237,9 @@ RawScene read_isolated(const std::string& path, double timeout) {
     return raw;
   }
   if (WIFSIGNALED(status)) {
-    why << "Assimp crashed (signal " << WTERMSIG(status) << ") while reading the file; it is probably corrupt";
+    why << "Assimp crashed (signal " << WTERMSIG(status) << ") while reading the file; it is probably corrupt (a "
+        << "crash can also come from reaching the max_memory limit of " << static_cast<std::uint64_t>(max_memory)
+        << " bytes: pass a larger max_memory (bytes) to load_mesh if the file really is that large)";
     raw.error = why.str();
     return raw;
   }
@@ -207,6 +249,13 @@ RawScene read_isolated(const std::string& path, double timeout) {
     return raw;
   }
   std::memcpy(header, bytes.data(), sizeof header);
+  if (header[0] == kOutOfMemory) {
+    why << "reading the file needed more than the max_memory limit of " << static_cast<std::uint64_t>(max_memory)
+        << " bytes";
+    raise_memory();
+    raw.error = why.str();
+    return raw;
+  }
   const std::size_t need = sizeof header + header[1] + header[2] * sizeof(float) + header[3] * sizeof(std::uint32_t);
   if (bytes.size() != need) {
     raw.error = "the import process sent an incomplete result";
@@ -230,7 +279,8 @@ RawScene read_isolated(const std::string& path, double timeout) {
 
 }  // namespace
 
-Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout) {
+Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout,
+               double max_memory) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileNotFound(path + ": no such file");
   if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
@@ -240,6 +290,8 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
   if (ext.empty() || !Assimp::Importer().IsExtensionSupported(ext))
     throw MeshError(path + ": unsupported format '" + ext + "'; csb reads " + joined(readable_extensions()));
   if (!(timeout >= 0)) throw InvalidArgument(path + ": timeout must be >= 0 s (0: automatic)");
+  if (!(max_memory > 0 && max_memory < 1.8e19))
+    throw InvalidArgument(path + ": max_memory must be > 0 bytes, got " + std::to_string(max_memory));
   if (ext == ".obj") check_obj(path);
   if (ext == ".ply") check_ply(path);
   if (ext == ".stl") check_stl(path);
@@ -248,7 +300,7 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
 #if CSB_ISOLATED_IMPORT
   // Automatic deadline: generous for real files (Assimp reads tens of MB/s).
   if (timeout == 0) timeout = 10.0 + 2.0 * static_cast<double>(bytes) / 1e6;
-  const RawScene raw = read_isolated(path, timeout);
+  const RawScene raw = read_isolated(path, timeout, max_memory);
 #else
   const RawScene raw = read_in_process(path);
 #endif

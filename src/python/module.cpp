@@ -329,7 +329,7 @@ PYBIND11_MODULE(_core, m) {
     return py::make_tuple(out, report_dict(r));
   }, py::arg("mesh"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("drop_unreferenced") = true);
 
-  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance, double timeout) {
+  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance, double timeout, double max_memory) {
     CleanOptions o;
     o.weld = weld;
     o.weld_tolerance = weld_tolerance;
@@ -337,10 +337,11 @@ PYBIND11_MODULE(_core, m) {
     Mesh out;
     {
       py::gil_scoped_release release;
-      out = load_mesh(path, o, &r, timeout);
+      out = load_mesh(path, o, &r, timeout, max_memory);
     }
     return py::make_tuple(out, report_dict(r));
-  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0);
+  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0,
+     py::arg("max_memory") = kDefaultMaxMemory);
 
   m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
         "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
