@@ -7,6 +7,7 @@
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
 #include "csb/coloured_bending.hpp"
+#include "int_arg.hpp"
 #ifdef CSB_HAS_VIEWER
 #include "viewer.hpp"
 #endif
@@ -23,6 +24,7 @@
 
 namespace py = pybind11;
 using namespace csb;
+using namespace csb::python;
 
 namespace {
 
@@ -107,6 +109,16 @@ std::vector<std::array<Index, K>> to_index_rows(const py::handle& obj, const std
     }
   return out;
 }
+
+// Bounds of the stepper's integer settings tighter than their C++ types': a million sub-steps or
+// sweeps per step is already 10^12 projections of a single constraint per step (hours), and no
+// machine shares one sweep among more than 1024 threads.
+constexpr long long kMaxSubsteps = 1'000'000;
+constexpr long long kMaxIterations = 1'000'000;
+constexpr long long kMaxThreads = 1024;
+
+// A particle, group or grab index: an integer in [lo, the largest Index].
+Index index_arg(const IntArg& v, const std::string& name, long long lo = 0) { return in_range(v, name, lo, kMaxIndex); }
 
 int parse_sense(const std::string& s) {
   if (s == "==") return 0;
@@ -363,13 +375,14 @@ PYBIND11_MODULE(_core, m) {
     return py::array_t<Real>(static_cast<py::ssize_t>(w.size()), w.data());
   }, py::arg("mesh"), "Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).");
 
-  m.def("cloth_grid", [](double width, double height, Index nx, Index ny, const std::string& plane, py::handle center) {
-    return cloth_grid(width, height, nx, ny, parse_plane(plane), to_vec3(center, "center"));
+  m.def("cloth_grid", [](double width, double height, IntArg nx, IntArg ny, const std::string& plane, py::handle center) {
+    const Index x = in_range(nx, "cloth_grid: nx", 2, kMaxIndex), y = in_range(ny, "cloth_grid: ny", 2, kMaxIndex);
+    return cloth_grid(width, height, x, y, parse_plane(plane), to_vec3(center, "center"));
   }, py::arg("width"), py::arg("height"), py::arg("nx"), py::arg("ny"), py::arg("plane") = "xz",
         py::arg("center") = std::vector<double>{0, 0, 0},
         "Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).");
-  m.def("chain", [](Index links, double link_length, py::handle start, py::handle direction) {
-    return chain(links, link_length, to_vec3(start, "start"), to_vec3(direction, "direction"));
+  m.def("chain", [](IntArg links, double link_length, py::handle start, py::handle direction) {
+    return chain(in_range(links, "chain: links", 1, kMaxIndex), link_length, to_vec3(start, "start"), to_vec3(direction, "direction"));
   }, py::arg("links"), py::arg("link_length"), py::arg("start") = std::vector<double>{0, 0, 0},
         py::arg("direction") = std::vector<double>{1, 0, 0},
         "A chain of `links` segments of link_length m from start (m) along direction.");
@@ -411,8 +424,11 @@ PYBIND11_MODULE(_core, m) {
         return "<csb.TetMesh '" + s.name + "': " + std::to_string(s.num_points()) + " points, " +
                std::to_string(s.num_tets()) + " tets>";
       });
-  m.def("tet_box", [](py::handle size, std::array<Index, 3> divisions, py::handle center) {
-    return tet_box(to_vec3(size, "size"), divisions[0], divisions[1], divisions[2], to_vec3(center, "center"));
+  m.def("tet_box", [](py::handle size, std::array<IntArg, 3> divisions, py::handle center) {
+    const Index nx = in_range(divisions[0], "tet_box: divisions[0]", 1, kMaxIndex);
+    const Index ny = in_range(divisions[1], "tet_box: divisions[1]", 1, kMaxIndex);
+    const Index nz = in_range(divisions[2], "tet_box: divisions[2]", 1, kMaxIndex);
+    return tet_box(to_vec3(size, "size"), nx, ny, nz, to_vec3(center, "center"));
   }, py::arg("size"), py::arg("divisions"), py::arg("center") = std::vector<double>{0, 0, 0},
         "A box of size (3 lengths, m) centred on `center` (m) with divisions (nx, ny, nz) cells of 6 positively "
         "oriented tets each (Kuhn split, conforming).");
@@ -627,16 +643,16 @@ PYBIND11_MODULE(_core, m) {
   py::class_<ModelBuilder>(m, "ModelBuilder", "Collects particles and constraints; build() returns the immutable Model.")
       .def(py::init<>())
       .def("add_group", &ModelBuilder::add_group, py::arg("name"), "Adds a particle group; returns its index.")
-      .def("add_particle", [](ModelBuilder& b, py::handle x, double mass, Index group) {
-        return b.add_particle(to_vec3(x, "x"), mass, group);
+      .def("add_particle", [](ModelBuilder& b, py::handle x, double mass, IntArg group) {
+        return b.add_particle(to_vec3(x, "x"), mass, index_arg(group, "group"));
       }, py::arg("x"), py::arg("mass"), py::arg("group"), "One particle at x (m) of mass (kg) in a group; returns its index.")
-      .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, Index group, py::object mass, py::object density,
+      .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, IntArg group, py::object mass, py::object density,
                            py::object particle_mass, std::optional<double> stretch_stiffness,
                            std::optional<double> bending_stiffness, double stretch_compliance,
                            double bending_compliance, double thickness) {
         MeshOptions o;
         o.thickness = thickness;
-        o.group = group;
+        o.group = index_arg(group, "group", -1);
         o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^2");
         o.stretch_stiffness = stretch_stiffness;
         o.bending_stiffness = bending_stiffness;
@@ -647,23 +663,28 @@ PYBIND11_MODULE(_core, m) {
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0,
          py::arg("bending_stiffness") = py::none(), py::arg("stretch_compliance") = 0.0,
          py::arg("bending_compliance") = 0.0, py::arg("thickness") = 0.0)
-      .def("add_distance", [](ModelBuilder& b, Index i, Index j, double stiffness, std::optional<double> rest_length,
+      .def("add_distance", [](ModelBuilder& b, IntArg i, IntArg j, double stiffness, std::optional<double> rest_length,
                               const std::string& sense, double compliance) {
-        return b.add_distance(i, j, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense), compliance);
+        const Index pi = index_arg(i, "i"), pj = index_arg(j, "j");
+        return b.add_distance(pi, pj, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense), compliance);
       }, py::arg("i"), py::arg("j"), py::arg("stiffness") = 1.0, py::arg("rest_length") = py::none(),
          py::arg("sense") = "==", py::arg("compliance") = 0.0,
          "Distance constraint: PBD stiffness in [0, 1], compliance in m/N (0: hard); rest_length in m, default the "
          "current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.")
-      .def("add_bending", &ModelBuilder::add_bending, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
+      .def("add_bending", [](ModelBuilder& b, IntArg a, IntArg b_, IntArg c, IntArg d, double stiffness,
+                             std::optional<double> rest_angle, double compliance) {
+        const Index pa = index_arg(a, "a"), pb = index_arg(b_, "b"), pc = index_arg(c, "c"), pd = index_arg(d, "d");
+        return b.add_bending(pa, pb, pc, pd, stiffness, rest_angle, compliance);
+      }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
            py::arg("stiffness"), py::arg("rest_angle") = py::none(), py::arg("compliance") = 0.0,
            "Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad "
            "(default the current angle), compliance in 1/(N m) (0: hard).")
-      .def("_add_tet_mesh", [](ModelBuilder& b, const TetMesh& mesh, Index group, py::object mass, py::object density,
+      .def("_add_tet_mesh", [](ModelBuilder& b, const TetMesh& mesh, IntArg group, py::object mass, py::object density,
                                py::object particle_mass, std::optional<double> stretch_stiffness,
                                double stretch_compliance, std::optional<double> volume_stiffness,
                                double volume_compliance) {
         TetMeshOptions o;
-        o.group = group;
+        o.group = index_arg(group, "group", -1);
         o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^3");
         o.stretch_stiffness = stretch_stiffness;
         o.stretch_compliance = stretch_compliance;
@@ -673,7 +694,11 @@ PYBIND11_MODULE(_core, m) {
       }, py::arg("mesh"), py::arg("group") = -1, py::arg("mass") = py::none(), py::arg("density") = py::none(),
          py::arg("particle_mass") = py::none(), py::arg("stretch_stiffness") = 1.0, py::arg("stretch_compliance") = 0.0,
          py::arg("volume_stiffness") = 1.0, py::arg("volume_compliance") = 0.0)
-      .def("add_tetrahedron", &ModelBuilder::add_tetrahedron, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
+      .def("add_tetrahedron", [](ModelBuilder& b, IntArg a, IntArg b_, IntArg c, IntArg d, double stiffness,
+                                 double compliance, std::optional<double> rest_volume) {
+        const Index pa = index_arg(a, "a"), pb = index_arg(b_, "b"), pc = index_arg(c, "c"), pd = index_arg(d, "d");
+        return b.add_tetrahedron(pa, pb, pc, pd, stiffness, compliance, rest_volume);
+      }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
            py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0, py::arg("rest_volume") = py::none(),
            "Tetrahedral volume constraint C = V - V0: PBD stiffness in [0, 1], compliance in m⁶/J (0: hard), "
            "rest_volume in m³ (default the current signed volume, which must be > 0: d on the side of "
@@ -682,12 +707,13 @@ PYBIND11_MODULE(_core, m) {
                               double compliance) {
         return b.add_balloon(to_index_rows<3>(triangles, "balloon triangles"), pressure, stiffness, compliance);
       }, py::arg("triangles"), py::arg("pressure") = 1.0, py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0)
-      .def("pin", &ModelBuilder::pin, py::arg("i"), "Fixes particle i (inverse mass 0).")
-      .def("attach", [](ModelBuilder& b, Index i, py::handle target, double stiffness, double compliance) {
-        return b.attach(i, to_vec3(target, "target"), stiffness, compliance);
+      .def("pin", [](ModelBuilder& b, IntArg i) { b.pin(index_arg(i, "i")); }, py::arg("i"), "Fixes particle i (inverse mass 0).")
+      .def("attach", [](ModelBuilder& b, IntArg i, py::handle target, double stiffness, double compliance) {
+        return b.attach(index_arg(i, "i"), to_vec3(target, "target"), stiffness, compliance);
       }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0,
          "Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).")
-      .def("position", [](const ModelBuilder& b, Index i) {
+      .def("position", [](const ModelBuilder& b, IntArg particle) {
+        const Index i = index_arg(particle, "i");
         if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");
         return vec3_array(b.position(i));
       }, py::arg("i"))
@@ -777,18 +803,18 @@ PYBIND11_MODULE(_core, m) {
 
   py::class_<PbdStepper>(m, "PbdStepper",
       "Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.")
-      .def(py::init([](const std::string& method, double dt, int substeps, int iterations, py::handle gravity,
+      .def(py::init([](const std::string& method, double dt, IntArg substeps, IntArg iterations, py::handle gravity,
                        double damping, bool stiffness_correction, const std::string& front_end,
                        const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation,
-                       const std::string& ordering, int threads, double max_speed) {
+                       const std::string& ordering, IntArg threads, double max_speed) {
              PbdSettings s;
              if (method == "pbd") s.method = Method::Pbd;
              else if (method == "xpbd") s.method = Method::Xpbd;
              else if (method == "jakobsen") s.method = Method::Jakobsen;
              else throw InvalidArgument("method must be 'pbd', 'xpbd' or 'jakobsen', got '" + method + "'");
              s.dt = dt;
-             s.substeps = substeps;
-             s.iterations = iterations;
+             s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
+             s.iterations = in_range<int>(iterations, "iterations", 1, kMaxIterations);
              s.gravity = to_vec3(gravity, "gravity");
              s.damping = damping;
              s.stiffness_correction = stiffness_correction;
@@ -806,7 +832,7 @@ PYBIND11_MODULE(_core, m) {
              if (ordering == "coloured") s.ordering = Ordering::Coloured;
              else if (ordering == "sequential") s.ordering = Ordering::Sequential;
              else throw InvalidArgument("ordering must be 'coloured' or 'sequential', got '" + ordering + "'");
-             s.threads = threads;
+             s.threads = in_range<int>(threads, "threads", 0, kMaxThreads);
              s.max_speed = max_speed;
              return PbdStepper(s);
            }),
@@ -817,14 +843,14 @@ PYBIND11_MODULE(_core, m) {
            py::arg("sqrt_approximation") = false, py::arg("ordering") = "coloured", py::arg("threads") = 0,
            py::arg("max_speed") = 0.0,
            "method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: "
-           "sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: "
+           "sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: "
            "Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's "
            "k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' "
            "(Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: "
            "β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation "
            "without square roots. ordering: 'coloured' (the model's parts and interfaces as the "
            "threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one "
-           "thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the "
+           "thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the "
            "result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable "
            "particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) "
            "with D the model's size and v0 the fastest start speed; inf: off).")
@@ -900,17 +926,19 @@ PYBIND11_MODULE(_core, m) {
          "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
          "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")
-      .def("grab", [](PbdStepper& s, const Model& model, const State& state, Index particle, py::handle target,
+      .def("grab", [](PbdStepper& s, const Model& model, const State& state, IntArg particle, py::handle target,
                       double compliance) {
-        return s.grab(model, state, particle, to_vec3(target, "target"), compliance);
+        return s.grab(model, state, index_arg(particle, "particle"), to_vec3(target, "target"), compliance);
       }, py::arg("model"), py::arg("state"), py::arg("particle"), py::arg("target"), py::kw_only(),
          py::arg("compliance") = 0.0,
          "Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the "
          "particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; "
          "compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.")
-      .def("move_grab", [](PbdStepper& s, int handle, py::handle target) { s.move_grab(handle, to_vec3(target, "target")); },
+      .def("move_grab", [](PbdStepper& s, IntArg handle, py::handle target) {
+        s.move_grab(index_arg(handle, "handle"), to_vec3(target, "target"));
+      },
            py::arg("handle"), py::arg("target"), "Moves the hand of a grab (m); the next step takes the particle there.")
-      .def("release", &PbdStepper::release, py::arg("handle"),
+      .def("release", [](PbdStepper& s, IntArg handle) { s.release(index_arg(handle, "handle")); }, py::arg("handle"),
            "Lets go of a grab; the particle keeps the velocity it had.")
       .def_property_readonly("grabs", [](const PbdStepper& s) {
         py::list out;
@@ -925,8 +953,9 @@ PYBIND11_MODULE(_core, m) {
         return out;
       }, "The grabs held now: handle, particle, target (m), compliance (m/N).");
 
-  m.def("tear", [](py::object model_obj, py::object state_obj, double max_strain, Index max_tears) {
+  m.def("tear", [](py::object model_obj, py::object state_obj, double max_strain, IntArg max_tears_arg) {
     const Model& model = model_obj.cast<const Model&>();
+    const Index max_tears = in_range(max_tears_arg, "tear: max_tears", 1, kMaxIndex);
     // The given state is left as it is (numpy views of it stay valid); a torn one is a copy.
     auto torn_state = std::make_shared<State>(state_obj.cast<const State&>());
     TearResult r;
@@ -965,7 +994,7 @@ PYBIND11_MODULE(_core, m) {
   py::class_<ForceStepper>(m, "ForceStepper",
       "Force-based mass-spring integrators on the reference's spring network (every constraint a spring of "
       "stiffness 1/α): the methods that fail, for the stability studies.")
-      .def(py::init([](const std::string& method, double dt, int substeps, py::handle gravity, double damping,
+      .def(py::init([](const std::string& method, double dt, IntArg substeps, py::handle gravity, double damping,
                        double drag) {
              ForceSettings s;
              if (method == "explicit-euler") s.method = ForceIntegrator::ExplicitEuler;
@@ -974,7 +1003,7 @@ PYBIND11_MODULE(_core, m) {
              else throw InvalidArgument("method must be 'explicit-euler', 'symplectic-euler' or 'velocity-verlet', got '" +
                                         method + "'");
              s.dt = dt;
-             s.substeps = substeps;
+             s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
              s.gravity = to_vec3(gravity, "gravity");
              s.damping = damping;
              s.drag = drag;
@@ -984,7 +1013,8 @@ PYBIND11_MODULE(_core, m) {
            py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("damping") = 0.0, py::arg("drag") = 0.0,
            "method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. "
            "drag: 1/s.")
-      .def("step", [](ForceStepper& s, const Model& model, State& state, std::int64_t steps) {
+      .def("step", [](ForceStepper& s, const Model& model, State& state, IntArg steps_arg) {
+        const std::int64_t steps = in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64);
         py::gil_scoped_release release;
         s.step(model, state, steps);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1)
@@ -993,7 +1023,8 @@ PYBIND11_MODULE(_core, m) {
            "reuses the end of a sub-step's forces at the start of the next, unless damping or drag make them "
            "depend on the velocity: then two).");
 
-  m.def("benchmark_dispatch", [](const Model& model, py::handle positions, int sweeps, int repeats) {
+  m.def("benchmark_dispatch", [](const Model& model, py::handle positions, IntArg sweeps_arg, IntArg repeats_arg) {
+    const int sweeps = in_range<int>(sweeps_arg, "sweeps", 1, kMaxIndex), repeats = in_range<int>(repeats_arg, "repeats", 1, kMaxIndex);
     const Positions x = to_positions(positions, "positions");
     DispatchTiming t;
     {
@@ -1011,7 +1042,9 @@ PYBIND11_MODULE(_core, m) {
      "ns per projection of each repeat, and whether the results agree bit for bit.");
 
   m.def("colour_constraints", [](py::array_t<Index, py::array::c_style | py::array::forcecast> particles,
-                                 Index num_particles, Index min_colour_size) {
+                                 IntArg num_particles_arg, IntArg min_colour_size_arg) {
+    const Index num_particles = index_arg(num_particles_arg, "num_particles");
+    const Index min_colour_size = index_arg(min_colour_size_arg, "min_colour_size");
     if (particles.ndim() != 2 || particles.shape(1) < 1)
       throw InvalidArgument("particles must have shape (M, k), k >= 1");
     for (py::ssize_t e = 0; e < particles.size(); ++e)
@@ -1027,10 +1060,17 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("particles"), py::arg("num_particles"), py::arg("min_colour_size") = kMinColourSize,
      "The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).");
   m.attr("MAX_COLOURS") = kMaxColours;
+  // The largest value of an integer parameter: an index or count (Index), the stepper's sub-steps,
+  // iterations and threads.
+  m.attr("MAX_INDEX") = kMaxIndex;
+  m.attr("MAX_SUBSTEPS") = kMaxSubsteps;
+  m.attr("MAX_ITERATIONS") = kMaxIterations;
+  m.attr("MAX_THREADS") = kMaxThreads;
   m.attr("MIN_COLOUR_SIZE") = kMinColourSize;
   m.attr("MIN_TASK_COLOUR_SIZE") = kMinTaskColourSize;
 
-  m.def("benchmark_plain_distance", [](const Model& model, py::handle positions, int sweeps, int repeats) {
+  m.def("benchmark_plain_distance", [](const Model& model, py::handle positions, IntArg sweeps_arg, IntArg repeats_arg) {
+    const int sweeps = in_range<int>(sweeps_arg, "sweeps", 1, kMaxIndex), repeats = in_range<int>(repeats_arg, "repeats", 1, kMaxIndex);
     const Positions x = to_positions(positions, "positions");
     std::vector<double> ns;
     {
@@ -1041,7 +1081,8 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("model"), py::arg("positions"), py::arg("sweeps"), py::arg("repeats"),
      "The baseline the coloured sweep is measured against: a plain sequential loop over the model's distance constraints in build order, in "
      "double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.");
-  m.def("benchmark_jacobian", [](const SpringNetwork& net, const State& state, int repeats) {
+  m.def("benchmark_jacobian", [](const SpringNetwork& net, const State& state, IntArg repeats_arg) {
+    const int repeats = in_range<int>(repeats_arg, "repeats", 1, kMaxIndex);
     std::vector<double> y(net.size()), values(net.jacobian_row_indices().size());
     net.pack(state, y.data());
     std::vector<double> ms;
@@ -1055,7 +1096,9 @@ PYBIND11_MODULE(_core, m) {
   }, py::arg("network"), py::arg("state"), py::arg("repeats"),
      "ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.");
 
-  m.def("corrected_stiffness", &corrected_stiffness, py::arg("stiffness"), py::arg("iterations"),
+  m.def("corrected_stiffness", [](double k, IntArg iterations) {
+    return corrected_stiffness(k, in_range<int>(iterations, "iterations", 1, kMaxIterations));
+  }, py::arg("stiffness"), py::arg("iterations"),
         "1 - (1 - k)^(1/iterations), Müller 2007 §3.3.");
 
   // ---------------------------------------------------------------- reference
@@ -1085,10 +1128,12 @@ PYBIND11_MODULE(_core, m) {
 
   m.def("_integrate_reference", [reference_settings](const Model& model, const State& start, std::vector<double> times,
                                                      py::handle gravity, double rtol, double atol, double damping,
-                                                     double drag, int max_order, bool stald, const std::string& linear,
-                                                     long long max_steps, double max_wall_time) {
+                                                     double drag, IntArg max_order, bool stald, const std::string& linear,
+                                                     IntArg max_steps, double max_wall_time) {
+    const int order = in_range<int>(max_order, "max_order", 1, 5);
+    const long long steps = in_range<long long>(max_steps, "max_steps", 1, kMaxInt64);
     const ReferenceSettings s =
-        reference_settings(gravity, rtol, atol, damping, drag, max_order, stald, linear, max_steps, max_wall_time);
+        reference_settings(gravity, rtol, atol, damping, drag, order, stald, linear, steps, max_wall_time);
     ReferenceResult r;
     {
       py::gil_scoped_release release;

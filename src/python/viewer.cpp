@@ -2,6 +2,8 @@
 // see src/viewer/CMakeLists.txt).
 #include "viewer.hpp"
 
+#include "int_arg.hpp"
+
 #include "viewer/capture.hpp"
 #include "viewer/viewer.hpp"
 
@@ -14,6 +16,7 @@
 namespace py = pybind11;
 using namespace csb;
 using csb::viewer::Viewer;
+using namespace csb::python;
 
 namespace {
 
@@ -71,17 +74,17 @@ void bind_viewer(py::module_& m) {
 
   py::class_<Viewer>(m, "Viewer",
       "Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().")
-      .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, int width, int height,
-                       bool offscreen, const std::string& title, int samples, bool vsync, bool overlay,
+      .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, IntArg width, IntArg height,
+                       bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
                        bool wireframe, bool particles, bool grid, bool paused, double frame_time,
-                       double grab_compliance, double tear_max_strain, Index tear_max_per_step,
+                       double grab_compliance, double tear_max_strain, IntArg tear_max_per_step,
                        const std::string& screenshot_prefix) {
              csb::viewer::ViewerOptions o;
-             o.width = width;
-             o.height = height;
+             o.width = in_range<int>(width, "viewer: width", 16, 16384);
+             o.height = in_range<int>(height, "viewer: height", 16, 16384);
              o.offscreen = offscreen;
              o.title = title;
-             o.samples = samples;
+             o.samples = in_range<int>(samples, "viewer: samples", 0, 16);
              o.vsync = vsync;
              o.overlay = overlay;
              o.wireframe = wireframe;
@@ -91,7 +94,7 @@ void bind_viewer(py::module_& m) {
              o.frame_time = frame_time;
              o.grab_compliance = grab_compliance;
              o.tear_max_strain = tear_max_strain;
-             o.tear_max_per_step = tear_max_per_step;
+             o.tear_max_per_step = in_range(tear_max_per_step, "viewer: tear_max_per_step", 1, kMaxIndex);
              o.screenshot_prefix = screenshot_prefix;
              return std::make_unique<Viewer>(model, state, settings, o);
            }),
@@ -104,7 +107,8 @@ void bind_viewer(py::module_& m) {
            "Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. "
            "frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the "
            "mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).")
-      .def("run", [](Viewer& v, std::int64_t max_frames) {
+      .def("run", [](Viewer& v, IntArg max_frames_arg) {
+        const std::int64_t max_frames = in_range<std::int64_t>(max_frames_arg, "max_frames", 0, kMaxInt64);
         // Python's signal handlers run between frames: Ctrl-C in the terminal raises
         // KeyboardInterrupt here instead of being held until the window closes.
         py::gil_scoped_release release;
@@ -128,12 +132,12 @@ void bind_viewer(py::module_& m) {
            "The last frame drawn as an (height, width, 3) uint8 array, top row first.")
       .def("save_png", [](Viewer& v, const std::string& path) { csb::viewer::write_png(v.screenshot(), path); },
            py::arg("path"))
-      .def("capture", [](Viewer& v, std::int64_t frames, const std::string& directory, std::int64_t every,
+      .def("capture", [](Viewer& v, IntArg frames, const std::string& directory, IntArg every,
                          const std::string& prefix, bool png, bool video) {
         csb::viewer::CaptureOptions o;
-        o.frames = frames;
+        o.frames = in_range<std::int64_t>(frames, "capture: frames", 1, kMaxInt64);
         o.directory = directory;
-        o.every = every;
+        o.every = in_range<std::int64_t>(every, "capture: every", 1, kMaxInt64);
         o.prefix = prefix;
         o.png = png;
         o.video = video;
@@ -153,7 +157,9 @@ void bind_viewer(py::module_& m) {
          py::arg("png") = true, py::arg("video") = true,
          "Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and "
          "<prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.")
-      .def("mouse_button", &Viewer::mouse_button, py::arg("button"), py::arg("pressed"), py::arg("x"), py::arg("y"),
+      .def("mouse_button", [](Viewer& v, IntArg button, bool pressed, double x, double y, bool shift) {
+        v.mouse_button(in_range<int>(button, "mouse_button: button", 0, 2), pressed, x, y, shift);
+      }, py::arg("button"), py::arg("pressed"), py::arg("x"), py::arg("y"),
            py::arg("shift") = false, "A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.")
       .def("mouse_move", &Viewer::mouse_move, py::arg("x"), py::arg("y"))
       .def("scroll", &Viewer::scroll, py::arg("steps"))
