@@ -132,6 +132,9 @@ def test_internal_constraints_conserve_linear_momentum_over_many_steps(rng):
     assert np.linalg.norm(P0) > 1  # the test moves something
 
 
+# Random masses put neighbours up to ~25 times apart, past what one iteration solves accurately
+# (csb.AccuracyWarning); momentum conservation holds whatever the accuracy.
+@pytest.mark.filterwarnings("ignore::csb.AccuracyWarning")
 def test_internal_constraints_conserve_angular_momentum_from_rest(rng):
     """From rest (p = x), one step's new momenta are Σ m Δp / h and Σ m x × Δp / h: zero for
     every constraint's correction (§3.3), here on random distance and bending constraints on

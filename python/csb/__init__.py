@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from . import _core  # noqa: F401  (csb._core, the compiled module)
 from ._core import (
+    AccuracyWarning,
     ConcurrentUseError,
     Error,
     ForceStepper,
@@ -63,7 +64,7 @@ from .view import CameraPose, RenderResult, open_viewer, render, view, viewer_av
 __version__ = build_info()["csb"]
 
 __all__ = [
-    "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "MaterialWarning",
+    "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "MaterialWarning", "AccuracyWarning",
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",

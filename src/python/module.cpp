@@ -256,6 +256,8 @@ PYBIND11_MODULE(_core, m) {
   // A method that cannot read the form a constraint's material was declared in (material.hpp):
   // a UserWarning, which the warnings filter can turn into an error.
   static PyObject* material_warning = new_exception("MaterialWarning", PyExc_UserWarning);
+  // Settings known to give wrong results on a model (PbdStepper::accuracy_notes_to_report).
+  static PyObject* accuracy_warning = new_exception("AccuracyWarning", PyExc_UserWarning);
   py::register_exception_translator([](std::exception_ptr p) {
     // Messages may quote bytes of a corrupt file: decode them leniently.
     const auto raise = [](PyObject* type, const char* what) {
@@ -865,6 +867,8 @@ PYBIND11_MODULE(_core, m) {
           const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.step");
           for (const MaterialNote& note : s.material_notes_to_report(model))
             if (PyErr_WarnEx(material_warning, note.message.c_str(), 1) < 0) throw py::error_already_set();
+          for (const std::string& note : s.accuracy_notes_to_report(model))
+            if (PyErr_WarnEx(accuracy_warning, note.c_str(), 1) < 0) throw py::error_already_set();
           s.material_reported(model);
         }
         try {
