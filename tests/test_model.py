@@ -120,7 +120,7 @@ def test_springs_pins_and_attachments():
         (lambda b: b.attach(0, [0, 0, 0], compliance=float("nan")), r"compliance must be a finite number >= 0"),
         (lambda b: b.add_bending(0, 1, 2, 2, stiffness=0.5), r"needs four different particles"),
         (lambda b: b.pin(3), r"pin: particle index 3 is out of range \(the model has 3 particles\)"),
-        (lambda b: b.pin(-1), r"pin: particle index -1 is out of range"),
+        (lambda b: b.pin(-1), r"pin: i must be an integer in \[0, 2147483647\], got -1"),
         (lambda b: b.attach(0, [0, np.inf, 0]), r"attachment 0 \(particle 0\): target must be finite"),
         (lambda b: b.attach(0, [0, 0, 0], stiffness=2.0), r"stiffness must be in \[0, 1\], got 2"),
     ],
@@ -169,7 +169,7 @@ def test_empty_model_is_refused():
 def test_shapes_refuse_impossible_sizes():
     with pytest.raises(csb.ParameterError, match=r"cloth_grid: width must be > 0 m, got -1"):
         csb.cloth_grid(-1, 1, 4, 4)
-    with pytest.raises(csb.ParameterError, match=r"nx and ny must be >= 2 particles, got 1 x 4"):
+    with pytest.raises(csb.ParameterError, match=r"cloth_grid: nx must be an integer in \[2, 2147483647\], got 1"):
         csb.cloth_grid(1, 1, 1, 4)
     with pytest.raises(csb.ParameterError, match=r"chain: link_length must be > 0 m"):
         csb.chain(3, 0.0)

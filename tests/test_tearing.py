@@ -105,7 +105,7 @@ def test_tearing_errors():
     state = model.initial_state()
     with pytest.raises(csb.ParameterError, match="max_strain must be a finite strain > 0"):
         csb.tear(model, state, max_strain=0)
-    with pytest.raises(csb.ParameterError, match="max_tears must be >= 1"):
+    with pytest.raises(csb.ParameterError, match=r"tear: max_tears must be an integer in \[1, 2147483647\], got 0"):
         csb.tear(model, state, max_strain=0.1, max_tears=0)
     b = csb.ModelBuilder()
     b.add_tet_mesh(csb.tet_box([1, 1, 1], [1, 1, 1]), mass=1.0)

@@ -267,7 +267,7 @@ def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
 
 def test_bad_viewer_parameters_are_named(viewer_on):
     sim = csb.load_scene("cloth_drop").build()
-    with pytest.raises(csb.ParameterError, match="width and height"):
+    with pytest.raises(csb.ParameterError, match=r"viewer: width must be an integer in \[16, 16384\], got 0"):
         csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, width=0, offscreen=True)
     with pytest.raises(csb.ParameterError, match="frame_time"):
         csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, frame_time=0.0, offscreen=True)

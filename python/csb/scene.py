@@ -150,12 +150,16 @@ class _Table:
             raise self.error(key, f"must be {expect}, got {v!r}")
         return float(v)
 
-    def integer(self, key: str, default: Any = _MISSING, *, minimum: int | None = None) -> int:
+    def integer(self, key: str, default: Any = _MISSING, *, minimum: int | None = None,
+                maximum: int = _core.MAX_INDEX) -> int:
+        """An integer in [minimum, maximum]; the default maximum is the largest index or count the
+        C++ side holds (32 bits), since every integer of a scene ends up in a binding."""
         v = self.raw(key, default)
         if v is default and default is not _MISSING:
             return v
-        expect = "an integer" + (f" >= {minimum}" if minimum is not None else "")
-        if isinstance(v, bool) or not isinstance(v, int) or (minimum is not None and v < minimum):
+        expect = f"an integer in [{minimum}, {maximum}]" if minimum is not None else f"an integer <= {maximum}"
+        if (isinstance(v, bool) or not isinstance(v, int) or (minimum is not None and v < minimum)
+                or v > maximum):
             raise self.error(key, f"must be {expect}, got {v!r}")
         return v
 
@@ -202,6 +206,8 @@ class _Table:
             return v
         if not isinstance(v, list) or not all(isinstance(x, int) and not isinstance(x, bool) for x in v):
             raise self.error(key, f"must be a list of integers, got {v!r}")
+        if any(not 0 <= x <= _core.MAX_INDEX for x in v):
+            raise self.error(key, f"must be a list of integers in [0, {_core.MAX_INDEX}], got {v!r}")
         return tuple(v)
 
     def scale(self, key: str = "scale") -> tuple[float, float, float]:
@@ -730,8 +736,8 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     solver = SolverSpec(
         method=so.string("method", "pbd", choices=("pbd", "xpbd", "jakobsen")),
         dt=so.number("dt", check=lambda x: x > 0, expect="a time step > 0 s"),
-        substeps=so.integer("substeps", 1, minimum=1),
-        iterations=so.integer("iterations", 10, minimum=1),
+        substeps=so.integer("substeps", 1, minimum=1, maximum=_core.MAX_SUBSTEPS),
+        iterations=so.integer("iterations", 10, minimum=1, maximum=_core.MAX_ITERATIONS),
         gravity=so.vector("gravity", (0.0, -9.81, 0.0)),
         damping=so.number("damping", 0.0, check=lambda x: 0 <= x <= 1, expect="a damping factor in [0, 1]"),
         stiffness_correction=so.boolean("stiffness_correction", True),
@@ -741,7 +747,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         verlet_drag=so.number("verlet_drag", 0.0, check=lambda x: 0 <= x < 1, expect="a drag factor in [0, 1)"),
         sqrt_approximation=so.boolean("sqrt_approximation", False),
         ordering=so.string("ordering", "coloured", choices=("coloured", "sequential")),
-        threads=so.integer("threads", 0, minimum=0),
+        threads=so.integer("threads", 0, minimum=0, maximum=_core.MAX_THREADS),
         max_speed=so.number("max_speed", 0.0, check=lambda x: x >= 0, allow_inf=True,
                             expect="a speed >= 0 m/s (0: automatic divergence guard, inf: off)"),
     )

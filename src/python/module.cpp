@@ -646,7 +646,7 @@ PYBIND11_MODULE(_core, m) {
       .def(py::init<>())
       .def("add_group", &ModelBuilder::add_group, py::arg("name"), "Adds a particle group; returns its index.")
       .def("add_particle", [](ModelBuilder& b, py::handle x, double mass, IntArg group) {
-        return b.add_particle(to_vec3(x, "x"), mass, index_arg(group, "group"));
+        return b.add_particle(to_vec3(x, "x"), mass, index_arg(group, "add_particle: group"));
       }, py::arg("x"), py::arg("mass"), py::arg("group"), "One particle at x (m) of mass (kg) in a group; returns its index.")
       .def("_add_mesh", [](ModelBuilder& b, const Mesh& mesh, IntArg group, py::object mass, py::object density,
                            py::object particle_mass, std::optional<double> stretch_stiffness,
@@ -654,7 +654,7 @@ PYBIND11_MODULE(_core, m) {
                            double bending_compliance, double thickness) {
         MeshOptions o;
         o.thickness = thickness;
-        o.group = index_arg(group, "group", -1);
+        o.group = index_arg(group, "add_mesh: group", -1);
         o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^2");
         o.stretch_stiffness = stretch_stiffness;
         o.bending_stiffness = bending_stiffness;
@@ -667,7 +667,7 @@ PYBIND11_MODULE(_core, m) {
          py::arg("bending_compliance") = 0.0, py::arg("thickness") = 0.0)
       .def("add_distance", [](ModelBuilder& b, IntArg i, IntArg j, double stiffness, std::optional<double> rest_length,
                               const std::string& sense, double compliance) {
-        const Index pi = index_arg(i, "i"), pj = index_arg(j, "j");
+        const Index pi = index_arg(i, "add_distance: i"), pj = index_arg(j, "add_distance: j");
         return b.add_distance(pi, pj, stiffness, rest_length ? *rest_length : -1.0, parse_sense(sense), compliance);
       }, py::arg("i"), py::arg("j"), py::arg("stiffness") = 1.0, py::arg("rest_length") = py::none(),
          py::arg("sense") = "==", py::arg("compliance") = 0.0,
@@ -675,7 +675,8 @@ PYBIND11_MODULE(_core, m) {
          "current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.")
       .def("add_bending", [](ModelBuilder& b, IntArg a, IntArg b_, IntArg c, IntArg d, double stiffness,
                              std::optional<double> rest_angle, double compliance) {
-        const Index pa = index_arg(a, "a"), pb = index_arg(b_, "b"), pc = index_arg(c, "c"), pd = index_arg(d, "d");
+        const Index pa = index_arg(a, "add_bending: a"), pb = index_arg(b_, "add_bending: b");
+        const Index pc = index_arg(c, "add_bending: c"), pd = index_arg(d, "add_bending: d");
         return b.add_bending(pa, pb, pc, pd, stiffness, rest_angle, compliance);
       }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
            py::arg("stiffness"), py::arg("rest_angle") = py::none(), py::arg("compliance") = 0.0,
@@ -686,7 +687,7 @@ PYBIND11_MODULE(_core, m) {
                                double stretch_compliance, std::optional<double> volume_stiffness,
                                double volume_compliance) {
         TetMeshOptions o;
-        o.group = index_arg(group, "group", -1);
+        o.group = index_arg(group, "add_tet_mesh: group", -1);
         o.mass = mass_spec(mesh.name, mass, density, particle_mass, "kg/m^3");
         o.stretch_stiffness = stretch_stiffness;
         o.stretch_compliance = stretch_compliance;
@@ -698,7 +699,8 @@ PYBIND11_MODULE(_core, m) {
          py::arg("volume_stiffness") = 1.0, py::arg("volume_compliance") = 0.0)
       .def("add_tetrahedron", [](ModelBuilder& b, IntArg a, IntArg b_, IntArg c, IntArg d, double stiffness,
                                  double compliance, std::optional<double> rest_volume) {
-        const Index pa = index_arg(a, "a"), pb = index_arg(b_, "b"), pc = index_arg(c, "c"), pd = index_arg(d, "d");
+        const Index pa = index_arg(a, "add_tetrahedron: a"), pb = index_arg(b_, "add_tetrahedron: b");
+        const Index pc = index_arg(c, "add_tetrahedron: c"), pd = index_arg(d, "add_tetrahedron: d");
         return b.add_tetrahedron(pa, pb, pc, pd, stiffness, compliance, rest_volume);
       }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"),
            py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0, py::arg("rest_volume") = py::none(),
@@ -709,13 +711,13 @@ PYBIND11_MODULE(_core, m) {
                               double compliance) {
         return b.add_balloon(to_index_rows<3>(triangles, "balloon triangles"), pressure, stiffness, compliance);
       }, py::arg("triangles"), py::arg("pressure") = 1.0, py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0)
-      .def("pin", [](ModelBuilder& b, IntArg i) { b.pin(index_arg(i, "i")); }, py::arg("i"), "Fixes particle i (inverse mass 0).")
+      .def("pin", [](ModelBuilder& b, IntArg i) { b.pin(index_arg(i, "pin: i")); }, py::arg("i"), "Fixes particle i (inverse mass 0).")
       .def("attach", [](ModelBuilder& b, IntArg i, py::handle target, double stiffness, double compliance) {
-        return b.attach(index_arg(i, "i"), to_vec3(target, "target"), stiffness, compliance);
+        return b.attach(index_arg(i, "attach: i"), to_vec3(target, "target"), stiffness, compliance);
       }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0,
          "Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).")
       .def("position", [](const ModelBuilder& b, IntArg particle) {
-        const Index i = index_arg(particle, "i");
+        const Index i = index_arg(particle, "position: i");
         if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");
         return vec3_array(b.position(i));
       }, py::arg("i"))
@@ -756,9 +758,13 @@ PYBIND11_MODULE(_core, m) {
          py::arg("restitution") = 0.0, py::arg("name") = "",
          "Static triangle-mesh collider (any mesh csb.load_mesh reads), a two-sided sheet: a particle keeps the side "
          "it is on. Material as add_plane.")
-      .def("set_thickness", &ModelBuilder::set_thickness, py::arg("group"), py::arg("thickness"),
+      .def("set_thickness", [](ModelBuilder& b, IntArg group, double thickness) {
+        b.set_thickness(index_arg(group, "set_thickness: group"), thickness);
+      }, py::arg("group"), py::arg("thickness"),
            "Collision radius (m, >= 0) of every particle of a group against the colliders.")
-      .def("enable_self_collision", &ModelBuilder::enable_self_collision, py::arg("group"), py::arg("thickness"),
+      .def("enable_self_collision", [](ModelBuilder& b, IntArg group, double thickness) {
+        b.enable_self_collision(index_arg(group, "enable_self_collision: group"), thickness);
+      }, py::arg("group"), py::arg("thickness"),
            "Point-triangle self-collision of a group's cloth (Müller 2007 §4.4) with thickness h > 0 m; keep h "
            "below the cloth's edge length.")
       .def_property_readonly("num_colliders", &ModelBuilder::num_colliders)
@@ -932,17 +938,17 @@ PYBIND11_MODULE(_core, m) {
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")
       .def("grab", [](PbdStepper& s, const Model& model, const State& state, IntArg particle, py::handle target,
                       double compliance) {
-        return s.grab(model, state, index_arg(particle, "particle"), to_vec3(target, "target"), compliance);
+        return s.grab(model, state, index_arg(particle, "grab: particle"), to_vec3(target, "target"), compliance);
       }, py::arg("model"), py::arg("state"), py::arg("particle"), py::arg("target"), py::kw_only(),
          py::arg("compliance") = 0.0,
          "Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the "
          "particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; "
          "compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.")
       .def("move_grab", [](PbdStepper& s, IntArg handle, py::handle target) {
-        s.move_grab(index_arg(handle, "handle"), to_vec3(target, "target"));
+        s.move_grab(index_arg(handle, "move_grab: handle"), to_vec3(target, "target"));
       },
            py::arg("handle"), py::arg("target"), "Moves the hand of a grab (m); the next step takes the particle there.")
-      .def("release", [](PbdStepper& s, IntArg handle) { s.release(index_arg(handle, "handle")); }, py::arg("handle"),
+      .def("release", [](PbdStepper& s, IntArg handle) { s.release(index_arg(handle, "release: handle")); }, py::arg("handle"),
            "Lets go of a grab; the particle keeps the velocity it had.")
       .def_property_readonly("grabs", [](const PbdStepper& s) {
         py::list out;
