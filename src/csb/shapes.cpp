@@ -1,5 +1,6 @@
 #include "csb/shapes.hpp"
 #include "csb/format.hpp"
+#include "csb/memory_budget.hpp"
 
 #include <cmath>
 #include <sstream>
@@ -22,7 +23,10 @@ Mesh cloth_grid(Real width, Real height, Index nx, Index ny, Plane plane, const 
   require(std::isfinite(height) && height > 0, "cloth_grid: height must be > 0 m, got " + str(height));
   require(nx >= 2 && ny >= 2, "cloth_grid: nx and ny must be >= 2 particles, got " + std::to_string(nx) + " x " +
                                   std::to_string(ny));
-  require(static_cast<long long>(nx) * ny < (1LL << 30), "cloth_grid: too many particles");
+  require_memory_for("cloth_grid(" + std::to_string(nx) + ", " + std::to_string(ny) + ")",
+                     static_cast<double>(nx) * static_cast<double>(ny));
+  require(static_cast<long long>(nx) * ny < (1LL << 30), "cloth_grid: nx x ny must be below 2^30 particles, got " +
+                                                            std::to_string(static_cast<long long>(nx) * ny));
   require(center.allFinite(), "cloth_grid: center must be finite");
   Mesh m;
   m.name = "cloth_grid(" + std::to_string(nx) + "x" + std::to_string(ny) + ")";
@@ -53,6 +57,8 @@ Mesh cloth_grid(Real width, Real height, Index nx, Index ny, Plane plane, const 
 
 Mesh chain(Index links, Real link_length, const Vec3& start, const Vec3& direction) {
   require(links >= 1, "chain: links must be >= 1, got " + std::to_string(links));
+  require_memory_for("chain(" + std::to_string(links) + ")", static_cast<double>(links) + 1);
+  require(links < (1 << 30), "chain: links must be below 2^30, got " + std::to_string(links));
   require(std::isfinite(link_length) && link_length > 0, "chain: link_length must be > 0 m, got " + str(link_length));
   require(start.allFinite(), "chain: start must be finite");
   require(direction.allFinite() && direction.norm() > 0, "chain: direction must be a finite non-zero vector");

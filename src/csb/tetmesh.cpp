@@ -1,5 +1,6 @@
 #include "csb/tetmesh.hpp"
 #include "csb/format.hpp"
+#include "csb/memory_budget.hpp"
 #include "csb/mesh.hpp"
 
 #include "csb/constraints/volume.hpp"
@@ -75,6 +76,11 @@ TetMesh tet_box(const Vec3& size, Index nx, Index ny, Index nz, const Vec3& cent
     throw InvalidArgument("tet_box: divisions must be >= 1 along every axis, got (" + std::to_string(nx) + ", " +
                           std::to_string(ny) + ", " + std::to_string(nz) + ")");
   if (!center.allFinite()) throw InvalidArgument("tet_box: center must be finite");
+  const double points = (static_cast<double>(nx) + 1) * (static_cast<double>(ny) + 1) * (static_cast<double>(nz) + 1);
+  require_memory_for("tet_box(" + std::to_string(nx) + ", " + std::to_string(ny) + ", " + std::to_string(nz) + ")",
+                     points);
+  if (6.0 * nx * ny * nz >= double(1 << 30))
+    throw InvalidArgument("tet_box: 6 nx ny nz must be below 2^30 tetrahedra, got " + detail::str(6.0 * nx * ny * nz));
   TetMesh m;
   m.name = "tet_box";
   const auto id = [&](Index i, Index j, Index k) { return (k * (ny + 1) + j) * (nx + 1) + i; };

@@ -1,0 +1,31 @@
+"""Requests whose memory is clearly beyond the machine are refused with the estimate, before
+anything is allocated (src/csb/memory_budget.hpp: 662 B a particle, what a 1024 x 1024 cloth
+measured as a model with its stepper)."""
+
+from __future__ import annotations
+
+import pytest
+
+import csb
+
+
+@pytest.mark.parametrize("make, what", [
+    (lambda: csb.cloth_grid(1.0, 1.0, 100_000, 100_000), r"cloth_grid\(100000, 100000\): 1e\+10 particles"),
+    (lambda: csb.chain(100_000_000, 0.01), r"chain\(100000000\): 1e\+08 particles"),
+    (lambda: csb.tet_box((1.0, 1.0, 1.0), (1000, 1000, 1000)), r"tet_box\(1000, 1000, 1000\): 1\.003e\+09 particles"),
+])
+def test_a_shape_beyond_the_machine_is_refused_with_the_estimate(make, what):
+    with pytest.raises(csb.ParameterError, match=what + r" would need about [\d.e+]+ GB .* this machine's [\d.]+ GB"):
+        make()
+
+
+def test_a_scene_asking_for_a_chain_of_1e8_links_is_refused(tmp_path):
+    scene = tmp_path / "long.toml"
+    scene.write_text(csb.find_scene("chain").read_text().replace("links = 20", "links = 100000000"))
+    with pytest.raises(csb.Error, match=r"1e\+08 particles would need about 66\.2 GB"):
+        csb.load_scene(scene).build()
+
+
+def test_shapes_that_fit_are_built():
+    assert csb.cloth_grid(1.0, 1.0, 64, 64).vertices.shape == (4096, 3)
+    assert csb.chain(1000, 0.01).vertices.shape == (1001, 3)
