@@ -64,6 +64,8 @@ CASES = [
     ("ForceStepper substeps", lambda w, v: csb.ForceStepper(substeps=v), "substeps", (1, 10**6)),
     ("ForceStepper steps", lambda w, v: csb.ForceStepper().step(w["model"], w["state"].copy(), v),
      "steps", (0, 2**63 - 1)),
+    ("PbdStepper steps", lambda w, v: csb.PbdStepper().step(w["model"], w["state"].copy(), v),
+     "steps", (0, 2**63 - 1)),
     ("corrected_stiffness iterations", lambda w, v: csb.corrected_stiffness(0.5, v), "iterations", (1, 10**6)),
     ("colour_constraints num_particles",
      lambda w, v: _core.colour_constraints(np.array([[0, 1]], dtype=np.int32), v), "num_particles", (0, MAX)),

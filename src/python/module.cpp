@@ -867,7 +867,8 @@ PYBIND11_MODULE(_core, m) {
       .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,
                              "bytes of the stepper's per-model workspace (from the vectors' capacities)")
       .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
-      .def("step", [](PbdStepper& s, const Model& model, State& state, std::int64_t steps) {
+      .def("step", [](PbdStepper& s, const Model& model, State& state, IntArg steps_arg) {
+        const std::int64_t steps = in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64);
         {
           // Once per model and stepper, at the caller's line: what the method ignores of the material.
           const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.step");
