@@ -12,6 +12,7 @@ import pytest
 
 import csb
 from csb import _core
+from csb.soft_bodies import icosphere
 
 MAX = 2**31 - 1  # Index is int32
 
@@ -66,6 +67,8 @@ CASES = [
      "steps", (0, 2**63 - 1)),
     ("PbdStepper steps", lambda w, v: csb.PbdStepper().step(w["model"], w["state"].copy(), v),
      "steps", (0, 2**63 - 1)),
+    ("State.step", lambda w, v: setattr(w["state"].copy(), "step", v), "State.step", (0, 2**63 - 1)),
+    ("icosphere subdivisions", lambda w, v: icosphere(0.5, v), "icosphere: subdivisions", (0, 13)),
     ("corrected_stiffness iterations", lambda w, v: csb.corrected_stiffness(0.5, v), "iterations", (1, 10**6)),
     ("colour_constraints num_particles",
      lambda w, v: _core.colour_constraints(np.array([[0, 1]], dtype=np.int32), v), "num_particles", (0, MAX)),

@@ -587,7 +587,7 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
         shape_args["divisions"] = div
     elif shape == "sphere":
         shape_args["radius"] = t.number("radius", check=lambda x: x > 0, expect="a radius > 0 m")
-        shape_args["subdivisions"] = t.integer("subdivisions", 2, minimum=0)
+        shape_args["subdivisions"] = t.integer("subdivisions", 2, minimum=0, maximum=13)  # as icosphere
     else:
         shape_args["length"] = t.number("length", check=lambda x: x > 0, expect="a length > 0 m")
         shape_args["angle"] = t.number("angle", 0.0, expect="an angle in rad")

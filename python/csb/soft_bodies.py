@@ -17,8 +17,11 @@ __all__ = ["icosphere", "hanging_tet_cube", "tet_cantilever", "hanging_balloon",
 def icosphere(radius: float = 0.5, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> Mesh:
     """A closed triangle sphere of ``radius`` (m): an icosahedron whose faces are split in four
     ``subdivisions`` times, vertices pushed onto the sphere, every triangle wound outwards."""
-    if not radius > 0 or subdivisions < 0:
-        raise _core.ParameterError(f"icosphere: radius must be > 0 m and subdivisions >= 0, got {radius}, {subdivisions}")
+    if not radius > 0:
+        raise _core.ParameterError(f"icosphere: radius must be > 0 m, got {radius}")
+    # 10·4^s + 2 vertices and 20·4^s triangles: s = 13 is the last whose triangles an Index counts.
+    if isinstance(subdivisions, bool) or not isinstance(subdivisions, (int, np.integer)) or not 0 <= subdivisions <= 13:
+        raise _core.ParameterError(f"icosphere: subdivisions must be an integer in [0, 13], got {subdivisions!r}")
     t = (1 + 5**0.5) / 2
     v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
          [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]

@@ -454,7 +454,9 @@ PYBIND11_MODULE(_core, m) {
         s.v = v;
       }, "(N, 3) velocities, m/s: a writable view, no copy")
       .def_readwrite("t", &State::t, "time, s")
-      .def_readwrite("step", &State::step, "number of completed steps")
+      .def_property("step", [](const State& s) { return s.step; },
+                    [](State& s, IntArg step) { s.step = in_range<std::int64_t>(step, "State.step", 0, kMaxInt64); },
+                    "number of completed steps")
       .def_property_readonly("num_particles", [](const State& s) { return s.x.cols(); })
       .def("copy", [](const State& s) { return std::make_shared<State>(s); }, "A deep copy (a checkpoint).")
       .def("__repr__", [](const State& s) {
