@@ -36,6 +36,14 @@ std::vector<std::string> readable_extensions();
 // vertices, zero or out-of-range (including relative, negative) indices. Throws MeshError.
 void check_obj(const std::string& path);
 
+// Refuses a file that starts with a UTF-16 or UTF-32 byte-order mark, naming the encoding (the
+// text readers take ASCII or UTF-8; a UTF-8 mark is skipped). Throws MeshError.
+void check_encoding(const std::string& path);
+
+// The extension of a file named without one, from its first word where that is unambiguous
+// (".ply", ".off", ".bvh"); "" otherwise (Assimp then detects the format from the content).
+std::string sniff_format(const std::string& path);
+
 // Header consistency checks run before Assimp sees the file (Assimp 5.2 loops forever on some
 // truncated PLY headers): declared element counts must fit the file. Throw MeshError.
 void check_ply(const std::string& path);

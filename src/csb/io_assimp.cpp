@@ -87,7 +87,34 @@ RawScene read_in_process(const std::string& path) {
     // Assimp turns the std::bad_alloc of an exhausted memory limit into an error string.
     if (std::strstr(importer.GetErrorString(), "bad_alloc")) throw std::bad_alloc();
     raw.error = std::string("cannot read the file: ") + importer.GetErrorString();
+    // Assimp's post-processing fails on a point cloud ("all meshes are orphaned"): read the file
+    // again as it is, and if it holds no polygon, say so with what it holds.
+    if (const aiScene* bare = importer.ReadFile(path, 0)) {
+      std::uint64_t points = 0, segments = 0, polygons = 0;
+      for (unsigned m = 0; m < bare->mNumMeshes; ++m) {
+        const aiMesh* am = bare->mMeshes[m];
+        if (am->mNumFaces == 0) points += am->mNumVertices;
+        for (unsigned f = 0; f < am->mNumFaces; ++f) {
+          const unsigned n = am->mFaces[f].mNumIndices;
+          (n >= 3 ? polygons : n == 2 ? segments : points) += 1;
+        }
+      }
+      if (polygons == 0)
+        raw.error = "the file has no triangles (" + std::to_string(points) + " points" +
+                    (segments ? ", " + std::to_string(segments) + " line segments" : std::string()) +
+                    "); csb needs a surface mesh";
+    }
     return raw;
+  }
+  // Assimp draws placeholder bones (material "SkeletonMaterial") for a file that holds a skeleton
+  // and no surface, such as motion capture; as a cloth they would be a meaningless surface.
+  for (unsigned k = 0; k < scene->mNumMaterials; ++k) {
+    aiString name;
+    if (scene->mMaterials[k]->Get(AI_MATKEY_NAME, name) == aiReturn_SUCCESS &&
+        std::strcmp(name.C_Str(), "SkeletonMaterial") == 0) {
+      raw.error = "the file holds a skeleton and no surface (Assimp drew placeholder bones for it)";
+      return raw;
+    }
   }
   if (scene->mFlags & AI_SCENE_FLAGS_INCOMPLETE) {
     raw.error = "the file holds no complete mesh (Assimp marked the scene incomplete)";
@@ -286,12 +313,23 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
   if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
   const std::uintmax_t bytes = fs::file_size(path, ec);
   if (bytes == 0) throw MeshError(path + ": the file is empty");
-  const std::string ext = lower_extension(path);
-  if (ext.empty() || !Assimp::Importer().IsExtensionSupported(ext))
+  std::string ext = lower_extension(path);
+  const bool named = !ext.empty();
+  if (named && !Assimp::Importer().IsExtensionSupported(ext))
     throw MeshError(path + ": unsupported format '" + ext + "'; csb reads " + joined(readable_extensions()));
   if (!(timeout >= 0)) throw InvalidArgument(path + ": timeout must be >= 0 s (0: automatic)");
   if (!(max_memory > 0 && max_memory < 1.8e19))
     throw InvalidArgument(path + ": max_memory must be > 0 bytes, got " + std::to_string(max_memory));
+  // A file without an extension: the formats whose pre-checks need one are recognised by their
+  // first word; for the others Assimp detects the format from the content.
+  if (!named) ext = sniff_format(path);
+  // Motion capture: Assimp reads the skeleton and draws placeholder bones, no surface.
+  static const std::pair<const char*, const char*> motion[] = {{".bvh", "BVH"}, {".csm", "CSM"}};
+  for (const auto& [e, name] : motion)
+    if (ext == e)
+      throw MeshError(path + ": is a motion-capture file (" + name + "): it holds a skeleton and no surface");
+  // A binary STL header may start with any bytes; check_stl looks at an STL's encoding itself.
+  if (ext != ".stl") check_encoding(path);
   if (ext == ".obj") check_obj(path);
   if (ext == ".ply") check_ply(path);
   if (ext == ".stl") check_stl(path);
@@ -304,6 +342,9 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
 #else
   const RawScene raw = read_in_process(path);
 #endif
+  if (!raw.ok && !named && raw.error.rfind("cannot read the file: ", 0) == 0)
+    throw MeshError(path + ": the file has no extension and Assimp did not recognise its content (" +
+                    raw.error.substr(22) + "); name it with its format's extension (csb reads " + joined(readable_extensions()) + ")");
   if (!raw.ok) throw MeshError(path + ": " + raw.error);
 
   Mesh mesh;
@@ -315,9 +356,13 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
   for (std::size_t t = 0; t < mesh.triangles.size(); ++t)
     for (int k = 0; k < 3; ++k) mesh.triangles[t][k] = static_cast<Index>(raw.triangles[3 * t + k]);
   if (mesh.triangles.empty())
-    throw MeshError(path + ": the file has no triangles (" + std::to_string(num_vertices) + " vertices, " +
-                    std::to_string(raw.points) + " points, " + std::to_string(raw.lines) +
-                    " line segments); csb needs a surface mesh");
+    throw MeshError(path + ": the file has no triangles (" +
+                    (raw.points + raw.lines == 0
+                         ? std::to_string(num_vertices) + " vertices and no faces"
+                         : (raw.points ? std::to_string(raw.points) + " points" : std::string()) +
+                               (raw.points && raw.lines ? ", " : "") +
+                               (raw.lines ? std::to_string(raw.lines) + " line segments" : std::string())) +
+                    "); csb needs a surface mesh");
   MeshReport local;
   Mesh out = clean(mesh, options, &local);
   if (raw.points + raw.lines + raw.polygons > 0)

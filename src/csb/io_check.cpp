@@ -28,6 +28,11 @@ std::string printable(const std::string& s, std::size_t max_len = 40) {
   return out;
 }
 
+// A UTF-8 byte-order mark before the first line is not part of its text.
+void skip_utf8_bom(std::string& line) {
+  if (line.rfind("\xEF\xBB\xBF", 0) == 0) line.erase(0, 3);
+}
+
 struct Counts {
   long long v = 0, vt = 0, vn = 0;
 };
@@ -69,6 +74,33 @@ void check_reference(const std::string& path, long long line, const std::string&
 
 }  // namespace
 
+void check_encoding(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw MeshError(path + ": cannot open the file");
+  unsigned char b[4] = {1, 1, 1, 1};
+  in.read(reinterpret_cast<char*>(b), 4);
+  const char* encoding = nullptr;
+  if (b[0] == 0xFF && b[1] == 0xFE && b[2] == 0 && b[3] == 0) encoding = "UTF-32 (little-endian)";
+  else if (b[0] == 0 && b[1] == 0 && b[2] == 0xFE && b[3] == 0xFF) encoding = "UTF-32 (big-endian)";
+  else if (b[0] == 0xFF && b[1] == 0xFE) encoding = "UTF-16 (little-endian)";
+  else if (b[0] == 0xFE && b[1] == 0xFF) encoding = "UTF-16 (big-endian)";
+  if (encoding)
+    throw MeshError(path + ": the file is " + encoding +
+                    " text (it starts with that byte-order mark); csb reads text mesh files in ASCII or UTF-8: "
+                    "save it as UTF-8");
+}
+
+std::string sniff_format(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string first;
+  if (!in || !(in >> first)) return "";
+  skip_utf8_bom(first);
+  if (first == "ply") return ".ply";
+  if (first == "HIERARCHY") return ".bvh";
+  if (first.size() >= 3 && first.size() <= 5 && first.find("OFF") != std::string::npos) return ".off";  // OFF, COFF, NOFF, STOFF
+  return "";
+}
+
 void check_obj(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw MeshError(path + ": cannot open the file");
@@ -77,6 +109,15 @@ void check_obj(const std::string& path) {
   std::string line;
   while (std::getline(in, line)) {
     ++line_no;
+    if (line_no == 1 && line.rfind("\xEF\xBB\xBF", 0) == 0) {
+      // Assimp's OBJ reader keeps the mark as part of the first line: harmless before a comment
+      // or a blank line, but a vertex or face there would be lost or misread.
+      skip_utf8_bom(line);
+      const auto first = line.find_first_not_of(" \t\r");
+      if (first != std::string::npos && line[first] != '#')
+        fail(path, 1, "the file starts with a UTF-8 byte-order mark, which Assimp's OBJ reader takes as part of "
+                      "this line's first word: remove the mark (save as UTF-8 without BOM)");
+    }
     if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     std::istringstream s(line);
     std::string key;
@@ -119,7 +160,10 @@ void check_ply(const std::string& path) {
   if (!in) throw MeshError(path + ": cannot open the file");
   const std::uintmax_t file_size = size_of(path);
   std::string line;
-  if (!std::getline(in, line) || line.substr(0, 3) != "ply")
+  if (std::getline(in, line) && line.rfind("\xEF\xBB\xBFply", 0) == 0)
+    throw MeshError(path + ": the file starts with a UTF-8 byte-order mark before 'ply', which Assimp's PLY reader "
+                           "refuses: remove the mark (save as UTF-8 without BOM)");
+  if (!in || line.substr(0, 3) != "ply")
     throw MeshError(path + ": not a PLY file (it does not start with 'ply')");
   struct Element {
     std::string name;
@@ -166,9 +210,9 @@ void check_ply(const std::string& path) {
       } else {
         elements.back().fixed_bytes += type_size(type);
       }
-    } else if (key != "comment" && key != "obj_info" && !key.empty()) {
-      throw MeshError(path + ": PLY header: unexpected line '" + printable(line) + "'");
     }
+    // Other lines are skipped, as Assimp's reader skips them: old exporters wrote free text into
+    // the header without 'comment' (Blender 2.4's "Created by Blender3D 247 - www.blender.org, ...").
   }
   if (!ended) throw MeshError(path + ": PLY header is truncated or too long (no 'end_header' line)");
   long long faces = 0, vertices = 0;
@@ -178,7 +222,7 @@ void check_ply(const std::string& path) {
   }
   if (faces == 0)
     throw MeshError(path + ": the file has no triangles (" + std::to_string(vertices) +
-                    " vertices and no faces); csb needs a surface mesh");
+                    " points, no faces); csb needs a surface mesh");
   if (format.empty()) throw MeshError(path + ": PLY header has no 'format' line");
   const std::uintmax_t header_bytes = static_cast<std::uintmax_t>(in.tellg());
   const std::uintmax_t body = file_size > header_bytes ? file_size - header_bytes : 0;
@@ -216,11 +260,13 @@ void check_stl(const std::string& path) {
   const bool binary_consistent = got == 84 && file_size == 84 + 50ull * count;
   // An ASCII file starts with "solid" and holds only text; binary writers sometimes put "solid"
   // in their 80-byte header too, so look at the first bytes as well.
-  bool text = got >= 5 && std::string(head, head + 5) == "solid";
-  for (std::size_t k = 0; text && k < got; ++k) {
+  const std::size_t bom = got >= 3 && std::memcmp(head, "\xEF\xBB\xBF", 3) == 0 ? 3 : 0;  // UTF-8 mark: Assimp skips it
+  bool text = got >= bom + 5 && std::string(head + bom, head + bom + 5) == "solid";
+  for (std::size_t k = bom; text && k < got; ++k) {
     const unsigned char ch = static_cast<unsigned char>(head[k]);
     text = std::isprint(ch) || std::isspace(ch);
   }
+  if (!binary_consistent) check_encoding(path);
   if (text && !binary_consistent) return;
   if (got < 84)
     throw MeshError(path + ": a binary STL file needs an 84-byte header, the file has " + std::to_string(file_size) + " bytes");
@@ -233,28 +279,56 @@ void check_stl(const std::string& path) {
 void check_off(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   if (!in) throw MeshError(path + ": cannot open the file");
+  const std::uintmax_t file_size = size_of(path);
   std::vector<std::string> tokens;
+  std::vector<long long> token_line;  // the line each header token came from
   std::string line;
-  long long data_lines = 0;
+  long long data_lines = 0, line_no = 0;
   while (std::getline(in, line)) {
+    ++line_no;
+    if (line_no == 1) skip_utf8_bom(line);
     if (const auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
     if (tokens.size() < 4) {
       std::istringstream s(line);
-      for (std::string t; s >> t;) tokens.push_back(t);
+      for (std::string t; s >> t;) {
+        tokens.push_back(t);
+        token_line.push_back(line_no);
+      }
     } else {
       ++data_lines;
     }
   }
   if (tokens.empty() || tokens[0].find("OFF") == std::string::npos)
     throw MeshError(path + ": not an OFF file (no 'OFF' header)");
+  // Each count is checked on its own before any arithmetic: strtoll saturates at LLONG_MAX, and a
+  // count no larger than the file's size in bytes (every vertex and face takes at least one
+  // character of its own) keeps the sum below compared free of overflow.
+  const char* what[2] = {"vertex", "face"};
   long long counts[2] = {0, 0};
   for (int k = 0; k < 2; ++k) {
-    char* end = nullptr;
-    counts[k] = tokens.size() > std::size_t(k + 1) ? std::strtoll(tokens[k + 1].c_str(), &end, 10) : -1;
-    if (counts[k] < 0 || !end || *end != '\0')
+    if (tokens.size() <= std::size_t(k + 1))
       throw MeshError(path + ": OFF header: expected vertex and face counts after 'OFF'");
+    const std::string& token = tokens[k + 1];
+    const long long at = token_line[k + 1];
+    char* end = nullptr;
+    errno = 0;
+    const long long value = std::strtoll(token.c_str(), &end, 10);
+    if (end == token.c_str() || *end != '\0')
+      fail(path, at, std::string("OFF header: the ") + what[k] + " count '" + printable(token) + "' is not an integer");
+    if (value < 0)
+      fail(path, at, std::string("OFF header: the ") + what[k] + " count is " + printable(token) + "; a count must be >= 0");
+    if (errno == ERANGE)
+      fail(path, at, std::string("OFF header: the ") + what[k] + " count " + printable(token) +
+                         " is out of range (a count is at most 9223372036854775807)");
+    if (static_cast<std::uintmax_t>(value) > file_size)
+      fail(path, at, std::string("OFF header: the ") + what[k] + " count " + token + " is more than a file of " +
+                         std::to_string(file_size) + " bytes can hold");
+    counts[k] = value;
   }
+  if (counts[1] == 0)
+    throw MeshError(path + ": the file has no triangles (" + std::to_string(counts[0]) +
+                    " points, no faces); csb needs a surface mesh");
   // The counts line may share the header's line; every vertex and face needs a line of its own.
   if (data_lines + 1 < counts[0] + counts[1])
     throw MeshError(path + ": the OFF header declares " + std::to_string(counts[0]) + " vertices and " +
