@@ -13,7 +13,9 @@ namespace csb {
 // then clean()s it: seams are welded and degenerate triangles dropped, each reported.
 // Coordinates arrive as Assimp stores them, in 32-bit floats, and are taken as metres.
 // Throws FileNotFound for a missing path and MeshError (naming the file, and the line for OBJ)
-// for an empty, corrupt or unsupported file, or one without triangles.
+// for an empty, corrupt or unsupported file, one without triangles (a point cloud, motion
+// capture or another skeleton without a surface) or UTF-16/32 text. A path without an
+// extension is read by its content (its first word, else Assimp's detection).
 //
 // On POSIX systems Assimp runs in a child process: a file on which it crashes or loops gives a
 // MeshError, after at most `timeout` seconds (0: 10 s + 2 s per MB of file), and one on which it
