@@ -190,11 +190,16 @@ def test_files_without_an_extension_are_read_by_their_content(tmp_path):
 
 def test_a_file_without_an_extension_that_assimp_does_not_recognise(tmp_path):
     (tmp_path / "noise").write_bytes(bytes(range(256)) * 4)
-    # Assimp 5.2 recognises a GLB (binary glTF) by its extension only.
-    csb.save_mesh(csb.cloth_grid(1.0, 1.0, 3, 3, plane="xy"), str(tmp_path / "cloth.glb"))
-    (tmp_path / "cloth.glb").rename(tmp_path / "glb_cloth")
-    for name in ("noise", "glb_cloth"):
-        with pytest.raises(csb.MeshError, match=rf"{name}: the file has no extension and Assimp did not recognise "
-                                                r"its content \(.*\); name it with its format's extension \(csb "
-                                                r"reads .*\.glb .*\.obj"):
-            csb.load_mesh(tmp_path / name)
+    with pytest.raises(csb.MeshError, match=r"noise: the file has no extension and Assimp did not recognise its "
+                                            r"content \(.*\); name it with its format's extension \(csb reads "
+                                            r".*\.glb .*\.obj"):
+        csb.load_mesh(tmp_path / "noise")
+    # Assimp 5.2 recognises a GLB (binary glTF) and a binary STL by their extensions only; csb
+    # knows them by their signature (GLB's magic, STL's size matching its triangle count).
+    for ext in ("glb", "stl"):
+        csb.save_mesh(csb.cloth_grid(1.0, 1.0, 3, 3, plane="xy"), str(tmp_path / f"cloth.{ext}"))
+        (tmp_path / f"cloth.{ext}").rename(tmp_path / f"{ext}_cloth")
+        with pytest.raises(csb.MeshError, match=rf"{ext}_cloth: the file has no extension and Assimp did not "
+                                                rf"recognise its content \(.*\); name it with its format's "
+                                                rf"extension \(it looks like a '\.{ext}' file\)"):
+            csb.load_mesh(tmp_path / f"{ext}_cloth")

@@ -43,7 +43,8 @@ void check_obj(const std::string& path);
 void check_encoding(const std::string& path);
 
 // The extension of a file named without one, from its first word where that is unambiguous
-// (".ply", ".off", ".bvh"); "" otherwise (Assimp then detects the format from the content).
+// (".ply", ".off", ".bvh"), or from a binary signature (".glb"; ".stl" when the size matches a
+// binary STL's triangle count); "" otherwise (Assimp then detects the format from the content).
 std::string sniff_format(const std::string& path);
 
 // Header consistency checks run before Assimp sees the file (Assimp 5.2 loops forever on some

@@ -344,7 +344,9 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
 #endif
   if (!raw.ok && !named && raw.error.rfind("cannot read the file: ", 0) == 0)
     throw MeshError(path + ": the file has no extension and Assimp did not recognise its content (" +
-                    raw.error.substr(22) + "); name it with its format's extension (csb reads " + joined(readable_extensions()) + ")");
+                    raw.error.substr(22) + "); name it with its format's extension" +
+                    (ext.empty() ? " (csb reads " + joined(readable_extensions()) + ")"
+                                 : " (it looks like a '" + ext + "' file)"));
   if (!raw.ok) throw MeshError(path + ": " + raw.error);
 
   Mesh mesh;

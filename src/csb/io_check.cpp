@@ -92,6 +92,15 @@ void check_encoding(const std::string& path) {
 
 std::string sniff_format(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
+  char head[84] = {};
+  in.read(head, sizeof head);
+  const std::size_t got = static_cast<std::size_t>(in.gcount());
+  if (got >= 4 && std::memcmp(head, "glTF", 4) == 0) return ".glb";
+  std::uint32_t triangles = 0;
+  if (got == 84) std::memcpy(&triangles, head + 80, 4);
+  if (got == 84 && triangles > 0 && size_of(path) == 84 + 50ull * triangles) return ".stl";  // binary STL
+  in.clear();
+  in.seekg(0);
   std::string first;
   if (!in || !(in >> first)) return "";
   skip_utf8_bom(first);
