@@ -191,13 +191,24 @@ void PbdStepper::prepare(const Model& model) {
     sg.group = g;
     sg.thickness = h_self;
     Real edges = 0;
+    Vec3 lo = Vec3::Constant(std::numeric_limits<Real>::infinity()), hi = -lo;
     for (Index t = 0; t < static_cast<Index>(model.triangles.size()); ++t) {
       const Triangle& tri = model.triangles[t];
       if (model.group[tri[0]] != g) continue;
       sg.triangles.push_back(t);
-      for (int e = 0; e < 3; ++e)
+      for (int e = 0; e < 3; ++e) {
         edges += (model.rest_positions.col(tri[e]) - model.rest_positions.col(tri[(e + 1) % 3])).norm();
+        lo = lo.cwiseMin(model.rest_positions.col(tri[e]));
+        hi = hi.cwiseMax(model.rest_positions.col(tri[e]));
+      }
     }
+    // A layer thicker than the cloth is wide puts every triangle near every particle: the broad
+    // phase's work would grow as their product each sub-step. Refused by name.
+    if (!sg.triangles.empty() && h_self > (hi - lo).norm())
+      throw InvalidArgument("the self-collision thickness " + str(h_self) + " m of group '" + model.group_names[g] +
+                            "' exceeds the size of its cloth (" + str((hi - lo).norm()) +
+                            " m, its rest bounding-box diagonal): give a thickness of the order of the cloth's "
+                            "thickness, well under its edges");
     sg.cell = edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self;
     most_triangles = std::max(most_triangles, sg.triangles.size());
     self_groups_.push_back(std::move(sg));
