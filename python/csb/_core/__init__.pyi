@@ -3,6 +3,8 @@ csb compiled core: meshes, models, states and the PBD stepper
 """
 from __future__ import annotations
 import collections.abc
+from csb import AccuracyWarning
+from csb import ConcurrentUseError
 from csb import Error
 from csb import MaterialWarning
 from csb import MeshError
@@ -12,7 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['Camera', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Camera:
     """
     The viewer's orbit camera (m, rad; pixels from the top-left corner).
@@ -96,11 +98,11 @@ class Viewer:
         ...
     def __exit__(self, *args) -> None:
         ...
-    def __init__(self, model: ..., state: ..., settings: ..., *, width: typing.SupportsInt | typing.SupportsIndex = 1280, height: typing.SupportsInt | typing.SupportsIndex = 800, offscreen: bool = False, title: str = 'csb', samples: typing.SupportsInt | typing.SupportsIndex = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: typing.SupportsInt | typing.SupportsIndex = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
+    def __init__(self, model: ..., state: ..., settings: ..., *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
         """
         Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).
         """
-    def capture(self, *, frames: typing.SupportsInt | typing.SupportsIndex, directory: str, every: typing.SupportsInt | typing.SupportsIndex = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
+    def capture(self, *, frames: int, directory: str, every: int = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
         """
         Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
         """
@@ -118,7 +120,7 @@ class Viewer:
         """
         A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.
         """
-    def mouse_button(self, button: typing.SupportsInt | typing.SupportsIndex, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
+    def mouse_button(self, button: int, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
         """
         A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.
         """
@@ -130,7 +132,7 @@ class Viewer:
         """
     def reset(self) -> None:
         ...
-    def run(self, max_frames: typing.SupportsInt | typing.SupportsIndex = 0) -> int:
+    def run(self, max_frames: int = 0) -> int:
         """
         Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released during each frame; Python's signals (Ctrl-C: KeyboardInterrupt) are handled between frames.
         """
@@ -272,7 +274,7 @@ class State:
         number of completed steps
         """
     @step.setter
-    def step(self, arg0: typing.SupportsInt | typing.SupportsIndex) -> None:
+    def step(self, arg1: int) -> None:
         ...
     @property
     def t(self) -> float:
@@ -414,11 +416,11 @@ class ModelBuilder:
         ...
     def _add_balloon(self, triangles: typing.Any, pressure: typing.SupportsFloat | typing.SupportsIndex = 1.0, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         ...
-    def _add_mesh(self, mesh: Mesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, thickness: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
+    def _add_mesh(self, mesh: Mesh, group: int = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, bending_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = None, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, bending_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, thickness: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
-    def _add_tet_mesh(self, mesh: TetMesh, group: typing.SupportsInt | typing.SupportsIndex = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, volume_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, volume_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
+    def _add_tet_mesh(self, mesh: TetMesh, group: int = -1, mass: typing.Any = None, density: typing.Any = None, particle_mass: typing.Any = None, stretch_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, stretch_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, volume_stiffness: typing.SupportsFloat | typing.SupportsIndex | None = 1.0, volume_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> dict:
         ...
-    def add_bending(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+    def add_bending(self, a: int, b: int, c: int, d: int, stiffness: typing.SupportsFloat | typing.SupportsIndex, rest_angle: typing.SupportsFloat | typing.SupportsIndex | None = None, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Dihedral bending across edge (a, b) with wings c, d: PBD stiffness in [0, 1], rest_angle in rad (default the current angle), compliance in 1/(N m) (0: hard).
         """
@@ -434,7 +436,7 @@ class ModelBuilder:
         """
         Static triangle-mesh collider (any mesh csb.load_mesh reads), a two-sided sheet: a particle keeps the side it is on. Material as add_plane.
         """
-    def add_distance(self, i: typing.SupportsInt | typing.SupportsIndex, j: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==', compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+    def add_distance(self, i: int, j: int, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==', compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Distance constraint: PBD stiffness in [0, 1], compliance in m/N (0: hard); rest_length in m, default the current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.
         """
@@ -442,7 +444,7 @@ class ModelBuilder:
         """
         Adds a particle group; returns its index.
         """
-    def add_particle(self, x: typing.Any, mass: typing.SupportsFloat | typing.SupportsIndex, group: typing.SupportsInt | typing.SupportsIndex) -> int:
+    def add_particle(self, x: typing.Any, mass: typing.SupportsFloat | typing.SupportsIndex, group: int) -> int:
         """
         One particle at x (m) of mass (kg) in a group; returns its index.
         """
@@ -454,27 +456,27 @@ class ModelBuilder:
         """
         Static sphere collider: center in m, radius > 0 m; material as add_plane.
         """
-    def add_tetrahedron(self, a: typing.SupportsInt | typing.SupportsIndex, b: typing.SupportsInt | typing.SupportsIndex, c: typing.SupportsInt | typing.SupportsIndex, d: typing.SupportsInt | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, rest_volume: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
+    def add_tetrahedron(self, a: int, b: int, c: int, d: int, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, rest_volume: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
         """
         Tetrahedral volume constraint C = V - V0: PBD stiffness in [0, 1], compliance in m⁶/J (0: hard), rest_volume in m³ (default the current signed volume, which must be > 0: d on the side of (b - a) x (c - a)). Returns its index.
         """
-    def attach(self, i: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+    def attach(self, i: int, target: typing.Any, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).
         """
     def build(self) -> Model:
         ...
-    def enable_self_collision(self, group: typing.SupportsInt | typing.SupportsIndex, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
+    def enable_self_collision(self, group: int, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
         """
         Point-triangle self-collision of a group's cloth (Müller 2007 §4.4) with thickness h > 0 m; keep h below the cloth's edge length.
         """
-    def pin(self, i: typing.SupportsInt | typing.SupportsIndex) -> None:
+    def pin(self, i: int) -> None:
         """
         Fixes particle i (inverse mass 0).
         """
-    def position(self, i: typing.SupportsInt | typing.SupportsIndex) -> numpy.ndarray:
+    def position(self, i: int) -> numpy.ndarray:
         ...
-    def set_thickness(self, group: typing.SupportsInt | typing.SupportsIndex, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
+    def set_thickness(self, group: int, thickness: typing.SupportsFloat | typing.SupportsIndex) -> None:
         """
         Collision radius (m, >= 0) of every particle of a group against the colliders.
         """
@@ -553,19 +555,19 @@ class PbdStepper:
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: typing.SupportsInt | typing.SupportsIndex = 1, iterations: typing.SupportsInt | typing.SupportsIndex = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: typing.SupportsInt | typing.SupportsIndex = 0, max_speed: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: int = 0, max_speed: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step (>= 1). iterations: constraint sweeps per sub-step (>= 1). gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, >= 0 (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off).
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off).
         """
     def contacts(self) -> dict:
         """
         The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (point-triangle), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
         """
-    def grab(self, model: Model, state: State, particle: typing.SupportsInt | typing.SupportsIndex, target: typing.Any, *, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+    def grab(self, model: Model, state: State, particle: int, target: typing.Any, *, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.
         """
-    def move_grab(self, handle: typing.SupportsInt | typing.SupportsIndex, target: typing.Any) -> None:
+    def move_grab(self, handle: int, target: typing.Any) -> None:
         """
         Moves the hand of a grab (m); the next step takes the particle there.
         """
@@ -575,13 +577,13 @@ class PbdStepper:
         """
     def projections_per_step(self, model: Model) -> int:
         ...
-    def release(self, handle: typing.SupportsInt | typing.SupportsIndex) -> None:
+    def release(self, handle: int) -> None:
         """
         Lets go of a grab; the particle keeps the velocity it had.
         """
-    def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
+    def step(self, model: Model, state: State, steps: int = 1) -> None:
         """
-        Advances state by `steps` steps of dt (the GIL is released meanwhile). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
+        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between sub-steps, the state left at the end of the last completed one; a second thread stepping the same stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
         """
     @property
     def grabs(self) -> list:
@@ -625,11 +627,11 @@ class ForceStepper:
     """
     Force-based mass-spring integrators on the reference's spring network (every constraint a spring of stiffness 1/α): the methods that fail, for the stability studies.
     """
-    def __init__(self, *, method: str = 'symplectic-euler', dt: typing.SupportsFloat | typing.SupportsIndex = 0.0001, substeps: typing.SupportsInt | typing.SupportsIndex = 1, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, drag: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
+    def __init__(self, *, method: str = 'symplectic-euler', dt: typing.SupportsFloat | typing.SupportsIndex = 0.0001, substeps: int = 1, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, drag: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
         """
         method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. drag: 1/s.
         """
-    def step(self, model: Model, state: State, steps: typing.SupportsInt | typing.SupportsIndex = 1) -> None:
+    def step(self, model: Model, state: State, steps: int = 1) -> None:
         ...
     @property
     def force_evaluations(self) -> int:
@@ -663,7 +665,7 @@ class SpringNetwork:
         ...
 def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, drop_unreferenced: bool = True) -> tuple[Mesh, dict]:
     ...
-def _integrate_reference(model: Model, start: State, times: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], gravity: typing.Any, rtol: typing.SupportsFloat | typing.SupportsIndex, atol: typing.SupportsFloat | typing.SupportsIndex, damping: typing.SupportsFloat | typing.SupportsIndex, drag: typing.SupportsFloat | typing.SupportsIndex, max_order: typing.SupportsInt | typing.SupportsIndex, stability_limit_detection: bool, linear_solver: str, max_steps: typing.SupportsInt | typing.SupportsIndex, max_wall_time: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], dict]:
+def _integrate_reference(model: Model, start: State, times: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], gravity: typing.Any, rtol: typing.SupportsFloat | typing.SupportsIndex, atol: typing.SupportsFloat | typing.SupportsIndex, damping: typing.SupportsFloat | typing.SupportsIndex, drag: typing.SupportsFloat | typing.SupportsIndex, max_order: int, stability_limit_detection: bool, linear_solver: str, max_steps: int, max_wall_time: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], dict]:
     ...
 def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, timeout: typing.SupportsFloat | typing.SupportsIndex = 0.0, max_memory: typing.SupportsFloat | typing.SupportsIndex = 2147483648.0) -> tuple[Mesh, dict]:
     ...
@@ -671,15 +673,15 @@ def balloon_volumes(model: Model, state: State) -> numpy.typing.NDArray[numpy.fl
     """
     Volume enclosed by every balloon's surface, m³.
     """
-def benchmark_dispatch(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> dict:
+def benchmark_dispatch(model: Model, positions: typing.Any, sweeps: int, repeats: int) -> dict:
     """
     Gauss-Seidel sweeps through the batched kernels and through one virtual Constraint object per constraint: ns per projection of each repeat, and whether the results agree bit for bit.
     """
-def benchmark_jacobian(network: ..., state: State, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+def benchmark_jacobian(network: ..., state: State, repeats: int) -> list[float]:
     """
     ms per assembly of the reference's sparse Jacobian (the values into its fixed CSC pattern), per repeat.
     """
-def benchmark_plain_distance(model: Model, positions: typing.Any, sweeps: typing.SupportsInt | typing.SupportsIndex, repeats: typing.SupportsInt | typing.SupportsIndex) -> list[float]:
+def benchmark_plain_distance(model: Model, positions: typing.Any, sweeps: int, repeats: int) -> list[float]:
     """
     The baseline the coloured sweep is measured against: a plain sequential loop over the model's distance constraints in build order, in double precision (Müller's projection, stiffness 1), one thread; ns per projection of each repeat.
     """
@@ -691,7 +693,7 @@ def build_info() -> dict:
     """
     Versions of csb and of the libraries it was built against, and whether the viewer was built.
     """
-def chain(links: typing.SupportsInt | typing.SupportsIndex, link_length: typing.SupportsFloat | typing.SupportsIndex, start: typing.Any = [0.0, 0.0, 0.0], direction: typing.Any = [1.0, 0.0, 0.0]) -> Mesh:
+def chain(links: int, link_length: typing.SupportsFloat | typing.SupportsIndex, start: typing.Any = [0.0, 0.0, 0.0], direction: typing.Any = [1.0, 0.0, 0.0]) -> Mesh:
     """
     A chain of `links` segments of link_length m from start (m) along direction.
     """
@@ -699,15 +701,15 @@ def check_obj(path: str) -> None:
     """
     Strict OBJ syntax check naming the line of the first problem.
     """
-def cloth_grid(width: typing.SupportsFloat | typing.SupportsIndex, height: typing.SupportsFloat | typing.SupportsIndex, nx: typing.SupportsInt | typing.SupportsIndex, ny: typing.SupportsInt | typing.SupportsIndex, plane: str = 'xz', center: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
+def cloth_grid(width: typing.SupportsFloat | typing.SupportsIndex, height: typing.SupportsFloat | typing.SupportsIndex, nx: int, ny: int, plane: str = 'xz', center: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
     """
     Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).
     """
-def colour_constraints(particles: typing.Annotated[numpy.typing.ArrayLike, numpy.int32], num_particles: typing.SupportsInt | typing.SupportsIndex, min_colour_size: typing.SupportsInt | typing.SupportsIndex = 64) -> dict:
+def colour_constraints(particles: typing.Annotated[numpy.typing.ArrayLike, numpy.int32], num_particles: int, min_colour_size: int = 64) -> dict:
     """
     The greedy colouring a Model gives a batch whose constraint c has particles[c] (see Model.colouring).
     """
-def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, iterations: typing.SupportsInt | typing.SupportsIndex) -> float:
+def corrected_stiffness(stiffness: typing.SupportsFloat | typing.SupportsIndex, iterations: int) -> float:
     """
     1 - (1 - k)^(1/iterations), Müller 2007 §3.3.
     """
@@ -741,11 +743,11 @@ def save_mesh(mesh: Mesh, path: str) -> None:
     """
     Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).
     """
-def tear(model: typing.Any, state: typing.Any, *, max_strain: typing.SupportsFloat | typing.SupportsIndex, max_tears: typing.SupportsInt | typing.SupportsIndex = 1) -> dict:
+def tear(model: typing.Any, state: typing.Any, *, max_strain: typing.SupportsFloat | typing.SupportsIndex, max_tears: int = 1) -> dict:
     """
     Tearing (Müller 2007 §4.6): splits up to max_tears vertices of distance constraints strained past max_strain (|l - l0|/l0 > 0), most strained first. Returns a dict: torn (how many), split (the particles split), model and state — new ones if anything tore (the new particles are appended), else the ones given.
     """
-def tet_box(size: typing.Any, divisions: typing.Annotated[collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], "FixedSize(3)"], center: typing.Any = [0.0, 0.0, 0.0]) -> TetMesh:
+def tet_box(size: typing.Any, divisions: typing.Annotated[collections.abc.Sequence[int], "FixedSize(3)"], center: typing.Any = [0.0, 0.0, 0.0]) -> TetMesh:
     """
     A box of size (3 lengths, m) centred on `center` (m) with divisions (nx, ny, nz) cells of 6 positively oriented tets each (Kuhn split, conforming).
     """
@@ -758,5 +760,9 @@ def volume_violations(model: Model, state: State) -> numpy.typing.NDArray[numpy.
     Violation V - V0 of every tetrahedral volume constraint, m³.
     """
 MAX_COLOURS: int = 64
+MAX_INDEX: int = 2147483647
+MAX_ITERATIONS: int = 1000000
+MAX_SUBSTEPS: int = 1000000
+MAX_THREADS: int = 1024
 MIN_COLOUR_SIZE: int = 64
 MIN_TASK_COLOUR_SIZE: int = 8
