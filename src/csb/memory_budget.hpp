@@ -31,7 +31,8 @@ inline void require_memory_for(const std::string& what, double particles) {
   const double need = particles * kBytesPerParticle, have = physical_memory_bytes();
   if (have > 0 && need > have)
     throw InvalidArgument(what + ": " + detail::str(particles) + " particles would need about " +
-                          detail::str(need / 1e9) + " GB as a stepped model (662 B a particle), more than this "
+                          detail::str(need / 1e9) + " GB as a stepped model (" + detail::str(kBytesPerParticle) +
+                          " B a particle), more than this "
                           "machine's " + detail::str(have / 1e9) + " GB of memory");
 }
 

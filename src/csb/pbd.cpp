@@ -66,21 +66,22 @@ void jacobi_counts(const Model& model, std::vector<Real>& count) {
   for (Index i : model.attachments.particle) count[i] += 1;
 }
 
-// XPBD with averaged Jacobi: the relaxation of a constraint on particles ids, the smallest of
-// their 1/count (PbdStepper::set_relaxation); 1 without relaxation (relax null).
-template <std::size_t N>
-Real relaxation(const Real* relax, const std::array<Index, N>& ids) {
-  if (!relax) return 1;
-  Real om = 1;
-  for (Index i : ids) om = std::min(om, relax[i]);
-  return om;
-}
-Real balloon_relaxation(const Real* relax, const Index* ids, Index count) {
+// XPBD with averaged Jacobi: the relaxation of a constraint on particles ids[0 .. count), the
+// smallest of their 1/count (PbdStepper::set_relaxation); 1 without relaxation (relax null).
+Real relaxation(const Real* relax, const Index* ids, Index count) {
   if (!relax) return 1;
   Real om = 1;
   for (Index k = 0; k < count; ++k) om = std::min(om, relax[ids[k]]);
   return om;
 }
+template <std::size_t N>
+Real relaxation(const Real* relax, const std::array<Index, N>& ids) {
+  return relaxation(relax, ids.data(), static_cast<Index>(N));
+}
+
+// A relaxed multiplier: λ moves by om times the kernel's Δλ (after its sign clamp), like the
+// positions; `lambda` holds the kernel's result, `before` its value before the kernel.
+void relax_multiplier(Real& lambda, Real before, Real om) { lambda = before + om * (lambda - before); }
 
 // The volume and balloon coefficients of one sweep, in the roles the distance ones have: PBD
 // stiffness (corrected or not), XPBD α̃ = α/h² and γ = α β / h; and the balloon gradient workspace.
@@ -623,9 +624,8 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
   const auto& att = model.attachments;
   Local local[4];
   Real om = 1;  // the relaxation of the constraint being projected
-  // XPBD, relaxed: λ moves by om times the kernel's Δλ (after its sign clamp), like the positions.
   const auto relax_lambda = [&](Real& l, Real before) {
-    if (relax) l = before + om * (l - before);
+    if (relax) relax_multiplier(l, before, om);
   };
   // Where the kernel works on particle `slot`'s position: in place, or a local copy.
   const auto at = [&](int slot, Index i) -> Real* {
@@ -707,7 +707,7 @@ static void sweep_batches(const Model& model, const Real* w, const PbdSettings& 
     if constexpr (M == Method::Xpbd)
       project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0, x_start,
                       vt.a_balloon[c], vt.g_balloon[c], &lambda.balloon[c], vt.grad,
-                      balloon_relaxation(relax, ids, bal.num_particles(c)));
+                      relaxation(relax, ids, bal.num_particles(c)));
     else
       project_balloon(read, out, counts, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
                       vt.k_balloon[c], nullptr, 0, 0, nullptr, vt.grad);
@@ -1030,7 +1030,7 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
                         w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
     if (Jacobi && relax) {
       om = relaxation(relax, q);
-      b.lambda[k] = before + om * (b.lambda[k] - before);
+      relax_multiplier(b.lambda[k], before, om);
     }
   } else {
     project_volume(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
@@ -1054,7 +1054,7 @@ CSB_INLINE void bending_xpbd_relaxed(ColouredFour& b, Index k, const Real* r, Re
   project_bending_xpbd(local[0], local[1], local[2], local[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3],
                        w[0], w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
   const Real om = relaxation(relax, q);
-  b.lambda[k] = before + om * (b.lambda[k] - before);
+  relax_multiplier(b.lambda[k], before, om);
   for (int s = 0; s < 4; ++s)
     for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
 }
@@ -1075,7 +1075,7 @@ CSB_INLINE void attachment_one(ColouredAttachments& b, Index k, const Real* r, R
     project_attachment_xpbd(at, x + 3 * i, b.w[k], b.target[k].data(), b.alpha[k], b.gamma[k], b.lambda[k]);
     if (Jacobi && relax) {
       om = relax[i];
-      b.lambda[k] = before + om * (b.lambda[k] - before);
+      relax_multiplier(b.lambda[k], before, om);
     }
   } else {
     project_attachment(at, b.w[k], b.target[k].data(), b.k[k]);
@@ -1650,7 +1650,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
               if constexpr (M == Method::Xpbd)
                 project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0,
                                 x, a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data(),
-                                balloon_relaxation(relax, ids, bal.num_particles(c)));
+                                relaxation(relax, ids, bal.num_particles(c)));
               else
                 project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
                                 k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
