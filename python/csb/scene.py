@@ -712,9 +712,15 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     """Read and check a scene file (or the name of a bundled scene, see :func:`bundled_scenes`)."""
     p = find_scene(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        raw = p.read_bytes()
     except OSError as e:
         raise SceneError(f"{p}: cannot read the scene file: {e.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:  # TOML is UTF-8 by definition
+        line = raw[: e.start].count(b"\n") + 1
+        raise SceneError(f"{p}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); "
+                         "TOML files are UTF-8") from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:

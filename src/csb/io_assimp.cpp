@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
 #include <filesystem>
 #include <memory>
@@ -213,20 +214,61 @@ void child_import(const std::string& path, int fd, double max_memory) {
   ::_exit(sent ? 0 : 3);
 }
 
+RawScene receive(pid_t pid, int fd, double timeout, double max_memory);
+
+// What the child printed (Assimp's assertion messages go to stderr): its last line, trimmed, or "".
+std::string last_printed_line(int fd) {
+  char text[4096];
+  const off_t size = ::lseek(fd, 0, SEEK_END);
+  if (size <= 0) return {};
+  const off_t from = std::max<off_t>(0, size - static_cast<off_t>(sizeof text));
+  const ssize_t n = ::pread(fd, text, sizeof text, from);
+  if (n <= 0) return {};
+  std::string s(text, static_cast<std::size_t>(n));
+  while (!s.empty() && std::isspace(static_cast<unsigned char>(s.back()))) s.pop_back();
+  const std::size_t nl = s.find_last_of('\n');
+  if (nl != std::string::npos) s.erase(0, nl + 1);
+  for (char& c : s)
+    if (!std::isprint(static_cast<unsigned char>(c))) c = '?';
+  return s.size() > 300 ? s.substr(0, 300) + "..." : s;
+}
+
 RawScene read_isolated(const std::string& path, double timeout, double max_memory) {
   int fds[2];
   if (::pipe(fds) != 0) return read_in_process(path);
+  // The child's stdout and stderr go to an unlinked temporary file, never to the user's terminal;
+  // on failure its last line is quoted in the error.
+  std::FILE* printed = std::tmpfile();
   const pid_t pid = ::fork();
   if (pid < 0) {
     ::close(fds[0]);
     ::close(fds[1]);
+    if (printed) std::fclose(printed);
     return read_in_process(path);
   }
   if (pid == 0) {
     ::close(fds[0]);
+    const int sink = printed ? ::fileno(printed) : ::open("/dev/null", O_WRONLY);
+    if (sink >= 0) {
+      ::dup2(sink, STDOUT_FILENO);
+      ::dup2(sink, STDERR_FILENO);
+    }
     child_import(path, fds[1], max_memory);
   }
   ::close(fds[1]);
+  RawScene raw = receive(pid, fds[0], timeout, max_memory);
+  if (printed) {
+    if (!raw.ok && !raw.error.empty()) {
+      const std::string said = last_printed_line(::fileno(printed));
+      if (!said.empty()) raw.error += " (Assimp printed: " + said + ")";
+    }
+    std::fclose(printed);
+  }
+  return raw;
+}
+
+// The parent's side: read the child's result until the deadline, then reap the child.
+RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
   std::string bytes;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout);
   bool timed_out = false;
@@ -237,16 +279,16 @@ RawScene read_isolated(const std::string& path, double timeout, double max_memor
       timed_out = true;
       break;
     }
-    pollfd pfd{fds[0], POLLIN, 0};
+    pollfd pfd{fd, POLLIN, 0};
     const int r = ::poll(&pfd, 1, static_cast<int>(std::min<long long>(left.count(), 1000)));
     if (r < 0 && errno == EINTR) continue;
     if (r <= 0) continue;
-    const ssize_t n = ::read(fds[0], buffer, sizeof buffer);
+    const ssize_t n = ::read(fd, buffer, sizeof buffer);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) break;  // EOF: the child is done (or died)
     bytes.append(buffer, static_cast<std::size_t>(n));
   }
-  ::close(fds[0]);
+  ::close(fd);
   if (timed_out) ::kill(pid, SIGKILL);
   int status = 0;
   while (::waitpid(pid, &status, 0) < 0 && errno == EINTR) {
