@@ -404,6 +404,55 @@ std::vector<std::string> PbdStepper::accuracy_notes_to_report(const Model& model
   return {msg.str()};
 }
 
+std::vector<std::string> PbdStepper::degenerate_notes_to_report(const Model& model, const State& state) {
+  if (degenerate_reported_.count(model.id) || state.x.cols() != model.num_particles()) return {};
+  // A new model, the next check's step reached, or a state from further back (another state).
+  const bool due = model.id != degenerate_model_ || state.step >= degenerate_next_ ||
+                   state.step + kDegenerateCheckSteps < degenerate_next_;
+  if (!due) return {};
+  degenerate_model_ = model.id;
+  degenerate_next_ = state.step + kDegenerateCheckSteps;
+  const Real* w = model.inv_mass.data();
+  const auto& d = model.distance;
+  Index coincident = 0, first_distance = -1;
+  for (Index c = 0; c < d.size(); ++c) {
+    const auto [i, j] = d.particles[c];
+    const Real tiny = 1e-9 * d.rest_length[c];
+    if ((state.x.col(i) - state.x.col(j)).squaredNorm() < tiny * tiny && w[i] + w[j] > 0) {
+      if (first_distance < 0) first_distance = c;
+      ++coincident;
+    }
+  }
+  const auto& v = model.volume;
+  Index collapsed = 0, first_tet = -1;
+  for (Index t = 0; t < v.size(); ++t) {
+    const auto& q = v.particles[t];
+    Vec3 grad[4];
+    tet_volume_gradient(state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3]), grad);
+    if (!volume_gradient_usable(grad, state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3])) &&
+        w[q[0]] + w[q[1]] + w[q[2]] + w[q[3]] > 0) {
+      if (first_tet < 0) first_tet = t;
+      ++collapsed;
+    }
+  }
+  if (coincident == 0 && collapsed == 0) return {};
+  degenerate_reported_.insert(model.id);
+  std::ostringstream msg;
+  msg << "the state is degenerate at t = " << state.t << " s:";
+  if (coincident > 0) {
+    const auto [i, j] = d.particles[first_distance];
+    msg << " " << coincident << " distance constraint(s) join coincident particles (first: constraint "
+        << first_distance << ", particles " << i << " and " << j << ", rest length " << d.rest_length[first_distance]
+        << " m)" << (collapsed > 0 ? ";" : "");
+  }
+  if (collapsed > 0)
+    msg << " " << collapsed << " tet(s) are collapsed onto a line or a point (first: volume constraint " << first_tet
+        << ")";
+  msg << ". Their gradient has no direction, so " << method_label(settings_.method)
+      << " leaves them alone and they stay collapsed; separate the particles (state.x) before stepping";
+  return {msg.str()};
+}
+
 void PbdStepper::check_divergence(const Model& model, State& state, Real h) {
   const Index n = model.num_particles();
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();

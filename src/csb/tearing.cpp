@@ -131,6 +131,13 @@ TearResult tear(const Model& model, State& state, Real max_strain, Index max_tea
   if (max_tears < 1) throw InvalidArgument("tear: max_tears must be >= 1, got " + std::to_string(max_tears));
   if (state.x.cols() != model.num_particles() || state.v.cols() != model.num_particles())
     throw InvalidArgument("tear: the state does not belong to the model");
+  // A NaN strain compares false with every threshold: a non-finite state would tear nothing, silently.
+  for (Index i = 0; i < state.x.cols(); ++i)
+    if (!state.x.col(i).allFinite() || !state.v.col(i).allFinite())
+      throw InvalidArgument("tear: particle " + std::to_string(i) + " has a non-finite " +
+                            (state.x.col(i).allFinite() ? "velocity" : "position") +
+                            "; the state has diverged and cannot be torn (csb.SimulationError is raised by a stepper "
+                            "before it gets there)");
   TearResult result;
   result.model = std::shared_ptr<const Model>(std::shared_ptr<const Model>(), &model);  // non-owning until torn
   const DistanceBatch& d = model.distance;

@@ -879,6 +879,8 @@ PYBIND11_MODULE(_core, m) {
           for (const std::string& note : s.accuracy_notes_to_report(model))
             if (PyErr_WarnEx(accuracy_warning, note.c_str(), 1) < 0) throw py::error_already_set();
           s.material_reported(model);
+          for (const std::string& note : s.degenerate_notes_to_report(model, state))
+            if (PyErr_WarnEx(accuracy_warning, note.c_str(), 1) < 0) throw py::error_already_set();
         }
         try {
           py::gil_scoped_release release;
