@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,11 @@ class RunResult:
     rows: list[dict[str, float]] = field(default_factory=list)   # metrics per frame
     files: list[Path] = field(default_factory=list)
     tears: int = 0                       # vertices split by tearing
+    memory: dict[str, int] = field(default_factory=dict)
+    """Bytes at the end of the run: ``model`` (Model.memory's total), ``stepper``
+    (PbdStepper.workspace_bytes), ``state`` (positions and velocities) and ``peak_resident``, the
+    process's peak resident memory so far (what sizes a run: it includes building the model,
+    about 5 times the model's own arrays for a cloth; absent where the platform does not say)."""
 
     @property
     def final(self) -> dict[str, float]:
@@ -92,6 +98,10 @@ class RunResult:
                if sim.model.balloons["rest_volume"].size else "")
             + (f", {self.tears} vertices torn" if sim.scene.tearing is not None else "")
             + f"; largest strain {100 * self.largest_strain:.3g} %, energy growth {self.energy_growth:.3g} J"
+            + (f"\n  memory: model {self.memory['model'] / 1e6:.3g} MB + stepper {self.memory['stepper'] / 1e6:.3g} MB"
+               f" + state {self.memory['state'] / 1e6:.3g} MB"
+               + (f", process peak {self.memory['peak_resident'] / 1e6:.4g} MB resident" if "peak_resident" in self.memory
+                  else "") if self.memory else "")
             + "".join(f"\n  CHECK: {c}" for c in self.checks())
         )
 
@@ -111,6 +121,26 @@ def strain_allowed(model: "_core.Model", solver) -> float:
         weight = float(np.sum(np.asarray(model.mass))) * float(np.linalg.norm(solver.gravity))
         return float(np.max(np.asarray(d["compliance"]) * weight / np.asarray(d["rest_length"])))
     return float("inf") if np.any(np.asarray(d["stiffness"]) < 1) else 0.0
+
+
+def peak_resident_bytes() -> int | None:
+    """The process's peak resident memory (bytes), or None where the platform does not report it."""
+    try:
+        import resource
+    except ImportError:  # Windows
+        return None
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return int(peak if sys.platform == "darwin" else peak * 1024)  # bytes on macOS, KiB elsewhere
+
+
+def memory_used(sim: "Simulation") -> dict[str, int]:
+    """The run's memory, as in RunResult.memory."""
+    out = dict(model=int(sim.model.memory["total"]), stepper=int(sim.stepper.workspace_bytes),
+               state=int(2 * 3 * 8 * sim.model.num_particles))
+    peak = peak_resident_bytes()
+    if peak is not None:
+        out["peak_resident"] = peak
+    return out
 
 
 def summary_title(scene: "Scene", num_particles: int) -> str:
@@ -171,6 +201,7 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             bar.close()
         if writer is not None:
             result.files += writer.close()
+        result.memory = memory_used(sim)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         if scene.output.csv:

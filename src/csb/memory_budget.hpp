@@ -21,9 +21,12 @@ inline double physical_memory_bytes() {
   return 0;
 }
 
-// What a particle of a generated shape costs once it is a Model stepped by a PbdStepper: a
-// 1024 x 1024 cloth measured 662 B a particle (papers/benchmarks.md), its building more at its peak.
-constexpr double kBytesPerParticle = 662;
+// What a particle of a generated shape costs at the peak of its building (the builder's arrays,
+// the mesh and the model at once), which is above what the built model and its stepper then hold:
+// cloths of 512 x 512 and 1024 x 1024 particles (XPBD, compliant stretch and bending) peaked at
+// 986 and 935 B a particle of resident memory while building and at 594 and 585 B while stepping
+// (docs/design.md, "Memory").
+constexpr double kBytesPerParticle = 1000;
 
 // Throws InvalidArgument, with the estimate, when `particles` of shape `what` could not be
 // simulated in this machine's memory.
@@ -31,8 +34,8 @@ inline void require_memory_for(const std::string& what, double particles) {
   const double need = particles * kBytesPerParticle, have = physical_memory_bytes();
   if (have > 0 && need > have)
     throw InvalidArgument(what + ": " + detail::str(particles) + " particles would need about " +
-                          detail::str(need / 1e9) + " GB as a stepped model (" + detail::str(kBytesPerParticle) +
-                          " B a particle), more than this "
+                          detail::str(need / 1e9) + " GB at the peak of building the model (" +
+                          detail::str(kBytesPerParticle) + " B a particle), more than this "
                           "machine's " + detail::str(have / 1e9) + " GB of memory");
 }
 
