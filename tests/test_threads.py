@@ -124,3 +124,34 @@ def test_a_long_step_stops_on_a_signal_at_the_end_of_a_completed_sub_step(floor)
     steps = state.step
     stepper.step(model, state, 1)  # the stepper is free again
     assert state.step == steps + 1
+
+
+def test_the_force_stepper_stops_on_a_signal_between_steps():
+    """The force-based stepper too: a run of 10^6 steps (minutes) stops within a fraction of a
+    second of SIGINT, at the end of a completed step, and steps on from there."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 16, 16), density=0.2, stretch_compliance=1e-4)
+    model = b.build()
+    state = model.initial_state()
+    stepper = csb.ForceStepper(dt=1e-4)
+
+    def handler(signum, frame):
+        raise Stop
+
+    previous = signal.signal(signal.SIGINT, handler)
+    timer = threading.Timer(0.2, os.kill, args=(os.getpid(), signal.SIGINT))
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(Stop):
+            stepper.step(model, state, 10**6)
+        waited = time.monotonic() - t0
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert waited < 2.0
+    assert 0 < state.step < 10**6 and np.all(np.isfinite(state.x))
+    assert state.t == pytest.approx(state.step * 1e-4, rel=1e-9)
+    steps = state.step
+    stepper.step(model, state, 1)
+    assert state.step == steps + 1

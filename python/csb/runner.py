@@ -155,6 +155,13 @@ def summary_title(scene: "Scene", num_particles: int) -> str:
 def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progress: bool = False) -> RunResult:
     sim = scene.build()
     steps = scene.steps
+    try:  # a duration beyond the machine is refused before the first step (each call is a frame's steps)
+        _core._require_time_for(f"duration {scene.duration:g} s = {steps} steps of {scene.solver.dt:g} s",
+                                float(steps) * sim.stepper.operations(sim.model, 1))
+    except _core.ParameterError as e:
+        from .scene import SceneError
+
+        raise SceneError(f"{scene.path}: {e}") from None
     steps_per_frame = max(1, round(1.0 / (scene.output.fps * scene.solver.dt)))
     writer = None
     out = Path(out_dir) if out_dir is not None else None

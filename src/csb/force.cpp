@@ -1,4 +1,5 @@
 #include "csb/force.hpp"
+#include "csb/memory_budget.hpp"
 #include "csb/format.hpp"
 
 #include <cmath>
@@ -27,9 +28,13 @@ ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) 
   if (!(s.drag >= 0) || !std::isfinite(s.drag)) throw InvalidArgument("drag must be a finite rate >= 0 1/s, got " + str(s.drag));
 }
 
-void ForceStepper::step(const Model& model, State& state, std::int64_t steps) {
+void ForceStepper::step(const Model& model, State& state, std::int64_t steps, const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "ForceStepper.step");
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  // A force evaluation visits every spring (distance constraint and attachment) and particle.
+  require_time_for("steps = " + std::to_string(steps),
+                   static_cast<double>(steps) * settings_.substeps *
+                       (static_cast<double>(model.distance.size() + model.attachments.size()) + model.num_particles()));
   ReferenceSettings rs;
   rs.gravity = settings_.gravity;
   rs.damping = settings_.damping;
@@ -67,6 +72,12 @@ void ForceStepper::step(const Model& model, State& state, std::int64_t steps) {
     throw SimulationError(msg.str());
   };
   for (std::int64_t s = 0; s < steps; ++s) {
+    if (s > 0 && interrupt && interrupt()) {
+      net.unpack(y.data(), x, v);
+      state.x = x;
+      state.v = v;
+      throw Interrupted("interrupted after " + std::to_string(s) + " of " + std::to_string(steps) + " steps");
+    }
     for (int sub = 0; sub < settings_.substeps; ++sub) {
       if (!have_a) evaluate(y.data(), f.data());  // f = [v; a]
       have_a = false;

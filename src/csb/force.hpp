@@ -14,6 +14,7 @@
 #include "csb/reference.hpp"
 #include "csb/use_guard.hpp"
 
+#include <functional>
 #include <memory>
 
 namespace csb {
@@ -39,7 +40,10 @@ class ForceStepper {
   // Throws InvalidArgument for a hard constraint (compliance 0), SimulationError naming the
   // step and particle when a position becomes non-finite (the state is then left at the last
   // finite sub-step).
-  void step(const Model& model, State& state, std::int64_t steps = 1);
+  // Advances `steps` steps of dt. A request beyond a year's work (memory_budget.hpp) is refused
+  // before the first; `interrupt`, if given, is asked between steps whether to stop (then
+  // Interrupted is thrown, the state left at the end of the last completed step).
+  void step(const Model& model, State& state, std::int64_t steps = 1, const std::function<bool()>& interrupt = {});
 
   // Evaluations of the network's right-hand side since construction: one per sub-step for every
   // method (undamped velocity Verlet reuses a(x') as the next sub-step's a(x)); two per sub-step

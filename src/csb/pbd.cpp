@@ -9,6 +9,7 @@
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
+#include "csb/memory_budget.hpp"
 
 #include <Eigen/Eigenvalues>
 
@@ -243,6 +244,7 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
                           std::to_string(state.v.cols()) + " velocities, but the model has " + std::to_string(n) +
                           " particles");
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  require_time_for("steps = " + std::to_string(steps), operations(model, steps));
   for (const Positions* q : {&state.x, &state.v})
     if (const Index i = first_non_finite(*q); i >= 0)
       throw SimulationError("before step " + std::to_string(state.step) + ": particle " + std::to_string(i) +

@@ -169,6 +169,12 @@ class PbdStepper {
 
   // Constraint projections one step performs on this model.
   std::int64_t projections_per_step(const Model& model) const;
+  // What `steps` steps cost at the least, in constraint projections and particle updates: the
+  // quantity step() refuses beyond a year's work (memory_budget.hpp, require_time_for).
+  double operations(const Model& model, std::int64_t steps) const {
+    return static_cast<double>(steps) * settings_.substeps *
+           (static_cast<double>(settings_.iterations) * model.num_constraints() + model.num_particles());
+  }
 
   // XPBD only: the multipliers of the last sub-step (empty for the other methods), indexed as
   // the model's batches.

@@ -7,6 +7,7 @@
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
 #include "csb/coloured_bending.hpp"
+#include "csb/memory_budget.hpp"
 #include "int_arg.hpp"
 #ifdef CSB_HAS_VIEWER
 #include "viewer.hpp"
@@ -359,6 +360,7 @@ PYBIND11_MODULE(_core, m) {
 
   m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
         "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
+  m.def("_require_time_for", &require_time_for, py::arg("what"), py::arg("operations"));
   m.def("readable_extensions", &readable_extensions, "Extensions (with the dot) that load_mesh reads.");
   m.def("check_obj", &check_obj, py::arg("path"), "Strict OBJ syntax check naming the line of the first problem.");
 
@@ -899,6 +901,11 @@ PYBIND11_MODULE(_core, m) {
          "read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 "
          "(k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.")
       .def("projections_per_step", &PbdStepper::projections_per_step, py::arg("model"))
+      .def("operations", [](const PbdStepper& s, const Model& model, IntArg steps_arg) {
+        return s.operations(model, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64));
+      }, py::arg("model"), py::arg("steps"),
+         "Constraint projections and particle updates of `steps` steps of the model: step() refuses "
+         "(csb.ParameterError, with the estimate) a request that would take more than a year at 1e9 a second")
       .def("multipliers", [](const PbdStepper& s) {
         const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.multipliers");
         const Multipliers& l = s.multipliers();
@@ -1033,9 +1040,16 @@ PYBIND11_MODULE(_core, m) {
            "drag: 1/s.")
       .def("step", [](ForceStepper& s, const Model& model, State& state, IntArg steps_arg) {
         const std::int64_t steps = in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64);
-        py::gil_scoped_release release;
-        s.step(model, state, steps);
-      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1)
+        try {
+          py::gil_scoped_release release;
+          s.step(model, state, steps, python_interrupt());
+        } catch (const Interrupted&) {
+          throw py::error_already_set();  // the KeyboardInterrupt (or other) the signal handler raised
+        }
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between steps, "
+         "the state left at the end of the last completed one). A request that would take more than a year "
+         "at 1e9 spring and particle updates a second is refused (csb.ParameterError, with the estimate).")
       .def_property_readonly("force_evaluations", &ForceStepper::force_evaluations,
            "Evaluations of the spring network's forces since construction: one per sub-step (velocity Verlet "
            "reuses the end of a sub-step's forces at the start of the next, unless damping or drag make them "
