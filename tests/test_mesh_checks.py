@@ -194,12 +194,66 @@ def test_a_file_without_an_extension_that_assimp_does_not_recognise(tmp_path):
                                             r"content \(.*\); name it with its format's extension \(csb reads "
                                             r".*\.glb .*\.obj"):
         csb.load_mesh(tmp_path / "noise")
-    # Assimp 5.2 recognises a GLB (binary glTF) and a binary STL by their extensions only; csb
-    # knows them by their signature (GLB's magic, STL's size matching its triangle count).
-    for ext in ("glb", "stl"):
-        csb.save_mesh(csb.cloth_grid(1.0, 1.0, 3, 3, plane="xy"), str(tmp_path / f"cloth.{ext}"))
+
+
+THREE_MF_MODEL = """<?xml version="1.0" encoding="UTF-8"?>
+<model unit="meter" xmlns="http://schemas.microsoft.com/3dmanufacturing/core/2015/02">
+ <resources><object id="1" type="model"><mesh>
+  <vertices><vertex x="0" y="0" z="0"/><vertex x="1" y="0" z="0"/><vertex x="1" y="1" z="0"/></vertices>
+  <triangles><triangle v1="0" v2="1" v3="2"/></triangles>
+ </mesh></object></resources>
+ <build><item objectid="1"/></build>
+</model>
+"""
+
+
+def write_3mf(path):
+    """A minimal 3MF package (Assimp 5.2 does not read back the 3MF its own exporter writes)."""
+    import zipfile
+
+    with zipfile.ZipFile(path, "w") as z:
+        z.writestr("[Content_Types].xml", '<?xml version="1.0" encoding="UTF-8"?><Types xmlns="http://schemas.'
+                   'openxmlformats.org/package/2006/content-types"><Default Extension="rels" ContentType="application/'
+                   'vnd.openxmlformats-package.relationships+xml"/><Default Extension="model" ContentType="application/'
+                   'vnd.ms-package.3dmanufacturing-3dmodel+xml"/></Types>')
+        z.writestr("_rels/.rels", '<?xml version="1.0" encoding="UTF-8"?><Relationships xmlns="http://schemas.'
+                   'openxmlformats.org/package/2006/relationships"><Relationship Target="/3D/3dmodel.model" Id="r0" '
+                   'Type="http://schemas.microsoft.com/3dmanufacturing/2013/01/3dmodel"/></Relationships>')
+        z.writestr("3D/3dmodel.model", THREE_MF_MODEL)
+
+
+def test_formats_assimp_knows_by_extension_only_are_read_by_their_signature(tmp_path):
+    """Assimp 5.2 recognises GLB, STL, X3D and 3MF by their extensions only; csb knows them by
+    their content (GLB's magic, a binary STL's size matching its triangle count or an ASCII STL's
+    'solid', an <X3D element, a zip holding 3D/3dmodel.model) and reads them through a link that
+    has the extension, removed afterwards."""
+    import tempfile
+
+    before = set(Path(tempfile.gettempdir()).glob("csb-mesh-*"))
+    grid = csb.cloth_grid(1.0, 1.0, 3, 3, plane="xy")
+    for ext in ("glb", "stl", "x3d"):
+        csb.save_mesh(grid, str(tmp_path / f"cloth.{ext}"))
         (tmp_path / f"cloth.{ext}").rename(tmp_path / f"{ext}_cloth")
-        with pytest.raises(csb.MeshError, match=rf"{ext}_cloth: the file has no extension and Assimp did not "
-                                                rf"recognise its content \(.*\); name it with its format's "
-                                                rf"extension \(it looks like a '\.{ext}' file\)"):
-            csb.load_mesh(tmp_path / f"{ext}_cloth")
+        mesh = csb.load_mesh(tmp_path / f"{ext}_cloth")
+        assert (mesh.num_vertices, len(mesh.triangles)) == (9, 8), ext
+    (tmp_path / "ascii_stl").write_text(TRIANGLE_STL)
+    assert is_the_triangle(csb.load_mesh(tmp_path / "ascii_stl"))
+    write_3mf(tmp_path / "print.3mf")
+    assert is_the_triangle(csb.load_mesh(tmp_path / "print.3mf"))
+    (tmp_path / "print.3mf").rename(tmp_path / "print")
+    assert is_the_triangle(csb.load_mesh(tmp_path / "print"))
+    assert set(Path(tempfile.gettempdir()).glob("csb-mesh-*")) == before
+    # What the link reads is still checked: a damaged GLB without an extension is an error naming the file.
+    (tmp_path / "broken").write_bytes((tmp_path / "glb_cloth").read_bytes()[:40])
+    with pytest.raises(csb.MeshError, match=r"broken: "):
+        csb.load_mesh(tmp_path / "broken")
+
+
+@pytest.mark.parametrize("name, codec, order", [("le.obj", "utf-16-le", "little"), ("be.off", "utf-16-be", "big"),
+                                                ("le", "utf-16-le", "little")])
+def test_utf16_without_a_byte_order_mark_is_named(tmp_path, name, codec, order):
+    text = TRIANGLE_OFF if name.endswith(".off") else TRIANGLE_OBJ
+    (tmp_path / name).write_bytes(text.encode(codec))
+    with pytest.raises(csb.MeshError, match=rf"{name}: the file looks like UTF-16 \({order}-endian\) text without a "
+                                            r"byte-order mark .*save it as UTF-8"):
+        csb.load_mesh(tmp_path / name)

@@ -137,8 +137,9 @@ def load_mesh(
     Raises FileNotFoundError for a missing file and :class:`csb.MeshError`, naming the file (and
     the line, for OBJ and OFF), for an empty, corrupt or unsupported file or one without triangles
     (a point cloud says how many points it holds; motion capture, such as BVH, holds a skeleton and
-    no surface), and for UTF-16 or UTF-32 text (naming the encoding). A file without an extension
-    is read by its content where Assimp recognises it.
+    no surface), and for UTF-16 or UTF-32 text (naming the encoding, with or without a byte-order
+    mark). A file without an extension is read by its content: Assimp recognises most formats so,
+    and csb recognises the ones Assimp 5.2 knows by extension only (GLB, STL, X3D, 3MF).
     Assimp runs in a child process (on POSIX systems): a file on which it would crash or loop
     gives a MeshError after at most ``timeout`` seconds (0: 10 s + 2 s per MB of file), and one
     on which it would allocate more than ``max_memory`` bytes (default 2 GiB, beyond what this

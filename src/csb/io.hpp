@@ -15,7 +15,8 @@ namespace csb {
 // Throws FileNotFound for a missing path and MeshError (naming the file, and the line for OBJ)
 // for an empty, corrupt or unsupported file, one without triangles (a point cloud, motion
 // capture or another skeleton without a surface) or UTF-16/32 text. A path without an
-// extension is read by its content (its first word, else Assimp's detection).
+// extension is read by its content (sniff_format, else Assimp's detection); the formats Assimp
+// 5.2 knows by extension only are read through a temporary link that has it.
 //
 // On POSIX systems Assimp runs in a child process: a file on which it crashes or loops gives a
 // MeshError, after at most `timeout` seconds (0: 10 s + 2 s per MB of file), and one on which it
@@ -39,12 +40,15 @@ std::vector<std::string> readable_extensions();
 void check_obj(const std::string& path);
 
 // Refuses a file that starts with a UTF-16 or UTF-32 byte-order mark, naming the encoding (the
-// text readers take ASCII or UTF-8; a UTF-8 mark is skipped). Throws MeshError.
+// text readers take ASCII or UTF-8; a UTF-8 mark is skipped), or with UTF-16 text without one
+// (eight printable characters each beside a zero byte). Throws MeshError.
 void check_encoding(const std::string& path);
 
 // The extension of a file named without one, from its first word where that is unambiguous
-// (".ply", ".off", ".bvh"), or from a binary signature (".glb"; ".stl" when the size matches a
-// binary STL's triangle count); "" otherwise (Assimp then detects the format from the content).
+// (".ply", ".off", ".bvh", ".stl" for "solid"), from its first 4 kB (".x3d" for an <X3D element),
+// or from a binary signature (".glb"; ".stl" when the size matches a binary STL's triangle count;
+// ".3mf" for a zip holding 3D/3dmodel.model); "" otherwise (Assimp then detects the format from
+// the content).
 std::string sniff_format(const std::string& path);
 
 // Header consistency checks run before Assimp sees the file (Assimp 5.2 loops forever on some

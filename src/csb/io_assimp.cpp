@@ -10,6 +10,7 @@
 #include <cerrno>
 #include <chrono>
 #include <cstdint>
+#include <cstdlib>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -346,6 +347,37 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
 }
 #endif
 
+// A symbolic link to `target` named with `ext`, in a fresh temporary directory, removed with
+// both when this goes out of scope; `path` is empty when target is empty or no link could be
+// made (then the file is read as it is).
+struct NamedLink {
+  std::string path;
+  fs::path dir;
+  NamedLink(const std::string& target, const std::string& ext) {
+#if CSB_ISOLATED_IMPORT  // POSIX: mkdtemp
+    if (target.empty()) return;
+    std::error_code ec;
+    const fs::path absolute = fs::absolute(target, ec);
+    if (ec) return;
+    std::string pattern = (fs::temp_directory_path(ec) / "csb-mesh-XXXXXX").string();
+    if (ec || ::mkdtemp(pattern.data()) == nullptr) return;
+    dir = pattern;
+    const fs::path link = dir / ("mesh" + ext);
+    fs::create_symlink(absolute, link, ec);
+    if (!ec) path = link.string();
+#else
+    (void)target;
+    (void)ext;
+#endif
+  }
+  ~NamedLink() {
+    std::error_code ec;
+    if (!dir.empty()) fs::remove_all(dir, ec);
+  }
+  NamedLink(const NamedLink&) = delete;
+  NamedLink& operator=(const NamedLink&) = delete;
+};
+
 }  // namespace
 
 Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout,
@@ -377,12 +409,16 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
   if (ext == ".stl") check_stl(path);
   if (ext == ".off") check_off(path);
 
+  // Assimp 5.2 knows these self-contained formats by their extension only: an unnamed one is read
+  // through a link that has it.
+  const NamedLink link(named || !(ext == ".stl" || ext == ".glb" || ext == ".x3d" || ext == ".3mf") ? "" : path, ext);
+  const std::string& source = link.path.empty() ? path : link.path;
 #if CSB_ISOLATED_IMPORT
   // Automatic deadline: generous for real files (Assimp reads tens of MB/s).
   if (timeout == 0) timeout = 10.0 + 2.0 * static_cast<double>(bytes) / 1e6;
-  const RawScene raw = read_isolated(path, timeout, max_memory);
+  const RawScene raw = read_isolated(source, timeout, max_memory);
 #else
-  const RawScene raw = read_in_process(path);
+  const RawScene raw = read_in_process(source);
 #endif
   if (!raw.ok && !named && raw.error.rfind("cannot read the file: ", 0) == 0)
     throw MeshError(path + ": the file has no extension and Assimp did not recognise its content (" +

@@ -88,6 +88,24 @@ void check_encoding(const std::string& path) {
     throw MeshError(path + ": the file is " + encoding +
                     " text (it starts with that byte-order mark); csb reads text mesh files in ASCII or UTF-8: "
                     "save it as UTF-8");
+  // Without a mark: ASCII text in UTF-16 has a zero in every other byte. Eight printable
+  // characters each paired with a zero are taken as such (no binary mesh format starts so).
+  in.clear();
+  in.seekg(0);
+  unsigned char head[16];
+  in.read(reinterpret_cast<char*>(head), sizeof head);
+  if (in.gcount() == static_cast<std::streamsize>(sizeof head)) {
+    const auto text = [](unsigned char c) { return (c >= 0x20 && c < 0x7F) || c == '\t' || c == '\n' || c == '\r'; };
+    bool le = true, be = true;
+    for (std::size_t k = 0; k < sizeof head; k += 2) {
+      le = le && text(head[k]) && head[k + 1] == 0;
+      be = be && head[k] == 0 && text(head[k + 1]);
+    }
+    if (le || be)
+      throw MeshError(path + ": the file looks like UTF-16 (" + (le ? "little" : "big") +
+                      "-endian) text without a byte-order mark (a zero byte beside each character); csb reads text "
+                      "mesh files in ASCII or UTF-8: save it as UTF-8");
+  }
 }
 
 std::string sniff_format(const std::string& path) {
@@ -105,6 +123,28 @@ std::string sniff_format(const std::string& path) {
   if (!in || !(in >> first)) return "";
   skip_utf8_bom(first);
   if (first == "ply") return ".ply";
+  if (first == "solid") return ".stl";  // ASCII STL
+  // XML: X3D (Assimp 5.2 knows it by its extension only); 3MF: a zip holding 3D/3dmodel.model
+  // (any case).
+  std::string start(4096, '\0');
+  in.clear();
+  in.seekg(0);
+  in.read(start.data(), static_cast<std::streamsize>(start.size()));
+  start.resize(static_cast<std::size_t>(in.gcount()));
+  if (start.find("<X3D") != std::string::npos) return ".x3d";
+  if (start.rfind("PK\x03\x04", 0) == 0) {
+    const std::uintmax_t size = size_of(path);
+    const std::uintmax_t tail = std::min<std::uintmax_t>(size, 1 << 16);  // the central directory is at the end
+    std::string end(static_cast<std::size_t>(tail), '\0');
+    in.clear();
+    in.seekg(static_cast<std::streamoff>(size - tail));
+    in.read(end.data(), static_cast<std::streamsize>(end.size()));
+    const auto holds_model = [](std::string text) {  // 3D/3dmodel.model, in any case
+      for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+      return text.find("3d/3dmodel.model") != std::string::npos;
+    };
+    if (holds_model(start) || holds_model(end)) return ".3mf";
+  }
   if (first == "HIERARCHY") return ".bvh";
   if (first.size() >= 3 && first.size() <= 5 && first.find("OFF") != std::string::npos) return ".off";  // OFF, COFF, NOFF, STOFF
   return "";
