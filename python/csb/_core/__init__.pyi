@@ -365,7 +365,7 @@ class Model:
     @property
     def memory(self) -> dict:
         """
-        bytes the model's arrays hold (from their capacities), per part
+        Bytes the model's arrays hold (from their capacities), per part. Not counted: what stepping adds (PbdStepper.workspace_bytes, about as much again under PBD and twice under XPBD, and 48 B a particle per State) and the peak of building, when the builder's arrays, the mesh and the model coexist (about 5 x this total for a cloth). csb run reports the process's peak resident memory.
         """
     @property
     def num_constraints(self) -> int:
@@ -575,6 +575,10 @@ class PbdStepper:
         """
         XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a pressure, Pa).
         """
+    def operations(self, model: Model, steps: int) -> float:
+        """
+        Constraint projections and particle updates of `steps` steps of the model: step() refuses (csb.ParameterError, with the estimate) a request that would take more than a year at 1e9 a second
+        """
     def projections_per_step(self, model: Model) -> int:
         ...
     def release(self, handle: int) -> None:
@@ -632,7 +636,9 @@ class ForceStepper:
         method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. drag: 1/s.
         """
     def step(self, model: Model, state: State, steps: int = 1) -> None:
-        ...
+        """
+        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between steps, the state left at the end of the last completed one). A request that would take more than a year at 1e9 spring and particle updates a second is refused (csb.ParameterError, with the estimate).
+        """
     @property
     def force_evaluations(self) -> int:
         """
@@ -668,6 +674,8 @@ def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat |
 def _integrate_reference(model: Model, start: State, times: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], gravity: typing.Any, rtol: typing.SupportsFloat | typing.SupportsIndex, atol: typing.SupportsFloat | typing.SupportsIndex, damping: typing.SupportsFloat | typing.SupportsIndex, drag: typing.SupportsFloat | typing.SupportsIndex, max_order: int, stability_limit_detection: bool, linear_solver: str, max_steps: int, max_wall_time: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], dict]:
     ...
 def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, timeout: typing.SupportsFloat | typing.SupportsIndex = 0.0, max_memory: typing.SupportsFloat | typing.SupportsIndex = 2147483648.0) -> tuple[Mesh, dict]:
+    ...
+def _require_time_for(what: str, operations: typing.SupportsFloat | typing.SupportsIndex) -> None:
     ...
 def balloon_volumes(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
