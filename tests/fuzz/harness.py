@@ -367,7 +367,7 @@ def fuzz(targets: list[str], *, seed: int = 0, cases: int | None = None, minutes
          out_dir: Path | None = None, progress: bool = True, start: int = 0) -> tuple[dict[str, Tally], list[Path]]:
     """Run the mutation loop over the targets: `cases` cases each, or `minutes` in all shared equally
     between the targets (a tet mesh costs a child process with meshio, a scene microseconds)."""
-    root = Path(out_dir or tempfile.mkdtemp(prefix="csb-fuzz-"))
+    root = Path(out_dir) if out_dir is not None else Path("out/fuzz")
     work = Path(tempfile.mkdtemp(prefix="csb-fuzz-cases-"))
     corpora = {t: Corpus(t, seeds(t)) for t in targets}
     folders = {t: prepare_folder(t, work) for t in targets}
@@ -422,13 +422,14 @@ def replay(paths: list[Path]) -> list[tuple[Path, Outcome]]:
     """Each file through its target's loader (the target is the name of the folder holding it)."""
     worker = Worker()
     results = []
+    work = Path(tempfile.mkdtemp(prefix="csb-fuzz-replay-"))
     try:
+        folder = prepare_folder("scene", work)  # a scene is read beside the seed meshes it names
         for p in paths:
             target = p.parent.name
             if target not in TARGETS:
                 raise SystemExit(f"{p}: put the file in a folder named after its target ({', '.join(TARGETS)})")
-            if target == "scene":  # the meshes it names are the seeds'
-                folder = prepare_folder("scene", Path(tempfile.mkdtemp(prefix="csb-fuzz-replay-")))
+            if target == "scene":
                 shutil.copy(p, folder / p.name)
                 p_run = folder / p.name
             else:
@@ -436,6 +437,7 @@ def replay(paths: list[Path]) -> list[tuple[Path, Outcome]]:
             results.append((p, worker.run(target, str(p_run))))
     finally:
         worker.stop()
+        shutil.rmtree(work, ignore_errors=True)
     return results
 
 
