@@ -11,6 +11,7 @@ import time
 import pytest
 
 import csb
+from helpers import needs_bad_alloc
 
 MiB = 1024**2
 # A limit small enough to be reached at once by a file that declares 10^9 vertices (8-24 GB of
@@ -129,6 +130,7 @@ def huge_collada(path):
     return path
 
 
+@needs_bad_alloc
 def test_assimp_hits_the_memory_limit_with_a_clear_error(tmp_path, capfd):
     path = huge_collada(tmp_path / "huge.dae")
     start = time.perf_counter()
@@ -150,6 +152,7 @@ def test_load_mesh_memory_limit_is_validated_by_name(tmp_path, value, message):
     assert len(csb.load_mesh(path, max_memory=SMALL_MEMORY).triangles) == 1
 
 
+@needs_bad_alloc
 @pytest.mark.parametrize("binary", [False, True])
 def test_a_ply_face_declaring_a_billion_indices_hits_the_memory_limit(tmp_path, capfd, binary):
     """A 3-vertex PLY whose one face declares 10^9 indices (int counts): Assimp reserves 4 GB

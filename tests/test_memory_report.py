@@ -18,6 +18,7 @@ import sys
 import pytest
 
 import csb
+from helpers import measures_resident_memory
 
 SCRIPT = r"""
 import ctypes, gc, json, warnings
@@ -50,6 +51,7 @@ print(json.dumps(dict(base=base, build_peak=build_peak, model_alone=model_alone,
 """
 
 
+@measures_resident_memory
 @pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"), reason="needs Linux's /proc to measure resident memory")
 def test_model_memory_and_what_it_leaves_out_match_resident_memory():
     r = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, timeout=300, check=True)
