@@ -7,6 +7,7 @@ steps gets csb.ConcurrentUseError at once, and the running step is not disturbed
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import signal
@@ -91,6 +92,27 @@ class Stop(Exception):
     pass
 
 
+@contextlib.contextmanager
+def sigint_after(seconds: float):
+    """SIGINT to this process after `seconds`, with a handler that raises Stop; yields a list
+    that receives the seconds the body ran."""
+    def handler(signum, frame):
+        raise Stop
+
+    previous = signal.signal(signal.SIGINT, handler)
+    timer = threading.Timer(seconds, os.kill, args=(os.getpid(), signal.SIGINT))
+    waited = []
+    try:
+        timer.start()
+        t0 = time.monotonic()
+        with pytest.raises(Stop):
+            yield waited
+        waited.append(time.monotonic() - t0)
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+
+
 @pytest.mark.parametrize("floor", [False, True], ids=["fused", "sub-step by sub-step"])
 def test_a_long_step_stops_on_a_signal_at_the_end_of_a_completed_sub_step(floor):
     """A step of 3000 sub-steps (seconds of work) is stopped by SIGINT from another thread within
@@ -101,21 +123,9 @@ def test_a_long_step_stops_on_a_signal_at_the_end_of_a_completed_sub_step(floor)
     stepper = csb.PbdStepper(dt=1 / 60, substeps=3000, iterations=1)
     h = 1 / 60 / 3000
 
-    def handler(signum, frame):
-        raise Stop
-
-    previous = signal.signal(signal.SIGINT, handler)
-    timer = threading.Timer(0.2, os.kill, args=(os.getpid(), signal.SIGINT))
-    try:
-        timer.start()
-        t0 = time.monotonic()
-        with pytest.raises(Stop):
-            stepper.step(model, state, 5)
-        waited = time.monotonic() - t0
-    finally:
-        timer.cancel()
-        signal.signal(signal.SIGINT, previous)
-    assert waited < 2.0
+    with sigint_after(0.2) as waited:
+        stepper.step(model, state, 5)
+    assert waited[0] < 2.0
     assert state.step < 5 and np.all(np.isfinite(state.x)) and np.all(np.isfinite(state.v))
     done = round((state.t - state.step / 60) / h)  # sub-steps into the interrupted step
     assert state.t == pytest.approx(state.step / 60 + done * h, rel=1e-12)
@@ -135,21 +145,9 @@ def test_the_force_stepper_stops_on_a_signal_between_steps():
     state = model.initial_state()
     stepper = csb.ForceStepper(dt=1e-4)
 
-    def handler(signum, frame):
-        raise Stop
-
-    previous = signal.signal(signal.SIGINT, handler)
-    timer = threading.Timer(0.2, os.kill, args=(os.getpid(), signal.SIGINT))
-    try:
-        timer.start()
-        t0 = time.monotonic()
-        with pytest.raises(Stop):
-            stepper.step(model, state, 10**6)
-        waited = time.monotonic() - t0
-    finally:
-        timer.cancel()
-        signal.signal(signal.SIGINT, previous)
-    assert waited < 2.0
+    with sigint_after(0.2) as waited:
+        stepper.step(model, state, 10**6)
+    assert waited[0] < 2.0
     assert 0 < state.step < 10**6 and np.all(np.isfinite(state.x))
     assert state.t == pytest.approx(state.step * 1e-4, rel=1e-9)
     steps = state.step

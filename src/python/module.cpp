@@ -148,6 +148,18 @@ std::function<bool()> python_interrupt() {
   };
 }
 
+// Steps without the GIL, asking Python's signal handlers between (sub-)steps; what a handler
+// raised (KeyboardInterrupt for Ctrl-C) is raised here, the state left where the stepper stopped.
+template <class Stepper>
+void step_interruptibly(Stepper& stepper, const Model& model, State& state, std::int64_t steps) {
+  try {
+    py::gil_scoped_release release;
+    stepper.step(model, state, steps, python_interrupt());
+  } catch (const Interrupted&) {
+    throw py::error_already_set();
+  }
+}
+
 Vec3 to_vec3(const py::handle& obj, const std::string& what) {
   py::array_t<double, py::array::forcecast> a;
   try {
@@ -887,12 +899,7 @@ PYBIND11_MODULE(_core, m) {
           for (const std::string& note : s.degenerate_notes_to_report(model, state))
             if (PyErr_WarnEx(accuracy_warning, note.c_str(), 1) < 0) throw py::error_already_set();
         }
-        try {
-          py::gil_scoped_release release;
-          s.step(model, state, steps, python_interrupt());
-        } catch (const Interrupted&) {
-          throw py::error_already_set();  // the KeyboardInterrupt (or other) the signal handler raised
-        }
+        step_interruptibly(s, model, state, steps);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
          "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between "
          "sub-steps, the state left at the end of the last completed one; a second thread stepping the same "
@@ -1039,13 +1046,7 @@ PYBIND11_MODULE(_core, m) {
            "method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. "
            "drag: 1/s.")
       .def("step", [](ForceStepper& s, const Model& model, State& state, IntArg steps_arg) {
-        const std::int64_t steps = in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64);
-        try {
-          py::gil_scoped_release release;
-          s.step(model, state, steps, python_interrupt());
-        } catch (const Interrupted&) {
-          throw py::error_already_set();  // the KeyboardInterrupt (or other) the signal handler raised
-        }
+        step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64));
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
          "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between steps, "
          "the state left at the end of the last completed one). A request that would take more than a year "
