@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 import re
+import sys
 import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
@@ -725,6 +726,9 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{p}: not valid TOML: {e}") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise SceneError(f"{p}: arrays or inline tables nested too deeply to read (deeper than Python's recursion "
+                         f"limit of {sys.getrecursionlimit()}); no scene needs more than a few levels") from None
     source = _Source(p, text)
     top = _Table(source, data, (), "scene file")
 
