@@ -335,11 +335,13 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
   raw.ok = header[0] == 1;
   raw.error.assign(p, header[1]);
   p += header[1];
+  // An empty vector's data() may be null, and memcpy from or to null is undefined even for
+  // 0 bytes (UBSan reports it): a refused file sends no vertices.
   raw.vertices.resize(header[2]);
-  std::memcpy(raw.vertices.data(), p, header[2] * sizeof(float));
+  if (header[2] > 0) std::memcpy(raw.vertices.data(), p, header[2] * sizeof(float));
   p += header[2] * sizeof(float);
   raw.triangles.resize(header[3]);
-  std::memcpy(raw.triangles.data(), p, header[3] * sizeof(std::uint32_t));
+  if (header[3] > 0) std::memcpy(raw.triangles.data(), p, header[3] * sizeof(std::uint32_t));
   raw.points = header[4];
   raw.lines = header[5];
   raw.polygons = header[6];
