@@ -1,0 +1,142 @@
+// csb._core: meshes and tet meshes, reading and writing them, the generated shapes.
+#include "bindings.hpp"
+
+namespace csb::python {
+
+void bind_mesh(py::module_& m) {
+  // ---------------------------------------------------------------- meshes
+  py::class_<Mesh>(m, "Mesh", "A triangle (and/or line) mesh before it enters the particle pool; metres.", py::dynamic_attr())
+      .def(py::init([](py::handle vertices, py::handle triangles, py::handle lines, const std::string& name) {
+             Mesh mesh;
+             mesh.name = name;
+             mesh.vertices = to_positions(vertices, name + ": vertices");
+             mesh.triangles = to_index_rows<3>(triangles, name + ": triangles");
+             mesh.lines = to_index_rows<2>(lines, name + ": lines");
+             validate(mesh);
+             return mesh;
+           }),
+           py::arg("vertices"), py::arg("triangles") = py::none(), py::arg("lines") = py::none(),
+           py::arg("name") = "mesh",
+           "vertices: (N, 3) float, m. triangles: (T, 3) int. lines: (L, 2) int (ropes, chains).")
+      .def_readonly("name", &Mesh::name)
+      .def_property_readonly("num_vertices", &Mesh::num_vertices)
+      .def_property_readonly("vertices", [](const Mesh& s) {
+        py::array_t<double> a({static_cast<py::ssize_t>(s.num_vertices()), py::ssize_t(3)});
+        if (s.num_vertices()) std::memcpy(a.mutable_data(), s.vertices.data(), sizeof(double) * 3 * s.num_vertices());
+        return a;
+      }, "(N, 3) vertex positions, m (a copy)")
+      .def_property_readonly("triangles", [](const Mesh& s) { return index_rows(s.triangles); },
+                             "(T, 3) vertex indices (a copy)")
+      .def_property_readonly("lines", [](const Mesh& s) { return index_rows(s.lines); },
+                             "(L, 2) vertex indices of explicit segments (a copy)")
+      .def("__repr__", [](const Mesh& s) {
+        return "<csb.Mesh '" + s.name + "': " + std::to_string(s.num_vertices()) + " vertices, " +
+               std::to_string(s.triangles.size()) + " triangles, " + std::to_string(s.lines.size()) + " lines>";
+      });
+
+  m.def("_clean", [](const Mesh& mesh, bool weld, double weld_tolerance, bool drop_unreferenced) {
+    CleanOptions o;
+    o.weld = weld;
+    o.weld_tolerance = weld_tolerance;
+    o.drop_unreferenced = drop_unreferenced;
+    MeshReport r;
+    Mesh out = clean(mesh, o, &r);
+    return py::make_tuple(out, report_dict(r));
+  }, py::arg("mesh"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("drop_unreferenced") = true);
+
+  m.def("_load_mesh", [](const std::string& path, bool weld, double weld_tolerance, double timeout, double max_memory) {
+    CleanOptions o;
+    o.weld = weld;
+    o.weld_tolerance = weld_tolerance;
+    MeshReport r;
+    Mesh out;
+    {
+      py::gil_scoped_release release;
+      out = load_mesh(path, o, &r, timeout, max_memory);
+    }
+    return py::make_tuple(out, report_dict(r));
+  }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0,
+     py::arg("max_memory") = kDefaultMaxMemory);
+
+  m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
+        "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
+  m.def("_require_time_for", &require_time_for, py::arg("what"), py::arg("operations"));
+  m.def("readable_extensions", &readable_extensions, "Extensions (with the dot) that load_mesh reads.");
+  m.def("check_obj", &check_obj, py::arg("path"), "Strict OBJ syntax check naming the line of the first problem.");
+
+  m.def("topology", [](const Mesh& mesh) {
+    const Topology t = topology(mesh);
+    py::dict d;
+    d["edges"] = index_rows(t.edges);
+    d["bending"] = index_rows(t.bending);
+    d["boundary_edges"] = t.boundary_edges;
+    d["non_manifold_edges"] = t.non_manifold_edges;
+    return d;
+  }, py::arg("mesh"), "Unique edges, bending quads (a, b, c, d), boundary and non-manifold edge counts.");
+
+  m.def("lumped_measure", [](const Mesh& mesh) {
+    std::vector<Real> w = lumped_measure(mesh);
+    return py::array_t<Real>(static_cast<py::ssize_t>(w.size()), w.data());
+  }, py::arg("mesh"), "Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).");
+
+  m.def("cloth_grid", [](double width, double height, IntArg nx, IntArg ny, const std::string& plane, py::handle center) {
+    const Index x = in_range(nx, "cloth_grid: nx", 2, kMaxIndex), y = in_range(ny, "cloth_grid: ny", 2, kMaxIndex);
+    return cloth_grid(width, height, x, y, parse_plane(plane), to_vec3(center, "center"));
+  }, py::arg("width"), py::arg("height"), py::arg("nx"), py::arg("ny"), py::arg("plane") = "xz",
+        py::arg("center") = std::vector<double>{0, 0, 0},
+        "Rectangular cloth of nx x ny particles spanning width x height m in `plane`, centred on `center` (m).");
+  m.def("chain", [](IntArg links, double link_length, py::handle start, py::handle direction) {
+    return chain(in_range(links, "chain: links", 1, kMaxIndex), link_length, to_vec3(start, "start"), to_vec3(direction, "direction"));
+  }, py::arg("links"), py::arg("link_length"), py::arg("start") = std::vector<double>{0, 0, 0},
+        py::arg("direction") = std::vector<double>{1, 0, 0},
+        "A chain of `links` segments of link_length m from start (m) along direction.");
+  m.def("pendulum", [](double length, double angle, py::handle anchor) {
+    return pendulum(length, angle, to_vec3(anchor, "anchor"));
+  }, py::arg("length"), py::arg("angle"), py::arg("anchor") = std::vector<double>{0, 0, 0},
+        "Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.");
+
+  // ---------------------------------------------------------------- tet meshes
+  py::class_<TetMesh>(m, "TetMesh", "A tetrahedral volume mesh before it enters the particle pool; metres.",
+                      py::dynamic_attr())
+      .def(py::init([](py::handle points, py::handle tets, const std::string& name) {
+             TetMesh mesh;
+             mesh.name = name;
+             mesh.points = to_positions(points, name + ": points");
+             mesh.tets = to_index_rows<4>(tets, name + ": tets");
+             validate(mesh);
+             return mesh;
+           }),
+           py::arg("points"), py::arg("tets"), py::arg("name") = "tet mesh",
+           "points: (N, 3) float, m. tets: (M, 4) int point indices. Raises MeshError naming the mesh and the "
+           "element for non-finite points, out-of-range or repeated indices, or no tets.")
+      .def_readonly("name", &TetMesh::name)
+      .def_property_readonly("num_points", &TetMesh::num_points)
+      .def_property_readonly("num_tets", &TetMesh::num_tets)
+      .def_property_readonly("points", [](const TetMesh& s) {
+        py::array_t<double> a({static_cast<py::ssize_t>(s.num_points()), py::ssize_t(3)});
+        if (s.num_points()) std::memcpy(a.mutable_data(), s.points.data(), sizeof(double) * 3 * s.num_points());
+        return a;
+      }, "(N, 3) point positions, m (a copy)")
+      .def_property_readonly("tets", [](const TetMesh& s) { return index_rows(s.tets); }, "(M, 4) point indices (a copy)")
+      .def("volumes", [](const TetMesh& s) {
+        const std::vector<Real> v = tet_volumes(s);
+        return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+      }, "(M,) signed volume of every tet, m³ (positive: (p1 - p0) x (p2 - p0) points towards p3)")
+      .def("surface", [](const TetMesh& s) { return index_rows(tet_surface(s)); },
+           "(T, 3) the faces used by one tet, wound outwards for positively oriented tets")
+      .def("__repr__", [](const TetMesh& s) {
+        return "<csb.TetMesh '" + s.name + "': " + std::to_string(s.num_points()) + " points, " +
+               std::to_string(s.num_tets()) + " tets>";
+      });
+  m.def("tet_box", [](py::handle size, std::array<IntArg, 3> divisions, py::handle center) {
+    const Index nx = in_range(divisions[0], "tet_box: divisions[0]", 1, kMaxIndex);
+    const Index ny = in_range(divisions[1], "tet_box: divisions[1]", 1, kMaxIndex);
+    const Index nz = in_range(divisions[2], "tet_box: divisions[2]", 1, kMaxIndex);
+    return tet_box(to_vec3(size, "size"), nx, ny, nz, to_vec3(center, "center"));
+  }, py::arg("size"), py::arg("divisions"), py::arg("center") = std::vector<double>{0, 0, 0},
+        "A box of size (3 lengths, m) centred on `center` (m) with divisions (nx, ny, nz) cells of 6 positively "
+        "oriented tets each (Kuhn split, conforming).");
+
+}
+
+}  // namespace csb::python

@@ -1,0 +1,48 @@
+// csb._core: measurements of a state (energies, violations, volumes).
+#include "bindings.hpp"
+
+namespace csb::python {
+
+void bind_metrics(py::module_& m) {
+  // ---------------------------------------------------------------- metrics
+  m.def("measure", [](const Model& model, const State& state, py::handle gravity) {
+    const Metrics r = measure(model, state, to_vec3(gravity, "gravity"));
+    py::dict d;
+    d["t"] = r.t;
+    d["kinetic_energy"] = r.kinetic_energy;
+    d["gravitational_energy"] = r.gravitational_energy;
+    d["elastic_energy"] = r.elastic_energy;
+    d["total_energy"] = r.total_energy();
+    d["linear_momentum"] = vec3_array(r.linear_momentum);
+    d["angular_momentum"] = vec3_array(r.angular_momentum);
+    d["distance"] = violation_dict(r.distance);
+    d["bending"] = violation_dict(r.bending);
+    d["attachment"] = violation_dict(r.attachment);
+    d["volume"] = violation_dict(r.volume);
+    d["balloon"] = violation_dict(r.balloon);
+    d["max_strain"] = r.max_strain;
+    d["rms_strain"] = r.rms_strain;
+    return d;
+  }, py::arg("model"), py::arg("state"), py::arg("gravity"));
+  m.def("elastic_energy", &elastic_energy, py::arg("model"), py::arg("state"),
+        "Σ C²/(2α) over the constraints with compliance α > 0, J.");
+  m.def("distance_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = distance_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation |xi - xj| - rest of every distance constraint, m.");
+  m.def("bending_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = bending_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation θ - θ0 of every bending constraint, rad.");
+  m.def("volume_violations", [](const Model& model, const State& state) {
+    std::vector<Real> v = volume_violations(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Violation V - V0 of every tetrahedral volume constraint, m³.");
+  m.def("balloon_volumes", [](const Model& model, const State& state) {
+    std::vector<Real> v = balloon_volumes(model, state);
+    return py::array_t<Real>(static_cast<py::ssize_t>(v.size()), v.data());
+  }, py::arg("model"), py::arg("state"), "Volume enclosed by every balloon's surface, m³.");
+
+}
+
+}  // namespace csb::python
