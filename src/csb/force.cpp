@@ -18,6 +18,15 @@ bool same_bits(const Positions& a, const Positions& b) {
 
 }  // namespace
 
+std::string ForceStepper::name() const {
+  switch (settings_.method) {
+    case ForceIntegrator::ExplicitEuler: return "explicit_euler";
+    case ForceIntegrator::SymplecticEuler: return "symplectic_euler";
+    case ForceIntegrator::VelocityVerlet: return "velocity_verlet";
+  }
+  return "force";
+}
+
 ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) {
   const ForceSettings& s = settings_;
   if (!(s.dt > 0) || !std::isfinite(s.dt)) throw InvalidArgument("dt must be a finite time step > 0 s, got " + str(s.dt));

@@ -11,6 +11,7 @@
 // network for h < 2/ω_max, ω_max² the largest eigenvalue of M⁻¹K.
 #pragma once
 
+#include "csb/integrator.hpp"
 #include "csb/reference.hpp"
 #include "csb/use_guard.hpp"
 
@@ -30,10 +31,12 @@ struct ForceSettings {
   Real drag = 0;                     // 1/s, force -drag m v on every particle
 };
 
-class ForceStepper {
+class ForceStepper : public Integrator {
  public:
   explicit ForceStepper(const ForceSettings& settings);
   const ForceSettings& settings() const { return settings_; }
+  std::string name() const override;  // "explicit_euler", "symplectic_euler" or "velocity_verlet"
+  Real dt() const override { return settings_.dt; }
 
   // Advances `state` by `steps` steps of dt. Pinned particles stay where `state` has them. One
   // thread at a time (use_guard.hpp).
@@ -43,7 +46,8 @@ class ForceStepper {
   // Advances `steps` steps of dt. A request beyond a year's work (memory_budget.hpp) is refused
   // before the first; `interrupt`, if given, is asked between steps whether to stop (then
   // Interrupted is thrown, the state left at the end of the last completed step).
-  void step(const Model& model, State& state, std::int64_t steps = 1, const std::function<bool()>& interrupt = {});
+  void step(const Model& model, State& state, std::int64_t steps = 1,
+            const std::function<bool()>& interrupt = {}) override;
 
   // Evaluations of the network's right-hand side since construction: one per sub-step for every
   // method (undamped velocity Verlet reuses a(x') as the next sub-step's a(x)); two per sub-step

@@ -128,6 +128,10 @@ Real corrected_stiffness(Real k, int iterations) {
   return 1 - std::pow(1 - k, 1.0 / iterations);
 }
 
+std::string PbdStepper::name() const {
+  return settings_.method == Method::Pbd ? "pbd" : settings_.method == Method::Xpbd ? "xpbd" : "jakobsen";
+}
+
 PbdStepper::PbdStepper(const PbdSettings& settings) : settings_(settings) {
   validate(settings_);
   if (settings_.method == Method::Jakobsen) settings_.front_end = FrontEnd::Verlet;

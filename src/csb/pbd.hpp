@@ -23,6 +23,7 @@
 #pragma once
 
 #include "csb/coloured.hpp"
+#include "csb/integrator.hpp"
 #include "csb/material.hpp"
 #include "csb/model.hpp"
 #include "csb/spatial_hash.hpp"
@@ -146,10 +147,12 @@ struct ContactSummary {
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
 };
 
-class PbdStepper {
+class PbdStepper : public Integrator {
  public:
   explicit PbdStepper(const PbdSettings& settings);
   const PbdSettings& settings() const { return settings_; }
+  std::string name() const override;  // "pbd", "xpbd" or "jakobsen"
+  Real dt() const override { return settings_.dt; }
   Real substep_size() const { return settings_.dt / settings_.substeps; }
 
   // Advances `state` by `steps` steps of settings().dt. Throws SimulationError naming the step
@@ -161,7 +164,7 @@ class PbdStepper {
   // left at the end of the last completed sub-step. Python's binding asks its signal handlers
   // (Ctrl-C) at most every 20 ms.
   void step(const Model& model, State& state, std::int64_t steps = 1,
-            const std::function<bool()>& interrupt = {});
+            const std::function<bool()>& interrupt = {}) override;
   static constexpr int kFusedSubsteps = 64;
 
   // Held by the bindings while they copy out what a step writes (contacts, multipliers).
