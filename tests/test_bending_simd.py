@@ -1,4 +1,4 @@
-"""The coloured bending projection in SIMD blocks (csb/coloured_bending.hpp) and its
+"""The coloured bending projection in SIMD blocks (csb/solver/coloured_bending.hpp) and its
 branch-free rational atan2 (csb/atan2.hpp), against std::atan2 (numpy's arctan2 calls the same
 libm) and against the reference kernel of constraints/bending.hpp."""
 

@@ -5,7 +5,7 @@
 // except its group index, so that groups can differ in mass and be damped separately.
 #pragma once
 
-#include "csb/collision.hpp"
+#include "csb/collision/collision.hpp"
 #include "csb/mesh.hpp"
 #include "csb/tetmesh.hpp"
 #include "csb/types.hpp"

@@ -22,12 +22,12 @@
 // step, substeps and iterations are three different things and keep three names.
 #pragma once
 
-#include "csb/coloured.hpp"
+#include "csb/solver/coloured.hpp"
 #include "csb/integrator.hpp"
 #include "csb/material.hpp"
 #include "csb/model.hpp"
-#include "csb/spatial_hash.hpp"
-#include "csb/team.hpp"
+#include "csb/collision/spatial_hash.hpp"
+#include "csb/solver/team.hpp"
 #include "csb/use_guard.hpp"
 
 #include <cstdint>

@@ -153,7 +153,7 @@ void bind_kernels(py::module_& m) {
   }, py::arg("points"), py::arg("quads"), py::arg("inv_mass"), py::arg("rest_angle"), py::arg("stiffness") = py::none(),
      py::arg("alpha_tilde") = py::none(), py::arg("gamma") = py::none(), py::arg("lambda_") = py::none(),
      py::arg("start") = py::none(), py::arg("independent") = true,
-     "The stepper's coloured bending projection (csb/coloured_bending.hpp) over quads (a, b, c, d) in order, "
+     "The stepper's coloured bending projection (csb/solver/coloured_bending.hpp) over quads (a, b, c, d) in order, "
      "Gauss-Seidel in place: SIMD blocks if independent (the quads must then share no point), else one at a time. "
      "PBD with stiffness (default 1), or XPBD if alpha_tilde is given (gamma, lambda_, start: damping, multipliers, "
      "sub-step start positions). Returns (points', lambda' or None).");

@@ -1,6 +1,7 @@
 // csb._core: the steppers (PBD, XPBD, Jakobsen; the force-based integrators), tearing, picking,
 // and the solver machinery's benchmarks.
 #include "bindings.hpp"
+#include "bench/dispatch.hpp"
 
 namespace csb::python {
 

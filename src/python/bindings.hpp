@@ -7,7 +7,7 @@
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
-#include "csb/coloured_bending.hpp"
+#include "csb/solver/coloured_bending.hpp"
 #include "csb/memory_budget.hpp"
 #include "int_arg.hpp"
 

@@ -1,6 +1,6 @@
 #include "viewer/viewer.hpp"
 
-#include "csb/interaction.hpp"
+#include "csb/interaction/pick.hpp"
 #include "csb/metrics.hpp"
 #include "csb/tearing.hpp"
 #include "viewer/gl.hpp"

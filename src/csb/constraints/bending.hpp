@@ -47,7 +47,7 @@ inline Real dihedral_angle(const Vec3& a, const Vec3& b, const Vec3& c, const Ve
 }
 
 // Wraps an angle difference into (-π, π]. Selects, not branches: the coloured bending kernel
-// calls it inside its SIMD loops (csb/coloured_bending.hpp).
+// calls it inside its SIMD loops (csb/solver/coloured_bending.hpp).
 inline Real wrap_angle(Real x) {
   x = x > kPi ? x - 2 * kPi : x;
   return x <= -kPi ? x + 2 * kPi : x;

@@ -1,4 +1,4 @@
-#include "csb/team.hpp"
+#include "csb/solver/team.hpp"
 
 #include <chrono>
 

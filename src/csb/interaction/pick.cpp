@@ -1,4 +1,4 @@
-#include "csb/interaction.hpp"
+#include "csb/interaction/pick.hpp"
 #include "csb/format.hpp"
 
 #include <cmath>

@@ -1,4 +1,4 @@
-#include "csb/collision.hpp"
+#include "csb/collision/collision.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -29,7 +29,7 @@
 #pragma once
 
 #include "csb/atan2.hpp"
-#include "csb/coloured.hpp"
+#include "csb/solver/coloured.hpp"
 #include "csb/constraints/bending.hpp"
 
 #include <algorithm>

@@ -1,4 +1,4 @@
-#include "csb/spatial_hash.hpp"
+#include "csb/collision/spatial_hash.hpp"
 
 #include <algorithm>
 

@@ -8,8 +8,8 @@
 // (-ffp-contract=off), and IEEE +, -, *, /, sqrt and selects give the same bits in any lane
 // width, so all copies give the same results (tests/test_bending_simd.py compares them bit for
 // bit).
-#include "csb/coloured_bending.hpp"
-#include "csb/avx2_rows.hpp"
+#include "csb/solver/coloured_bending.hpp"
+#include "csb/solver/avx2_rows.hpp"
 #include "csb/types.hpp"
 
 #include <atomic>

@@ -1,0 +1,391 @@
+// csb — the coloured sweep: the model's parts and interfaces as the team's tasks, each batch colour by
+// colour in SIMD lanes (solver/coloured_kernels.hpp); bits independent of the thread count.
+#include "csb/pbd.hpp"
+#include "csb/format.hpp"
+#include "csb/solver/coloured_kernels.hpp"
+#include "csb/solver/team.hpp"
+#include "csb/constraints/volume.hpp"
+#include <cstring>
+
+namespace csb {
+
+using detail::str;
+using namespace stepper_detail;
+
+
+// ------------------------------------------------------------------------------ coloured sweep
+//
+// Each batch is projected colour by colour (Model's `colours`); the constraints of one
+// colour share no particle, so within a colour a range of constraints is a loop whose iterations
+// are independent: `omp simd` lets the compiler put one constraint in each SIMD lane (the kernels
+// below are branch-free in the common case: masks instead of early returns, coefficients
+// precomputed in ColouredBatches).
+//
+// Threads share the work by groups (see Colouring): a sweep is
+//  1. the parts' interiors, each part a task: one thread projects every batch's colours of that
+//     part (distance, then bending, volume, attachments; with PBD or Jakobsen Gauss-Seidel a
+//     bending element also projects the distance constraint on its edge, just before itself,
+//     see build_coloured), no barrier between colours;
+//  2. the interfaces (constraints between parts i and i + 1), each a task, in the model's
+//     interface phases, whose interfaces share no particle (one phase for a cloth);
+//  3. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
+//     after each (constraints across non-adjacent parts; usually none).
+// The tasks of one phase share no particle, and threads take them dynamically, so a thread
+// slowed by a busy core takes fewer. A cloth's sweep thus has two barriers where colour by
+// colour it had one per colour, 26; and a part's particles stay in the core's cache while all of
+// its colours are projected.
+//
+// Every constraint is computed by the same instructions whatever the thread count or the range
+// it falls in (IEEE +, -, *, / and sqrt give the same bits in a SIMD lane and in a scalar
+// register; no FMA contraction), every task runs its colours in a fixed order, and no two tasks
+// of a phase touch the same particle, so the result does not depend on the number of threads.
+// A serial colour (constraints that may share particles) is projected in its order. Jacobi reads
+// the sweep's start and adds each correction to the particle's sum: each particle receives its
+// corrections in a fixed order (no atomics on floats).
+//
+// Kernels read positions from r and apply corrections to o: Gauss-Seidel r = o = p, Jacobi
+// r = the positions at the sweep's start, o = the correction sums.
+
+
+namespace {
+
+using namespace coloured_kernels;
+
+// Constraints per dynamically scheduled range: a few microseconds of work, so that taking a
+// range costs little beside it; fixed, so that ranges do not depend on the thread count.
+constexpr Index kChunkDistance = 256, kChunkFour = 64, kChunkAttachment = 256;
+
+// Runs `kernel(begin, end, independent)` over the colours of group g of `colours`, in order,
+// on the calling thread.
+template <class Kernel>
+void group_colours(const Colouring& colours, Index g, Kernel&& kernel) {
+  for (Index k = colours.group_colours[g]; k < colours.group_colours[g + 1]; ++k)
+    kernel(colours.colour_offsets[k], colours.colour_offsets[k + 1], !colours.serial(k));
+}
+
+// One thread's view of the team during a projection: every thread makes the same calls in the
+// same order (the phases are counted alike on each).
+struct Share {
+  Team& team;
+  int t;                   // this thread
+  std::int64_t phase = 0;  // phases begun
+
+  // Tasks 0 .. count - 1 shared dynamically, then a barrier. The tasks are cut into one range per
+  // thread (up to Team::kRanges), each with its own counter: a thread takes the tasks of its own
+  // range first, then those left in the others'. So a part stays on one core from sweep to sweep
+  // (its particles and constraints in that core's cache: 2-5 % of a 64x64 frame), and a thread
+  // slowed by a busy core still leaves its tasks to the others.
+  template <class F>
+  void tasks(Index count, F&& f) {
+    if (count <= 0) return;
+    const int ranges = std::min(team.size(), Team::kRanges);
+    for (int i = 0; i < ranges; ++i) {
+      const int r = (t + i) % ranges;
+      const Index begin = static_cast<Index>(static_cast<std::int64_t>(count) * r / ranges);
+      const Index end = static_cast<Index>(static_cast<std::int64_t>(count) * (r + 1) / ranges);
+      for (int k; (k = team.take(phase, r)) < end - begin;) f(begin + static_cast<Index>(k));
+    }
+    team.barrier();
+    if (t == 0) team.reset(phase);
+    ++phase;
+  }
+  // f on thread 0 only, then a barrier.
+  template <class F>
+  void single(F&& f) {
+    if (t == 0) f();
+    team.barrier();
+  }
+  // f(begin, end) on this thread's share of [0, n) (fixed ranges), then a barrier.
+  template <class F>
+  void split(Index n, F&& f) {
+    const int threads = team.size();
+    f(static_cast<Index>(static_cast<std::int64_t>(n) * t / threads),
+      static_cast<Index>(static_cast<std::int64_t>(n) * (t + 1) / threads));
+    team.barrier();
+  }
+};
+
+// Runs `kernel(begin, end, independent)` over the colours of group g, in order, the team sharing
+// ranges of `chunk` constraints of a colour (a serial colour on one thread); a barrier after each.
+template <class Kernel>
+void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk, Kernel&& kernel) {
+  for (Index k = colours.group_colours[g]; k < colours.group_colours[g + 1]; ++k) {
+    const Index begin = colours.colour_offsets[k], end = colours.colour_offsets[k + 1];
+    if (colours.serial(k))
+      share.single([&] { kernel(begin, end, false); });
+    else
+      share.tasks((end - begin + chunk - 1) / chunk,
+                  [&](Index r) { kernel(begin + r * chunk, std::min(end, begin + (r + 1) * chunk), true); });
+  }
+}
+
+// One coloured sweep over distance, bending, volume and attachment constraints.
+// start(g): called at the start of group g's task (a part's interior or an interface).
+// relax: XPBD with averaged Jacobi (else null), see PbdStepper::set_relaxation.
+template <Method M, bool Jacobi, class Start>
+void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o,
+                    const Real* x, const Real* relax, Start&& start) {
+  ColouredDistance& d = cb.distance;
+  const auto distance = [&](Index begin, Index end, bool independent) {
+    if constexpr (M == Method::Xpbd && Jacobi) {
+      if (relax) {
+        for (Index c = begin; c < end; ++c) distance_xpbd<true>(d, c, r, o, x, relax);
+        return;
+      }
+    }
+    if constexpr (M == Method::Xpbd) {
+      if (independent) {
+#pragma omp simd
+        for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
+      } else {
+        for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
+      }
+    } else if (approx) {
+      if (independent) {
+#pragma omp simd
+        for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
+      } else {
+        for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
+      }
+    } else {
+      if (independent) {
+#if defined(CSB_DISTANCE_AVX2)
+        if (kernels_use_avx2())
+          distance_pbd_blocks_avx2(d, begin, end, r, o);
+        else
+          distance_pbd_blocks<false>(d, begin, end, r, o);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+        distance_pbd_blocks_avx2(d, begin, end, r, o);
+#else
+        distance_pbd_blocks<false>(d, begin, end, r, o);
+#endif
+      } else {
+        for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
+      }
+    }
+  };
+  ColouredFour& bend = cb.bending;
+  const auto bending = [&](Index begin, Index end, bool independent) {
+    if constexpr (M == Method::Xpbd && Jacobi) {
+      if (relax) {
+        for (Index c = begin; c < end; ++c) bending_xpbd_relaxed(bend, c, r, o, x, relax);
+        return;
+      }
+    }
+    project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, r, o, x);
+  };
+  ColouredFour& vol = cb.volume;
+  const auto volume = [&](Index begin, Index end, bool) {
+    for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x, relax);
+  };
+  ColouredAttachments& att = cb.attachments;
+  const auto attachment = [&](Index begin, Index end, bool) {
+    for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x, relax);
+  };
+  const auto group = [&](Index g) {
+    start(g);
+    group_colours(cb.distance_colours, g, distance);
+    group_colours(model.bending.colours, g, bending);
+    group_colours(model.volume.colours, g, volume);
+    group_colours(model.attachments.colours, g, attachment);
+  };
+  const Index parts = model.num_parts;
+  // 1. The interiors.
+  share.tasks(parts, group);
+  // 2. The interfaces, in phases whose interfaces share no particle (usually one).
+  for (const std::vector<Index>& phase : model.interface_phases)
+    share.tasks(static_cast<Index>(phase.size()), [&](Index k) { group(parts + phase[k]); });
+  // 3. The rest, colour by colour.
+  const Index rest = 2 * parts - 1;
+  shared_colours(share, cb.distance_colours, rest, kChunkDistance, distance);
+  shared_colours(share, model.bending.colours, rest, kChunkFour, bending);
+  shared_colours(share, model.volume.colours, rest, kChunkFour, volume);
+  shared_colours(share, model.attachments.colours, rest, kChunkAttachment, attachment);
+}
+
+}  // namespace
+
+
+template <Method M, bool Jacobi>
+void PbdStepper::project_coloured(const Model& model, const Positions& x_start, Fused* fused) {
+  const Index n = model.num_particles();
+  const int threads = threads_used_;
+  Real* p = p_.data();
+  Real* ps = Jacobi ? p_start_.data() : nullptr;
+  Real* delta = Jacobi ? delta_.data() : nullptr;
+  Real* count = Jacobi ? count_.data() : nullptr;
+  const Real* count0 = Jacobi ? coloured_.count.data() : nullptr;
+  const Real* r = Jacobi ? ps : p;
+  Real* o = Jacobi ? delta : p;
+  const Real* x = x_start.data();
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  const bool contacts = !contacts_.empty() || !self_contacts_.empty();
+  const bool tail = model.balloons.size() > 0 || contacts;
+  bool compliant_grabs = false;
+  for (const Grab& g : grabs_) compliant_grabs = compliant_grabs || g.compliance > 0;
+  set_relaxation(model);
+  const Real* relax = relax_.empty() ? nullptr : relax_.data();
+  const bool average = settings_.solver == Solver::Jacobi && !relax;
+  const bool approx = settings_.sqrt_approximation;
+  const auto& bal = model.balloons;
+  const int iterations = settings_.iterations;
+  bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
+  // A fused step of several sub-steps whose constraints all lie in parts and interfaces (no rest
+  // group, no serial tail, Gauss-Seidel): part g's task of a sub-step's first sweep first
+  // updates its particles from the last sub-step and predicts them (the last sub-step's
+  // interfaces, the only other constraints on them, are done: a barrier ends their phase), and
+  // each group's task sets its XPBD multipliers to zero; the finiteness check runs once, after
+  // the last sub-step, the step's start kept to go back to. Two barriers a sub-step instead of
+  // four (a cloth).
+  const bool in_tasks = fused && fused->substeps > 1 && !Jacobi && !tail && !compliant_grabs && coloured_.rest_empty;
+  const bool advancing = fused && fused->substeps > 1;  // a sub-step's update is followed by a prediction
+  if (in_tasks) {
+    x_step_.resize(3, n);
+    v_step_.resize(3, n);
+  }
+  if (advancing) accel_.resize(3 * static_cast<std::size_t>(n));
+  const Index parts = model.num_parts;
+  // XPBD: group g's multipliers (of every batch) set to zero.
+  const auto zero_group_multipliers = [&](Index g) {
+    const auto zero = [g](const Colouring& c, std::vector<Real>& lambda) {
+      if (static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
+      std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
+                lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], 0.0);
+    };
+    zero(coloured_.distance_colours, coloured_.distance.lambda);
+    zero(model.bending.colours, coloured_.bending.lambda);
+    zero(model.volume.colours, coloured_.volume.lambda);
+    zero(model.attachments.colours, coloured_.attachments.lambda);
+  };
+  team_.get().run(threads, spin_, [&](int t) {
+    Share share{team_.get(), t};
+    // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
+    const auto predict = [&](Index begin, Index end) {
+      predict_range(model, *fused->state, fused->h, begin, end);
+      if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
+    };
+    if (in_tasks) {
+      // Keep the step's start, then predict (the multipliers are zeroed by the group tasks).
+      const Real* v = settings_.front_end == FrontEnd::Verlet ? x_prev_.data() : fused->state->v.data();
+      share.split(n, [&](Index begin, Index end) {
+        const Real* x0 = fused->state->x.data();
+        std::memcpy(x_step_.data() + 3 * begin, x0 + 3 * begin, sizeof(Real) * 3 * (end - begin));
+        std::memcpy(v_step_.data() + 3 * begin, v + 3 * begin, sizeof(Real) * 3 * (end - begin));
+        predict_range(model, *fused->state, fused->h, begin, end);
+        set_accel(model, fused->h, begin, end);
+      });
+    } else if (fused) {
+      share.split(n, [&](Index begin, Index end) {
+        predict(begin, end);
+        if (advancing) set_accel(model, fused->h, begin, end);
+      });
+    }
+    for (int sub = 0; sub < (fused ? fused->substeps : 1); ++sub) {
+      for (int it = 0; it < iterations; ++it) {
+        // What a group's task does before its constraints (in_tasks only).
+        const bool update = in_tasks && it == 0 && sub > 0;
+        const auto start = [&](Index g) {
+          if (!in_tasks) return;
+          if constexpr (M == Method::Xpbd)
+            if (it == 0) zero_group_multipliers(g);
+          if (update && g < parts) {
+            for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
+              const auto [begin, end] = coloured_.part_runs[k];
+              advance(*fused->state, fused->h, begin, end);
+            }
+          }
+        };
+        if constexpr (Jacobi) {
+          share.split(n, [&](Index begin, Index end) {
+            for (Index i = begin; i < end; ++i) {
+              for (int e = 0; e < 3; ++e) {
+                ps[3 * i + e] = p[3 * i + e];
+                delta[3 * i + e] = 0;
+              }
+              count[i] = count0[i];
+            }
+          });
+        }
+        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x, relax, start);
+        if (tail) {
+          share.single([&] {
+            // Balloons: one constraint over many particles each, serial (see sweep_batches).
+            for (Index c = 0; c < bal.size(); ++c) {
+              const Index* ids = bal.particles.data() + bal.particle_offsets[c];
+              const Triangle* tris = bal.triangles.data() + bal.triangle_offsets[c];
+              const Real target = bal.pressure[c] * bal.rest_volume[c];
+              if constexpr (M == Method::Xpbd)
+                project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target, 0,
+                                x, a_balloon_[c], g_balloon_[c], &lambda_.balloon[c], balloon_grad_.data(),
+                                relaxation(relax, ids, bal.num_particles(c)));
+              else
+                project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
+                                k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
+            }
+            if (contacts) project_contacts(model, Jacobi);
+          });
+        }
+        if constexpr (Jacobi) {
+          // Averaged Jacobi moves each particle by the mean of its corrections (XPBD: by the sum
+          // of its relaxed ones), summed Jacobi by their sum.
+          share.split(n, [&](Index begin, Index end) {
+            for (Index i = begin; i < end; ++i) {
+              const Real scale = average ? (count[i] > 0 ? 1 / count[i] : 0) : 1;
+              for (int e = 0; e < 3; ++e) p[3 * i + e] = ps[3 * i + e] + scale * delta[3 * i + e];
+            }
+          });
+          if (contacts && M != Method::Xpbd) share.single([&] { settle_contact_moves(average); });
+        }
+        if (compliant_grabs) share.single([&] { project_grabs(x_start); });
+      }
+      if (fused) {
+        const bool last = sub + 1 == fused->substeps;
+        if (in_tasks && !last) continue;  // updated and predicted by the part tasks
+        // The new positions must all be finite before any is taken (else the state stays).
+        share.split(n, [&](Index begin, Index end) { bad_[t] = first_non_finite(p_, begin, end); });
+        Index bad = -1;
+        for (const Index b : bad_)
+          if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
+        if (bad >= 0) {
+          if (t == 0) fused->bad = bad, fused->bad_sub = in_tasks ? -1 : sub;
+          return;
+        }
+        // (12)-(15) of Algorithm 1, then the next sub-step's prediction of the same particles.
+        const bool next = sub + 1 < fused->substeps;
+        share.split(n, [&](Index begin, Index end) {
+          if (!next) {
+            commit(*fused->state, fused->h, begin, end);
+            return;
+          }
+          advance(*fused->state, fused->h, begin, end);
+          if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
+        });
+      }
+    }
+  });
+}
+
+
+void PbdStepper::project(const Model& model, const Positions& x_start, Fused* fused) {
+  if (settings_.ordering == Ordering::Sequential) {
+    project_sequential(model, x_start);
+    return;
+  }
+  const bool jacobi = settings_.solver != Solver::GaussSeidel;
+  switch (settings_.method) {
+    case Method::Pbd:
+      jacobi ? project_coloured<Method::Pbd, true>(model, x_start, fused)
+             : project_coloured<Method::Pbd, false>(model, x_start, fused);
+      break;
+    case Method::Xpbd:
+      jacobi ? project_coloured<Method::Xpbd, true>(model, x_start, fused)
+             : project_coloured<Method::Xpbd, false>(model, x_start, fused);
+      break;
+    case Method::Jakobsen:
+      jacobi ? project_coloured<Method::Jakobsen, true>(model, x_start, fused)
+             : project_coloured<Method::Jakobsen, false>(model, x_start, fused);
+      break;
+  }
+}
+
+}  // namespace csb

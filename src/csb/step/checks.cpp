@@ -1,0 +1,151 @@
+// csb — what the stepper checks and says: non-finite positions, the divergence guard, settings that
+// cannot solve a model accurately, a degenerate state.
+#include "csb/pbd.hpp"
+#include "csb/format.hpp"
+#include "csb/step/internal.hpp"
+#include "csb/constraints/volume.hpp"
+#include "csb/material.hpp"
+#include <sstream>
+
+namespace csb {
+
+using detail::str;
+using namespace stepper_detail;
+
+
+std::vector<std::string> PbdStepper::accuracy_notes_to_report(const Model& model) const {
+  if (reported_models_.count(model.id)) return {};
+  const auto& d = model.distance;
+  const Real* w = model.inv_mass.data();
+  Real worst = 1;
+  Index at = -1;
+  for (Index c = 0; c < d.size(); ++c) {
+    const Real wi = w[d.particles[c][0]], wj = w[d.particles[c][1]];
+    if (!(wi > 0) || !(wj > 0)) continue;
+    const Real ratio = std::max(wi / wj, wj / wi);
+    if (ratio > worst) worst = ratio, at = c;
+  }
+  const Real allowed = 10 * Real(settings_.iterations) * settings_.substeps * settings_.substeps;
+  if (at < 0 || !(worst > allowed)) return {};
+  const Index i = d.particles[at][0], j = d.particles[at][1];
+  std::ostringstream msg;
+  msg << method_label(settings_.method) << " with " << settings_.substeps << " sub-step(s) x " << settings_.iterations
+      << " iteration(s): distance constraint " << at << " joins particles " << i << " and " << j
+      << " whose masses differ " << worst << " times (" << model.mass[i] << " and " << model.mass[j]
+      << " kg), more than 10 x iterations x substeps² = " << allowed
+      << "; Gauss-Seidel then moves the light particle almost alone and such links stretch (a hanging chain of "
+         "alternating masses: 7-70 % of their length at that ratio, up to 15 times it ten times beyond). More "
+         "sub-steps raise the limit fastest; or keep neighbours' masses closer";
+  return {msg.str()};
+}
+
+
+std::vector<std::string> PbdStepper::degenerate_notes_to_report(const Model& model, const State& state) {
+  if (degenerate_reported_.count(model.id) || state.x.cols() != model.num_particles()) return {};
+  // A new model, the next check's step reached, or a state from further back (another state).
+  const bool due = model.id != degenerate_model_ || state.step >= degenerate_next_ ||
+                   state.step + kDegenerateCheckSteps < degenerate_next_;
+  if (!due) return {};
+  degenerate_model_ = model.id;
+  degenerate_next_ = state.step + kDegenerateCheckSteps;
+  const Real* w = model.inv_mass.data();
+  const auto& d = model.distance;
+  Index coincident = 0, first_distance = -1;
+  for (Index c = 0; c < d.size(); ++c) {
+    const auto [i, j] = d.particles[c];
+    const Real tiny = 1e-9 * d.rest_length[c];
+    if ((state.x.col(i) - state.x.col(j)).squaredNorm() < tiny * tiny && w[i] + w[j] > 0) {
+      if (first_distance < 0) first_distance = c;
+      ++coincident;
+    }
+  }
+  const auto& v = model.volume;
+  Index collapsed = 0, first_tet = -1;
+  for (Index t = 0; t < v.size(); ++t) {
+    const auto& q = v.particles[t];
+    Vec3 grad[4];
+    tet_volume_gradient(state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3]), grad);
+    if (!volume_gradient_usable(grad, state.x.col(q[0]), state.x.col(q[1]), state.x.col(q[2]), state.x.col(q[3])) &&
+        w[q[0]] + w[q[1]] + w[q[2]] + w[q[3]] > 0) {
+      if (first_tet < 0) first_tet = t;
+      ++collapsed;
+    }
+  }
+  if (coincident == 0 && collapsed == 0) return {};
+  degenerate_reported_.insert(model.id);
+  std::ostringstream msg;
+  msg << "the state is degenerate at t = " << state.t << " s:";
+  if (coincident > 0) {
+    const auto [i, j] = d.particles[first_distance];
+    msg << " " << coincident << " distance constraint(s) join coincident particles (first: constraint "
+        << first_distance << ", particles " << i << " and " << j << ", rest length " << d.rest_length[first_distance]
+        << " m)" << (collapsed > 0 ? ";" : "");
+  }
+  if (collapsed > 0)
+    msg << " " << collapsed << " tet(s) are collapsed onto a line or a point (first: volume constraint " << first_tet
+        << ")";
+  msg << ". Their gradient has no direction, so " << method_label(settings_.method)
+      << " leaves them alone and they stay collapsed; separate the particles (state.x) before stepping";
+  return {msg.str()};
+}
+
+
+void PbdStepper::check_divergence(const Model& model, State& state, Real h) {
+  const Index n = model.num_particles();
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  const Real elapsed = std::max(state.t - guard_t0_, Real(0));
+  const Real g = settings_.gravity.norm();
+  // What a stable run can reach: the start's fastest speed, what gravity adds since, and a swing
+  // over the model's size (sqrt(2 g D), a pendulum's lowest point), twice over; plus a crossing
+  // of the whole model in one sub-step, which the constraints and contacts cannot follow.
+  const Real natural = guard_v0_ + g * elapsed + std::sqrt(2 * g * guard_size_);
+  const Real limit = settings_.max_speed > 0 ? settings_.max_speed : 2 * natural + guard_size_ / h;
+  // Squared speeds (Verlet: from the last sub-step's displacement), no square root per particle.
+  const Real limit2 = limit * limit;
+  Index worst = -1;
+  Real worst2 = limit2;
+  for (Index i = 0; i < n; ++i) {
+    if (!(w[i] > 0)) continue;
+    const Vec3 v = verlet ? Vec3((state.x.col(i) - x_prev_.col(i)) / h) : Vec3(state.v.col(i));
+    const Real v2 = v.squaredNorm();
+    if (v2 > worst2) worst2 = v2, worst = i;
+  }
+  if (worst < 0) return;
+  // The particle's most strained distance constraint, for the message (the error path only).
+  Real strain = 0;
+  const auto& d = model.distance;
+  for (Index c = 0; c < d.size(); ++c) {
+    const auto& e = d.particles[c];
+    if (e[0] != worst && e[1] != worst) continue;
+    const Real len = (state.x.col(e[0]) - state.x.col(e[1])).norm();
+    if (d.rest_length[c] > 0) strain = std::max(strain, len / d.rest_length[c]);
+  }
+  std::ostringstream msg;
+  msg << "step " << state.step << " (t = " << state.t << " s): particle " << worst << " moves at "
+      << std::sqrt(worst2) << " m/s, beyond the divergence guard's " << limit << " m/s (";
+  if (settings_.max_speed > 0)
+    msg << "max_speed";
+  else
+    msg << "automatic: the model's size " << guard_size_ << " m per sub-step of " << h << " s, plus twice "
+        << natural << " m/s, the start's fastest " << guard_v0_ << " m/s, |g| t = " << g * elapsed
+        << " m/s and sqrt(2 |g| size) = " << std::sqrt(2 * g * guard_size_) << " m/s";
+  msg << "): the simulation is diverging";
+  if (strain > 0) msg << "; its most stretched distance constraint is at " << strain << " times its rest length";
+  msg << ". Usual causes: a time step or sub-step too large for the stiffness, too few iterations for sliver "
+         "triangles or vertices of very high valence (csb warns of them when the mesh is added), or summed Jacobi. "
+         "The state is left at the end of this step; max_speed sets the guard (inf turns it off).";
+  if (verlet) state.v = (state.x - x_prev_) / h;
+  throw SimulationError(msg.str());
+}
+
+
+void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
+  if (settings_.front_end == FrontEnd::Verlet) state.v = (state.x - x_prev_) / h;
+  std::ostringstream msg;
+  msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << i
+      << " got a non-finite position " << str(p_.col(i)) << "; the state is left at the end of the last finite substep";
+  throw SimulationError(msg.str());
+}
+
+}  // namespace csb

@@ -1,0 +1,204 @@
+// csb — the stepper's particle stages: prediction (5)-(7), Müller's damping (6) and the velocity
+// update (12)-(15) of Algorithm 1, for the Euler and the Verlet front ends.
+#include "csb/pbd.hpp"
+#include "csb/format.hpp"
+#include "csb/step/internal.hpp"
+#include "csb/solver/coloured_bending.hpp"
+#include <Eigen/Eigenvalues>
+
+namespace csb {
+
+using detail::str;
+using namespace stepper_detail;
+
+
+void PbdStepper::predict(const Model& model, State& state, Real h) {
+  const Index n = model.num_particles();
+  if (settings_.front_end == FrontEnd::Euler && settings_.damping > 0) {
+    // (5), then (6), which needs every velocity updated, then (7).
+    const Real* w = model.inv_mass.data();
+    for (Index i = 0; i < n; ++i)
+      if (w[i] > 0) state.v.col(i) += h * settings_.gravity;
+    damp_velocities(model, state);
+    const Real* x = state.x.data();
+    const Real* v = state.v.data();
+    Real* p = p_.data();
+    for (Index k = 0; k < 3 * n; ++k) p[k] = x[k] + h * v[k];
+    return;
+  }
+  predict_range(model, state, h, 0, n);
+}
+
+
+void PbdStepper::predict_range(const Model& model, State& state, Real h, Index begin, Index end) {
+  const Real* w = model.inv_mass.data();
+  const Vec3& g = settings_.gravity;
+  const Real* x = state.x.data();
+  Real* v = state.v.data();
+  Real* p = p_.data();
+  if (settings_.front_end == FrontEnd::Verlet) {
+    // p = x + (1 - d)(x - x*) + h² g: the velocity lives in the previous positions.
+    const Real keep = 1 - settings_.verlet_drag;
+    const Real* xp = x_prev_.data();
+    for (Index i = begin; i < end; ++i) {
+      const Real a = w[i] > 0 ? h * h : 0;
+      for (int k = 0; k < 3; ++k) p[3 * i + k] = x[3 * i + k] + keep * (x[3 * i + k] - xp[3 * i + k]) + a * g[k];
+    }
+    return;
+  }
+  // (5) and (7) in one pass.
+  for (Index i = begin; i < end; ++i) {
+    const Real a = w[i] > 0 ? h : 0;
+    for (int k = 0; k < 3; ++k) {
+      v[3 * i + k] += a * g[k];
+      p[3 * i + k] = x[3 * i + k] + h * v[3 * i + k];
+    }
+  }
+}
+
+namespace {
+
+// The update of a sub-step and the prediction of the next for coordinates [k0, k1) in one pass:
+// Euler v = (p - x)/h + a, x = p, p = x + h v; Verlet x* = x, x = p, p = x + keep (x - x*) + a
+// (a = accel_). The operations of commit and predict_range, in their order: the same bits.
+inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x, Real* __restrict v,
+                                                              Real* __restrict p, const Real* __restrict a, Real h,
+                                                              Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    const Real pk = p[k];
+    const Real vk = (pk - x[k]) / h + a[k];
+    x[k] = pk;
+    v[k] = vk;
+    p[k] = pk + h * vk;
+  }
+}
+inline __attribute__((always_inline)) void advance_verlet_body(Real* __restrict x, Real* __restrict xp,
+                                                               Real* __restrict p, const Real* __restrict a, Real keep,
+                                                               Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    const Real pk = p[k], xk = x[k];
+    xp[k] = xk;
+    x[k] = pk;
+    p[k] = pk + keep * (pk - xk) + a[k];
+  }
+}
+void advance_euler_base(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0, Index k1) {
+  advance_euler_body(x, v, p, a, h, k0, k1);
+}
+void advance_verlet_base(Real* x, Real* xp, Real* p, const Real* a, Real keep, Index k0, Index k1) {
+  advance_verlet_body(x, xp, p, a, keep, k0, k1);
+}
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+// Four lanes instead of SSE2's two (the division dominates): taken with the AVX2 kernels.
+#define CSB_ADVANCE_AVX2 1
+__attribute__((target("avx2"))) void advance_euler_avx2(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0,
+                                                         Index k1) {
+  advance_euler_body(x, v, p, a, h, k0, k1);
+}
+__attribute__((target("avx2"))) void advance_verlet_avx2(Real* x, Real* xp, Real* p, const Real* a, Real keep,
+                                                          Index k0, Index k1) {
+  advance_verlet_body(x, xp, p, a, keep, k0, k1);
+}
+#endif
+
+}  // namespace
+
+
+void PbdStepper::set_accel(const Model& model, Real h, Index begin, Index end) {
+  const Real* w = model.inv_mass.data();
+  const Vec3& g = settings_.gravity;
+  const Real step = settings_.front_end == FrontEnd::Verlet ? h * h : h;
+  for (Index i = begin; i < end; ++i) {
+    const Real a = w[i] > 0 ? step : 0;
+    for (int k = 0; k < 3; ++k) accel_[3 * i + k] = a * g[k];
+  }
+}
+
+
+void PbdStepper::advance(State& state, Real h, Index begin, Index end) {
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  Real* x = state.x.data();
+  Real* v = verlet ? x_prev_.data() : state.v.data();
+  const Real keep = 1 - settings_.verlet_drag;
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) {
+    if (verlet)
+      advance_verlet_avx2(x, v, p_.data(), accel_.data(), keep, 3 * begin, 3 * end);
+    else
+      advance_euler_avx2(x, v, p_.data(), accel_.data(), h, 3 * begin, 3 * end);
+    return;
+  }
+#endif
+  if (verlet)
+    advance_verlet_base(x, v, p_.data(), accel_.data(), keep, 3 * begin, 3 * end);
+  else
+    advance_euler_base(x, v, p_.data(), accel_.data(), h, 3 * begin, 3 * end);
+}
+
+
+void PbdStepper::commit(State& state, Real h, Index begin, Index end) {
+  Real* x = state.x.data();
+  Real* v = state.v.data();
+  const Real* p = p_.data();
+  if (settings_.front_end == FrontEnd::Verlet) {
+    Real* xp = x_prev_.data();
+    for (Index k = 3 * begin; k < 3 * end; ++k) {
+      xp[k] = x[k];
+      x[k] = p[k];
+    }
+  } else {
+    for (Index k = 3 * begin; k < 3 * end; ++k) {
+      v[k] = (p[k] - x[k]) / h;
+      x[k] = p[k];
+    }
+  }
+}
+
+
+// Müller 2007 §3.5, per group over its particles that can move:
+//   x_cm = Σ m_i x_i / Σ m_i,  v_cm = Σ m_i v_i / Σ m_i,  r_i = x_i - x_cm
+//   L = Σ r_i x m_i v_i,  I = Σ m_i (|r_i|² 1 - r_i r_iᵀ)  (= Σ r̃_i r̃_iᵀ m_i),  ω = I⁻¹ L
+//   Δv_i = v_cm + ω x r_i - v_i,  v_i <- v_i + k_damping Δv_i
+// I is singular for collinear particles (a chain): the pseudo-inverse gives the ω of least norm,
+// which still reproduces every rigid motion the particles can have.
+void PbdStepper::damp_velocities(const Model& model, State& state) const {
+  const Real k = settings_.damping;
+  for (Index g = 0; g < model.num_groups(); ++g) {
+    Real m_total = 0;
+    Vec3 x_cm = Vec3::Zero(), v_cm = Vec3::Zero();
+    for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+      const Index i = model.group_particles[o];
+      if (model.inv_mass[i] <= 0) continue;
+      m_total += model.mass[i];
+      x_cm += model.mass[i] * state.x.col(i);
+      v_cm += model.mass[i] * state.v.col(i);
+    }
+    if (m_total <= 0) continue;
+    x_cm /= m_total;
+    v_cm /= m_total;
+    Vec3 L = Vec3::Zero();
+    Mat3 I = Mat3::Zero();
+    for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+      const Index i = model.group_particles[o];
+      if (model.inv_mass[i] <= 0) continue;
+      const Vec3 r = state.x.col(i) - x_cm;
+      L += r.cross(model.mass[i] * state.v.col(i));
+      I += model.mass[i] * (r.squaredNorm() * Mat3::Identity() - r * r.transpose());
+    }
+    Eigen::SelfAdjointEigenSolver<Mat3> eig(I);
+    const Vec3 lambda = eig.eigenvalues();
+    const Real cutoff = 1e-12 * lambda.cwiseAbs().maxCoeff();
+    Vec3 inv = Vec3::Zero();
+    for (int a = 0; a < 3; ++a)
+      if (lambda[a] > cutoff) inv[a] = 1 / lambda[a];
+    const Vec3 omega = eig.eigenvectors() * inv.asDiagonal() * eig.eigenvectors().transpose() * L;
+    for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+      const Index i = model.group_particles[o];
+      if (model.inv_mass[i] <= 0) continue;
+      const Vec3 r = state.x.col(i) - x_cm;
+      state.v.col(i) += k * (v_cm + omega.cross(r) - state.v.col(i));
+    }
+  }
+}
+
+}  // namespace csb
