@@ -245,7 +245,17 @@ class PbdStepper : public Integrator {
   // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
   // (s) of the state the stepper first stepped on this model.
   void check_divergence(const Model& model, State& state, Real h);
-  void one_substep(const Model& model, State& state, Real h, int sub);
+  // The stages of step() (step/stepper.cpp lists them against Algorithm 1).
+  void check_request(const Model& model, const State& state, std::int64_t steps) const;
+  bool begin_steps(const Model& model, State& state);
+  void substep(const Model& model, State& state, Real h, int sub);
+  void substeps(const Model& model, State& state, Real h, int first, int count, const std::function<bool()>& interrupt);
+  void substeps_fused(const Model& model, State& state, Real h, const std::function<bool()>& interrupt);
+  void stop_if_asked(State& state, Real h, int sub, const std::function<bool()>& interrupt);
+  void end_step(const Model& model, State& state, Real h);
+  void finish_steps(State& state, Real h);
+  void reset_multipliers();
+  void hold_grabbed(const Model& model);
   UseGuard use_;
   Real guard_size_ = 0, guard_v0_ = 0, guard_t0_ = 0;
   bool guard_started_ = false;

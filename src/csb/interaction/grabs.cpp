@@ -75,4 +75,19 @@ void PbdStepper::project_grabs(const Positions& x_start) {
   }
 }
 
+// Kinematic grabs: infinite mass while held (w_ is the model's inverse masses with theirs at 0);
+// the compliant grabs' multipliers.
+void PbdStepper::hold_grabbed(const Model& model) {
+  if (grabs_.empty()) return;
+  const Index n = model.num_particles();
+  w_ = model.inv_mass;
+  for (const Grab& g : grabs_) {
+    if (g.particle >= n)
+      throw InvalidArgument("grab " + std::to_string(g.handle) + " holds particle " + std::to_string(g.particle) +
+                            ", but this model has " + std::to_string(n) + " particles");
+    if (g.compliance == 0) w_[g.particle] = 0;
+  }
+  grab_lambda_.assign(grabs_.size(), 0);
+}
+
 }  // namespace csb

@@ -3,6 +3,7 @@
 #include "csb/pbd.hpp"
 #include "csb/format.hpp"
 #include "csb/step/internal.hpp"
+#include "csb/memory_budget.hpp"
 #include "csb/constraints/volume.hpp"
 #include "csb/material.hpp"
 #include <sstream>
@@ -146,6 +147,22 @@ void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
   msg << "step " << state.step << " (substep " << sub << ", t = " << state.t << " s): particle " << i
       << " got a non-finite position " << str(p_.col(i)) << "; the state is left at the end of the last finite substep";
   throw SimulationError(msg.str());
+}
+
+// The request before any work: the state matches the model, steps >= 0 and within a year's work
+// (memory_budget.hpp), every position and velocity finite.
+void PbdStepper::check_request(const Model& model, const State& state, std::int64_t steps) const {
+  const Index n = model.num_particles();
+  if (state.x.cols() != n || state.v.cols() != n)
+    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " positions and " +
+                          std::to_string(state.v.cols()) + " velocities, but the model has " + std::to_string(n) +
+                          " particles");
+  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  require_time_for("steps = " + std::to_string(steps), operations(model, steps));
+  for (const Positions* q : {&state.x, &state.v})
+    if (const Index i = first_non_finite(*q); i >= 0)
+      throw SimulationError("before step " + std::to_string(state.step) + ": particle " + std::to_string(i) +
+                            " has a non-finite " + (q == &state.x ? "position " : "velocity ") + str(q->col(i)));
 }
 
 }  // namespace csb

@@ -59,45 +59,127 @@ std::int64_t PbdStepper::projections_per_step(const Model& model) const {
 }
 
 
+// ---------------------------------------------------------------------------------- the step
+//
+// One call advances `steps` steps of dt, each `substeps` sub-steps of h = dt/substeps, each with
+// `iterations` sweeps of the constraints (Müller et al. 2007, Algorithm 1, line by line):
+//
+//   stage                          Algorithm 1           where
+//   check the request              -                     check_request (step/checks.cpp)
+//   per-model workspace            -                     prepare (step/workspace.cpp)
+//   start of the steps             -                     begin_steps (here)
+//   per sub-step:
+//     predict                      (5)-(7)               predict, damp_velocities (step/integrate.cpp)
+//     move the hands               -                     apply_grab_targets (interaction/grabs.cpp)
+//     zero XPBD's multipliers      -                     reset_multipliers (step/workspace.cpp)
+//     generate contacts            (8)                   generate_contacts (collision/contacts.cpp)
+//     project, `iterations` sweeps (9)-(11)              project (solver/sequential.cpp, solver/coloured.cpp)
+//     check finite                 -                     fail_non_finite (step/checks.cpp)
+//     friction                     (16), on p            apply_friction (collision/contacts.cpp)
+//     velocities and positions     (12)-(15)             commit (step/integrate.cpp)
+//     restitution                  (16)                  apply_restitution (collision/contacts.cpp)
+//   end of a step                  -                     end_step: time, hands, divergence guard
+//
+// A fused step (no contacts, grabs or Müller damping, coloured ordering) runs the same stages
+// inside the projection's threads, all sub-steps in one fork of the team (substeps_fused).
 void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
                       const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "PbdStepper.step");
-  const Index n = model.num_particles();
-  if (state.x.cols() != n || state.v.cols() != n)
-    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " positions and " +
-                          std::to_string(state.v.cols()) + " velocities, but the model has " + std::to_string(n) +
-                          " particles");
-  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
-  require_time_for("steps = " + std::to_string(steps), operations(model, steps));
-  for (const Positions* q : {&state.x, &state.v})
-    if (const Index i = first_non_finite(*q); i >= 0)
-      throw SimulationError("before step " + std::to_string(state.step) + ": particle " + std::to_string(i) +
-                            " has a non-finite " + (q == &state.x ? "position " : "velocity ") + str(q->col(i)));
+  check_request(model, state, steps);
   prepare(model);
+  const bool fused = begin_steps(model, state);
+  const Real h = substep_size();
+  for (std::int64_t s = 0; s < steps; ++s) {
+    if (fused)
+      substeps_fused(model, state, h, interrupt);
+    else
+      substeps(model, state, h, 0, settings_.substeps, interrupt);
+    end_step(model, state, h);
+    if (s + 1 < steps && interrupt && interrupt()) {
+      finish_steps(state, h);
+      throw Interrupted("interrupted after step " + std::to_string(state.step) + " (t = " + str(state.t) +
+                        " s): the state is left at the end of that step");
+    }
+  }
+  finish_steps(state, h);
+}
+
+// One sub-step of Algorithm 1 outside a fused fork.
+void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
+  predict(model, state, h);                                                 // (5)-(7)
+  if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
+  reset_multipliers();
+  generate_contacts(model, state.x, h);                                     // (8)
+  project(model, state.x);                                                  // (9)-(11)
+  if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
+  if (!contacts_.empty()) apply_friction(model, state.x);                   // (16), on p
+  commit(state, h, 0, model.num_particles());                               // (12)-(15)
+  if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
+}
+
+// Sub-steps first .. first + count - 1 of a step, one at a time (each checked for finiteness),
+// asking between them whether to stop.
+void PbdStepper::substeps(const Model& model, State& state, Real h, int first, int count,
+                          const std::function<bool()>& interrupt) {
+  for (int sub = first; sub < first + count; ++sub) {
+    substep(model, state, h, sub);
+    if (sub + 1 < settings_.substeps) stop_if_asked(state, h, sub, interrupt);
+  }
+}
+
+// The sub-steps of a step in forks of the projection's team, at most kFusedSubsteps a fork, so
+// that a step of very many sub-steps can be interrupted between forks; a fork's last sub-step
+// commits what the next would have updated in the same pass (the same operations), so the bits
+// do not depend on the cut.
+void PbdStepper::substeps_fused(const Model& model, State& state, Real h, const std::function<bool()>& interrupt) {
+  generate_contacts(model, state.x, h);  // (8): none, but the last step's are cleared
+  if (settings_.method == Method::Xpbd) lambda_stale_ = true;
+  for (int first = 0; first < settings_.substeps; first += kFusedSubsteps) {
+    const int count = std::min(kFusedSubsteps, settings_.substeps - first);
+    Fused f{&state, h, count};
+    project(model, state.x, &f);
+    if (f.bad >= 0 && f.bad_sub >= 0) fail_non_finite(state, first + f.bad_sub, f.bad, h);
+    // Checked once, after the fork's last sub-step, and found non-finite: back to the fork's
+    // start, then its sub-steps again one at a time, each checked (the same operations, so the
+    // same positions), which stop at the first non-finite one and leave the state at its start.
+    // (A non-finite position stays so to the fork's end: every later operation that writes it
+    // has it as an operand; so the check once misses none.)
+    if (f.bad >= 0) {
+      state.x = x_step_;
+      (settings_.front_end == FrontEnd::Verlet ? x_prev_ : state.v) = v_step_;
+      substeps(model, state, h, first, count, interrupt);
+    }
+    if (first + count < settings_.substeps) stop_if_asked(state, h, first + count - 1, interrupt);
+  }
+}
+
+// Between sub-steps, whether the caller asked to stop: the state is then left at the end of
+// sub-step `sub` of the current step (its time included, its step count not).
+void PbdStepper::stop_if_asked(State& state, Real h, int sub, const std::function<bool()>& interrupt) {
+  if (!interrupt || !interrupt()) return;
+  state.t += (sub + 1) * h;
+  finish_steps(state, h);
+  throw Interrupted("interrupted during step " + std::to_string(state.step) + " after sub-step " +
+                    std::to_string(sub) + " (t = " + str(state.t) + " s): the state is left at the end of that sub-step");
+}
+
+// What a call's steps start from: the divergence guard's baseline, pins let go, the hands'
+// particles' masses, the coloured batches and the threads, Verlet's previous positions. Returns
+// whether the steps are fused.
+bool PbdStepper::begin_steps(const Model& model, State& state) {
+  const Index n = model.num_particles();
   const Real h = substep_size();
   const bool verlet = settings_.front_end == FrontEnd::Verlet;
-  const Index n3 = 3 * n;
   if (!guard_started_ || state.t < guard_t0_) {  // the divergence guard's baseline: the first state stepped
     guard_v0_ = 0;
     for (Index i = 0; i < n; ++i) guard_v0_ = std::max(guard_v0_, state.v.col(i).norm());
     guard_t0_ = state.t;
     guard_started_ = true;
   }
-  Real* x = state.x.data();
-  Real* v = state.v.data();
   for (Index i : stop_)  // a pin let go stays where it was put
     if (i < n) state.v.col(i).setZero();
   stop_.clear();
-  if (!grabs_.empty()) {  // kinematic grabs: infinite mass while held
-    w_ = model.inv_mass;
-    for (const Grab& g : grabs_) {
-      if (g.particle >= n)
-        throw InvalidArgument("grab " + std::to_string(g.handle) + " holds particle " + std::to_string(g.particle) +
-                              ", but this model has " + std::to_string(n) + " particles");
-      if (g.compliance == 0) w_[g.particle] = 0;
-    }
-    grab_lambda_.assign(grabs_.size(), 0);
-  }
+  hold_grabbed(model);
   if (settings_.ordering == Ordering::Coloured) {
     // The coloured batches carry the inverse masses: rebuilt for a new model or when the
     // particles held kinematically (w = 0 while held) change.
@@ -114,95 +196,32 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
     threads_used_ = 1;
   }
   if (verlet) {  // the Verlet front end keeps the previous positions instead of the velocity
+    const Real* x = state.x.data();
+    const Real* v = state.v.data();
     Real* xp = x_prev_.data();
-    for (Index k = 0; k < n3; ++k) xp[k] = x[k] - h * v[k];
+    for (Index k = 0; k < 3 * n; ++k) xp[k] = x[k] - h * v[k];
   }
   // Without contacts, grabs or Müller damping a sub-step is element-wise but for the sweeps: the
   // projection's threads then also predict and update (the same operations, split by particle),
   // all sub-steps of a step in one fork of the team; otherwise the sub-steps run here, the team
   // forked for each projection.
-  const bool fused = settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
-                     self_groups_.empty() && (verlet || settings_.damping <= 0);
-  // Between sub-steps, whether the caller asked to stop (set_interrupt): the state is then left
-  // at the end of sub-step `sub` of the current step (its time included, its step count not).
-  const auto stop_if_asked = [&](int sub) {
-    if (!interrupt || !interrupt()) return;
-    state.t += (sub + 1) * h;
-    if (verlet) state.v = (state.x - x_prev_) / h;
-    throw Interrupted("interrupted during step " + std::to_string(state.step) + " after sub-step " +
-                      std::to_string(sub) + " (t = " + str(state.t) +
-                      " s): the state is left at the end of that sub-step");
-  };
-  // Sub-steps first .. first + count - 1 of a step, one at a time (each checked for finiteness).
-  const auto one_at_a_time = [&](int first, int count) {
-    for (int sub = first; sub < first + count; ++sub) {
-      one_substep(model, state, h, sub);
-      if (sub + 1 < settings_.substeps) stop_if_asked(sub);
-    }
-  };
-  for (std::int64_t s = 0; s < steps; ++s) {
-    if (fused) {
-      generate_contacts(model, state.x, h);  // (8): none, but the last step's are cleared
-      if (settings_.method == Method::Xpbd) lambda_stale_ = true;
-      // At most kFusedSubsteps sub-steps a fork, so that a step of very many sub-steps can be
-      // interrupted between forks; a fork's last sub-step commits what the next would have
-      // updated in the same pass (the same operations), so the bits do not depend on the cut.
-      for (int first = 0; first < settings_.substeps; first += kFusedSubsteps) {
-        const int count = std::min(kFusedSubsteps, settings_.substeps - first);
-        Fused f{&state, h, count};
-        project(model, state.x, &f);
-        if (f.bad >= 0 && f.bad_sub >= 0) fail_non_finite(state, first + f.bad_sub, f.bad, h);
-        // Checked once, after the fork's last sub-step, and found non-finite: back to the fork's
-        // start, then its sub-steps again one at a time, each checked (the same operations, so
-        // the same positions), which stop at the first non-finite one and leave the state at its
-        // start. (A non-finite position stays so to the fork's end: every later operation that
-        // writes it has it as an operand; so the check once misses none.)
-        if (f.bad >= 0) {
-          state.x = x_step_;
-          (verlet ? x_prev_ : state.v) = v_step_;
-          one_at_a_time(first, count);
-        }
-        if (first + count < settings_.substeps) stop_if_asked(first + count - 1);
-      }
-    } else {
-      one_at_a_time(0, settings_.substeps);
-    }
-    ++state.step;
-    state.t += settings_.dt;
-    for (Grab& g : grabs_) g.from = g.target;
-    if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
-    if (s + 1 < steps && interrupt && interrupt()) {
-      if (verlet) state.v = (state.x - x_prev_) / h;
-      throw Interrupted("interrupted after step " + std::to_string(state.step) + " (t = " + str(state.t) +
-                        " s): the state is left at the end of that step");
-    }
-  }
-  if (verlet) state.v = (state.x - x_prev_) / h;
+  return settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
+         self_groups_.empty() && (verlet || settings_.damping <= 0);
 }
 
+// The end of a step: its count and time, the hands' starting points for the next, the
+// divergence guard.
+void PbdStepper::end_step(const Model& model, State& state, Real h) {
+  ++state.step;
+  state.t += settings_.dt;
+  for (Grab& g : grabs_) g.from = g.target;
+  if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
+}
 
-// One sub-step of Algorithm 1 outside a fused fork: (5)-(7) prediction, grabs, XPBD's multipliers
-// set to zero, (8) contacts, the projection, friction, (12)-(15) and restitution (16).
-void PbdStepper::one_substep(const Model& model, State& state, Real h, int sub) {
-  const Index n = model.num_particles();
-  predict(model, state, h);
-  if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
-  if (settings_.method == Method::Xpbd && settings_.ordering == Ordering::Coloured) {
-    zero_coloured_multipliers(0, 1);
-    lambda_stale_ = true;
-  } else if (settings_.method == Method::Xpbd) {
-    std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
-    std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
-    std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
-    std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
-    std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
-  }
-  generate_contacts(model, state.x, h);  // (8)
-  project(model, state.x);
-  if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
-  if (!contacts_.empty()) apply_friction(model, state.x);
-  commit(state, h, 0, n);  // (12)-(15) of Algorithm 1
-  if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
+// The Verlet front end keeps its velocity in the previous positions: the state's velocities
+// are made from them when a call ends (or stops).
+void PbdStepper::finish_steps(State& state, Real h) {
+  if (settings_.front_end == FrontEnd::Verlet) state.v = (state.x - x_prev_) / h;
 }
 
 }  // namespace csb

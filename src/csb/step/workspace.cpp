@@ -152,4 +152,19 @@ std::size_t PbdStepper::workspace_bytes() const {
   return s + coloured_.bytes();
 }
 
+// XPBD: every multiplier set to zero at the start of a sub-step (Macklin 2016, Algorithm 1).
+void PbdStepper::reset_multipliers() {
+  if (settings_.method != Method::Xpbd) return;
+  if (settings_.ordering == Ordering::Coloured) {
+    zero_coloured_multipliers(0, 1);
+    lambda_stale_ = true;
+    return;
+  }
+  std::fill(lambda_.distance.begin(), lambda_.distance.end(), 0.0);
+  std::fill(lambda_.bending.begin(), lambda_.bending.end(), 0.0);
+  std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
+  std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
+  std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
+}
+
 }  // namespace csb
