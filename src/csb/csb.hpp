@@ -11,6 +11,7 @@
 #include "csb/reference.hpp"
 #include "csb/force.hpp"
 #include "csb/interaction/pick.hpp"
+#include "csb/methods/registry.hpp"
 #include "csb/tearing.hpp"
 #include "csb/shapes.hpp"
 #include "csb/tetmesh.hpp"

@@ -1,4 +1,5 @@
 #include "csb/force.hpp"
+#include "csb/methods/registry.hpp"
 #include "csb/memory_budget.hpp"
 #include "csb/format.hpp"
 
@@ -18,14 +19,7 @@ bool same_bits(const Positions& a, const Positions& b) {
 
 }  // namespace
 
-std::string ForceStepper::name() const {
-  switch (settings_.method) {
-    case ForceIntegrator::ExplicitEuler: return "explicit_euler";
-    case ForceIntegrator::SymplecticEuler: return "symplectic_euler";
-    case ForceIntegrator::VelocityVerlet: return "velocity_verlet";
-  }
-  return "force";
-}
+std::string ForceStepper::name() const { return method_info(settings_.method).name; }
 
 ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) {
   const ForceSettings& s = settings_;

@@ -35,7 +35,7 @@ class ForceStepper : public Integrator {
  public:
   explicit ForceStepper(const ForceSettings& settings);
   const ForceSettings& settings() const { return settings_; }
-  std::string name() const override;  // "explicit_euler", "symplectic_euler" or "velocity_verlet"
+  std::string name() const override;  // "explicit-euler", "symplectic-euler" or "velocity-verlet"
   Real dt() const override { return settings_.dt; }
 
   // Advances `state` by `steps` steps of dt. Pinned particles stay where `state` has them. One

@@ -1,5 +1,6 @@
 #include "csb/material.hpp"
 #include "csb/pbd.hpp"
+#include "csb/methods/registry.hpp"
 
 #include <algorithm>
 #include <sstream>
@@ -63,14 +64,7 @@ MaterialNote check(const char* family, const char* label, const char* unit, cons
 
 }  // namespace
 
-const char* method_label(Method method) {
-  switch (method) {
-    case Method::Pbd: return "PBD";
-    case Method::Xpbd: return "XPBD";
-    case Method::Jakobsen: return "Jakobsen";
-  }
-  return "?";
-}
+const char* method_label(Method method) { return method_info(method).label.c_str(); }
 
 std::vector<MaterialNote> material_notes(const Model& model, Method method) {
   std::vector<MaterialNote> notes;

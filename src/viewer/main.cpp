@@ -4,6 +4,7 @@
 #include "csb/io.hpp"
 #include "csb/model.hpp"
 #include "viewer/capture.hpp"
+#include "csb/methods/registry.hpp"
 #include "viewer/viewer.hpp"
 
 #include <cstdio>
@@ -29,7 +30,7 @@ options (SI units):
   --pin top|none|I,J,...   pin the highest vertices (within 1 % of the size), none, or these
                        vertex indices (default top)
   --no-ground          no ground plane below the mesh
-  --method pbd|xpbd|verlet   (default pbd)
+  --method NAME              pbd, xpbd, small-steps or jakobsen (also: verlet); default pbd
   --dt S               time step (default 1/60)
   --substeps N         sub-steps per step (default 1)
   --iterations N       constraint sweeps per sub-step (default 10)
@@ -89,11 +90,18 @@ int main(int argc, char** argv) {
     else if (a == "--pin") pin = value();
     else if (a == "--no-ground") ground = false;
     else if (a == "--method") {
-      const std::string m = value();
-      if (m == "pbd") settings.method = Method::Pbd;
-      else if (m == "xpbd") settings.method = Method::Xpbd;
-      else if (m == "verlet" || m == "jakobsen") settings.method = Method::Jakobsen, settings.front_end = FrontEnd::Verlet;
-      else fail("--method must be pbd, xpbd or verlet, got '" + m + "'");
+      std::string m = value();
+      if (m == "verlet") m = "jakobsen";  // Jakobsen's method by its integrator's name
+      const MethodInfo* info = nullptr;
+      try {
+        info = &method_info(m);
+      } catch (const InvalidArgument& e) {
+        fail(std::string("--method: ") + e.what());
+      }
+      if (!info->pbd) fail("--method: the viewer steps the position-based methods, got the force-based '" + m + "'");
+      settings.method = *info->pbd;
+      if (!info->iterates) settings.iterations = 1;  // small steps: one iteration a sub-step
+      if (settings.method == Method::Jakobsen) settings.front_end = FrontEnd::Verlet;
     } else if (a == "--dt") settings.dt = number(a, value());
     else if (a == "--substeps") settings.substeps = integer(a, value());
     else if (a == "--iterations") settings.iterations = integer(a, value());

@@ -1,6 +1,7 @@
 // csb — PbdStepper::step: one step of Algorithm 1 (Müller et al. 2007) as named stages, with
 // sub-steps and iterations; the stages themselves live in step/, solver/, collision/ and interaction/.
 #include "csb/pbd.hpp"
+#include "csb/methods/registry.hpp"
 #include "csb/format.hpp"
 #include "csb/step/internal.hpp"
 #include "csb/memory_budget.hpp"
@@ -37,16 +38,7 @@ void validate(const PbdSettings& s) {
 }
 
 
-Real corrected_stiffness(Real k, int iterations) {
-  if (k >= 1) return 1;
-  return 1 - std::pow(1 - k, 1.0 / iterations);
-}
-
-
-std::string PbdStepper::name() const {
-  return settings_.method == Method::Pbd ? "pbd" : settings_.method == Method::Xpbd ? "xpbd" : "jakobsen";
-}
-
+std::string PbdStepper::name() const { return method_info(settings_.method).name; }
 
 PbdStepper::PbdStepper(const PbdSettings& settings) : settings_(settings) {
   validate(settings_);

@@ -1,0 +1,54 @@
+// csb — the methods by name. Every method csb can step with is one module in this folder (its
+// description, what it reads of the material, how it is made) and one line in registry.cpp's list;
+// the bindings, the scene files, the command line, the viewer and the studies find it here.
+#pragma once
+
+#include "csb/force.hpp"
+#include "csb/integrator.hpp"
+#include "csb/pbd.hpp"
+
+#include <functional>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace csb {
+
+// The settings every method is made from (SI units); a method reads what applies to it.
+struct MethodOptions {
+  Real dt = 1.0 / 60.0;              // s, the time one step advances; > 0
+  int substeps = 1;                  // sub-steps of dt/substeps per step; >= 1
+  int iterations = 10;               // constraint sweeps per sub-step (position-based methods); >= 1
+  Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
+};
+
+struct MethodInfo {
+  std::string name;    // how users ask for it: "pbd", "xpbd", "symplectic-euler", ...
+  std::string label;   // for tables and the viewer: "XPBD"
+  std::string source;  // where it comes from: "Macklin, Müller and Chentanez 2016"
+  std::string reads;   // what it reads of a constraint's material: "stiffness" or "compliance"
+  bool iterates = false;  // whether MethodOptions::iterations means anything to it
+  // The variant of csb's position-based pipeline (PbdStepper) or of the force-based integrators
+  // (ForceStepper) it is, if it is one: settings that name it by string are resolved here.
+  std::optional<Method> pbd;
+  std::optional<ForceIntegrator> force;
+  std::function<std::unique_ptr<Integrator>(const MethodOptions&)> make;
+};
+
+// Every method, in the order of registry.cpp's list.
+const std::vector<MethodInfo>& methods();
+// The method of that name; InvalidArgument naming the known ones otherwise.
+const MethodInfo& method_info(const std::string& name);
+// The registered method of a position-based variant or a force-based integrator.
+const MethodInfo& method_info(Method method);
+const MethodInfo& method_info(ForceIntegrator integrator);
+
+// The method modules (one file each in this folder).
+MethodInfo pbd_method();          // pbd.cpp
+MethodInfo xpbd_method();         // xpbd.cpp
+MethodInfo small_steps_method();  // small_steps.cpp
+MethodInfo jakobsen_method();     // jakobsen.cpp
+MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
+
+}  // namespace csb
