@@ -30,7 +30,7 @@ options (SI units):
   --pin top|none|I,J,...   pin the highest vertices (within 1 % of the size), none, or these
                        vertex indices (default top)
   --no-ground          no ground plane below the mesh
-  --method NAME              pbd, xpbd, small-steps or jakobsen (also: verlet); default pbd
+  --method NAME        pbd, xpbd, small-steps or jakobsen (also: verlet); default pbd
   --dt S               time step (default 1/60)
   --substeps N         sub-steps per step (default 1)
   --iterations N       constraint sweeps per sub-step (default 10)
