@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb.soft_bodies import hanging_balloon, icosphere, xpbd_error_against_reference
+from csb.studies.soft_bodies import hanging_balloon, icosphere, xpbd_error_against_reference
 
 K = csb.kernels
 EPS = np.finfo(float).eps

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from csb import bench_peers
-from csb.bench_peers import CsbSide, check_cloth, cloth_arrays, corrected_stiffness
+from csb.bench import peers as bench_peers
+from csb.bench.peers import CsbSide, check_cloth, cloth_arrays, corrected_stiffness
 
 N = 8  # 64 particles, 161 distance constraints (112 structural + 49 diagonal), 133 interior edges
 

@@ -1,5 +1,5 @@
 """Static colliders: contacts generated along x -> p after the prediction (Müller 2007 §4.3),
-checked against exact signed distances written in numpy (csb.collision_studies), not the
+checked against exact signed distances written in numpy (csb.studies.collisions), not the
 library's own geometry."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb import collision_studies as cs
+from csb.studies import collisions as cs
 
 METHODS = ("pbd", "xpbd", "jakobsen")
 # A contact leaves the particle on the collider's tangent plane (outside a convex collider) up to

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb import collision_studies as cs
+from csb.studies import collisions as cs
 
 G = 9.81
 

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb.soft_bodies import icosphere
+from csb.mesh import icosphere
 
 G = 9.81
 DT = 1 / 60

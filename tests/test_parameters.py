@@ -12,7 +12,7 @@ import pytest
 
 import csb
 from csb import _core
-from csb.soft_bodies import icosphere
+from csb.mesh import icosphere
 
 MAX = 2**31 - 1  # Index is int32
 

@@ -4,7 +4,7 @@ import subprocess
 import sys
 import textwrap
 
-from csb.report import main
+from csb.studies.report import main
 
 
 def _study(path, body):
@@ -54,7 +54,7 @@ def test_report_runs_as_module(tmp_path):
         """Study: ok."""
         print("fine")
     ''')
-    r = subprocess.run([sys.executable, "-m", "csb.report", "--studies", str(studies), "--out", str(tmp_path / "o"),
+    r = subprocess.run([sys.executable, "-m", "csb.studies.report", "--studies", str(studies), "--out", str(tmp_path / "o"),
                         "--no-bench"], capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "wrote" in r.stdout and (tmp_path / "o" / "report.md").exists()

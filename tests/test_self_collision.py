@@ -1,6 +1,6 @@
 """Cloth self-collision (Müller 2007 §4.4): point-triangle contacts from a spatial hash, each
 keeping a particle on the side of a triangle it was on at the start of the sub-step. Checked with
-an exact edge-triangle crossing test over every pair (csb.collision_studies.self_intersections)."""
+an exact edge-triangle crossing test over every pair (csb.studies.collisions.self_intersections)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb import collision_studies as cs
+from csb.studies import collisions as cs
 
 
 def fold(method: str, self_collision: float | None, steps: int = 90) -> list[int]:

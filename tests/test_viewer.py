@@ -418,7 +418,7 @@ def test_the_cpp_viewer_opens_a_mesh_file(tmp_path):
 
 
 def test_the_frame_time_benchmark_times_whole_and_paused_frames():
-    from csb.view import format_frame_times, frame_times
+    from csb.bench import format_frame_times, frame_times
 
     (row,) = frame_times(8, ((64, 48),), frames=3, warmup=1, samples=0)
     assert row["particles"] == 64 and row["triangles"] == 2 * 7 * 7

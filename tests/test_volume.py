@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import csb
-from csb.soft_bodies import hanging_tet_cube, tet_cantilever, total_volume, xpbd_error_against_reference
+from csb.studies.soft_bodies import hanging_tet_cube, tet_cantilever, total_volume, xpbd_error_against_reference
 
 K = csb.kernels
 EPS = np.finfo(float).eps

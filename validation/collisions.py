@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 import csb
-from csb import collision_studies as cs
+from csb.studies import collisions as cs
 from csb.studies import write_csv
 
 METHODS = ("pbd", "xpbd", "jakobsen")

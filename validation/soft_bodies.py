@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 import csb
-from csb.soft_bodies import (hanging_balloon, hanging_tet_cube, tet_cantilever, total_volume,
+from csb.studies.soft_bodies import (hanging_balloon, hanging_tet_cube, tet_cantilever, total_volume,
                              xpbd_error_against_reference)
 from csb.studies import hard_under_pbd, write_csv
 

@@ -53,7 +53,7 @@ from ._core import (
     topology,
     volume_violations,
 )
-from .mesh import Mesh, MeshReport, MeshWarning, clean, load_mesh, transformed
+from .mesh import Mesh, MeshReport, MeshWarning, clean, icosphere, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
 from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
@@ -66,7 +66,7 @@ __version__ = build_info()["csb"]
 __all__ = [
     "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "MaterialWarning", "AccuracyWarning",
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
-    "readable_extensions", "cloth_grid", "chain", "pendulum",
+    "readable_extensions", "cloth_grid", "chain", "pendulum", "icosphere",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
     "Model", "ModelBuilder", "MeshInstance", "State",
     "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick", "tear",

@@ -25,10 +25,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     if args.peers:
-        from . import bench_peers
+        from .bench import peers
 
-        bench_peers.main(sizes=args.sizes or bench_peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
-                         min_time=bench_peers.MIN_TIME if args.peer_min_time is None else args.peer_min_time,
+        peers.main(sizes=args.sizes or peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
+                         min_time=peers.MIN_TIME if args.peer_min_time is None else args.peer_min_time,
                          sides=args.sides, pypbd_threads=args.pypbd_threads, newton_cold=not args.newton_cache,
                          hold_frames=args.hold_frames)
         return 0

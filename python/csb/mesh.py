@@ -1,4 +1,4 @@
-"""Meshes: import through Assimp, build from arrays, clean (weld, drop degenerate triangles), transform."""
+"""Meshes: import through Assimp, build from arrays, clean (weld, drop degenerate triangles), transform; the icosphere."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 from . import _core
 from ._core import Mesh
 
-__all__ = ["Mesh", "MeshReport", "MeshWarning", "load_mesh", "clean", "transformed"]
+__all__ = ["Mesh", "MeshReport", "MeshWarning", "load_mesh", "clean", "transformed", "icosphere"]
 
 
 class MeshWarning(UserWarning):
@@ -210,3 +210,38 @@ def transformed(
         tris = np.array(tris)[:, [0, 2, 1]]
     lines = mesh.lines if len(mesh.lines) else None
     return Mesh(v, tris, lines, name=mesh.name)
+
+
+def icosphere(radius: float = 0.5, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> Mesh:
+    """A closed triangle sphere of ``radius`` (m): an icosahedron whose faces are split in four
+    ``subdivisions`` times, vertices pushed onto the sphere, every triangle wound outwards."""
+    if not radius > 0:
+        raise _core.ParameterError(f"icosphere: radius must be > 0 m, got {radius}")
+    # 10·4^s + 2 vertices and 20·4^s triangles: s = 13 is the last whose triangles an Index counts.
+    if isinstance(subdivisions, bool) or not isinstance(subdivisions, (int, np.integer)) or not 0 <= subdivisions <= 13:
+        raise _core.ParameterError(f"icosphere: subdivisions must be an integer in [0, 13], got {subdivisions!r}")
+    t = (1 + 5**0.5) / 2
+    v = [[-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
+         [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]]
+    f = [[0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4], [11, 10, 2],
+         [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8], [3, 8, 9], [4, 9, 5], [2, 4, 11],
+         [6, 2, 10], [8, 6, 7], [9, 8, 1]]
+    verts = [np.array(p, dtype=float) / np.linalg.norm(p) for p in v]
+    for _ in range(subdivisions):
+        midpoint: dict[tuple[int, int], int] = {}
+
+        def mid(a: int, b: int) -> int:
+            key = (min(a, b), max(a, b))
+            if key not in midpoint:
+                m = verts[a] + verts[b]
+                verts.append(m / np.linalg.norm(m))
+                midpoint[key] = len(verts) - 1
+            return midpoint[key]
+
+        f = [g for a, b, c in f for g in ([a, mid(a, b), mid(c, a)], [b, mid(b, c), mid(a, b)],
+                                          [c, mid(c, a), mid(b, c)], [mid(a, b), mid(b, c), mid(c, a)])]
+    x = np.array(verts) * radius + np.asarray(center, dtype=float)
+    tris = np.array(f, dtype=np.int32)
+    if _core.kernels.enclosed_volume(x, tris) < 0:
+        tris = tris[:, ::-1].copy()
+    return Mesh(x, tris, name="icosphere")

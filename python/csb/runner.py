@@ -13,6 +13,7 @@ import numpy as np
 
 from . import _core
 from .output import FrameWriter, metrics_row, plot_snapshot, plot_summary, volume_errors, write_csv
+from .scene_file import SceneError
 
 if TYPE_CHECKING:
     from .scene import Scene, Simulation
@@ -159,8 +160,6 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         _core._require_time_for(f"duration {scene.duration:g} s = {steps} steps of {scene.solver.dt:g} s",
                                 float(steps) * sim.stepper.operations(sim.model, 1))
     except _core.ParameterError as e:
-        from .scene import SceneError
-
         raise SceneError(f"{scene.path}: {e}") from None
     steps_per_frame = max(1, round(1.0 / (scene.output.fps * scene.solver.dt)))
     writer = None

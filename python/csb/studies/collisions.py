@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 
-from . import _core
-from .model import ModelBuilder
+from .. import _core
+from ..model import ModelBuilder
 
 G = (0.0, -9.81, 0.0)
 KINDS = ("plane", "sphere", "capsule", "box", "mesh")

@@ -1,4 +1,7 @@
-"""Benchmark of the PBD step on square cloths: ms per step and constraint projections per second.
+"""csb.bench: the benchmarks (this module) and the peers' adapters (csb.bench.peers). They use the
+library (csb) and nothing uses them.
+
+Benchmark of the PBD step on square cloths: ms per step and constraint projections per second.
 
 The cloth is the bundled scene ``cloth_grid`` (stretch and bending, two pinned corners) at the
 requested resolution. A benchmark prints figures; it asserts nothing about speed (the machines
@@ -12,13 +15,13 @@ import dataclasses
 import statistics
 import time
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
-from . import _core
-from .model import ModelBuilder
-from .scene import Simulation, load_scene
+from .. import _core
+from ..model import ModelBuilder
+from ..scene import Simulation, load_scene
 
 
 @dataclass(frozen=True)
@@ -189,7 +192,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
         out["dispatch"] = dispatch(sizes, sweeps=iterations, repeats=rounds)
         print(format_dispatch(out["dispatch"]))
     if "viewer" in parts:
-        from .view import format_frame_times, frame_times, viewer_available, viewer_missing
+        from ..view import viewer_available, viewer_missing
 
         if viewer_available():
             print("\nViewer frame time, offscreen (EGL), overlay on, 4x multisampling: cloth_grid 64 x 64, one "
@@ -513,7 +516,7 @@ def klu_scaling(sizes: Sequence[int] = (16, 32, 64), *, duration: float = 0.02, 
     with compliant stretch and shear edges (no bending: the KLU path needs the analytic Jacobian):
     ms per Jacobian assembly (the values into the fixed CSC pattern), and a run over `duration` s
     of simulated time: wall time per simulated second, steps, Jacobian evaluations."""
-    from .reference import integrate_reference
+    from ..reference import integrate_reference
 
     rows = []
     for n in sizes:
@@ -595,3 +598,49 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
         out["klu"] = klu_scaling()
         print(format_klu(out["klu"]))
     return out
+
+
+def frame_times(n: int = 64, sizes: tuple[tuple[int, int], ...] = ((640, 480), (1280, 720)), *, frames: int = 60,
+                warmup: int = 10, samples: int = 4, offscreen: bool = True) -> list[dict[str, Any]]:
+    """Wall time per frame of the viewer, offscreen, on the bundled cloth_grid scene at n x n
+    particles (its solver: dt = 1/60 s, 1 sub-step x 10 iterations, one step per frame), with the
+    overlay on. Per image size: the median ms of a whole frame (step, normals, upload, draw, read
+    back), of a frame drawn while paused (everything but the step), and their difference, the
+    step. offscreen=False times a window instead (vsync off; needs a display). A figure for the
+    record: with Mesa's software renderer it measures the CPU."""
+    from ..view import open_viewer
+
+    rows = []
+    for width, height in sizes:
+        sim = cloth_simulation(n)
+        extra = {} if offscreen else {"vsync": False}
+        with open_viewer(sim, offscreen=offscreen, width=width, height=height, overlay=True, samples=samples,
+                         **extra) as v:
+            def timed(paused: bool) -> float:
+                v.paused = paused
+                t0 = time.perf_counter()
+                v.frame()
+                v.screenshot()  # waits for the renderer to finish
+                return 1e3 * (time.perf_counter() - t0)
+
+            for _ in range(warmup):
+                timed(False)
+            # Whole and paused frames alternate, so that both see the same load on a shared machine.
+            whole, drawn = [], []
+            for _ in range(frames):
+                whole.append(timed(False))
+                drawn.append(timed(True))
+        w, d = statistics.median(whole), statistics.median(drawn)
+        rows.append({"n": n, "particles": n * n, "triangles": len(sim.model.triangles), "width": width,
+                     "height": height, "frame_ms": w, "draw_ms": d, "step_ms": w - d, "fps": 1e3 / w})
+    return rows
+
+
+def format_frame_times(rows: list[dict[str, Any]]) -> str:
+    head = (f"{'cloth':>9} {'triangles':>9} {'image':>10} {'frame ms':>9} {'fps':>6} {'draw+read ms':>13} "
+            f"{'step ms':>8}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['triangles']:>9} {r['width']:>4}x{r['height']:<5} "
+                     f"{r['frame_ms']:>9.2f} {r['fps']:>6.1f} {r['draw_ms']:>13.2f} {r['step_ms']:>8.2f}")
+    return "\n".join(lines)

@@ -8,7 +8,7 @@ bending constraint on every interior edge. The peers are built from csb's own ar
 triangles, masses, pins, the distance pairs and the bending quadruples), so every side has the
 same particles and constraints; the counts in the table are read back from each peer's objects.
 
-Each side runs in its own process (``python -m csb.bench_peers --serve SIDE ...``), so that
+Each side runs in its own process (``python -m csb.bench.peers --serve SIDE ...``), so that
 OMP_NUM_THREADS reaches pypbd's OpenMP runtime before it starts and Warp's kernel cache can be
 a fresh directory. For each cloth and case the driver builds every side, each in a fresh
 process, one after the other, and then lets them take turns: PASSES passes, in each of which
@@ -93,7 +93,7 @@ MAPPING = {
 
 def cloth_arrays(n: int) -> dict[str, Any]:
     """csb's cloth_grid at n x n as plain arrays, the single source every side is built from."""
-    from .bench import cloth_simulation
+    from . import cloth_simulation
 
     sim = cloth_simulation(n)
     m = sim.model
@@ -130,7 +130,7 @@ class CsbSide:
     name = "csb"
 
     def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int):
-        from .bench import cloth_simulation
+        from . import cloth_simulation
 
         self.sim = cloth_simulation(arrays["n"], substeps=substeps, iterations=iterations)
         self.model, self.stepper = self.sim.model, self.sim.stepper
@@ -424,7 +424,7 @@ def _side_versions(side_name: str) -> dict[str, str]:
         import pypbd  # noqa: F401
 
         return dict(pypbd=version("pypbd"))
-    from . import _core
+    from .. import _core
 
     return dict(csb=_core.build_info()["csb"])
 
@@ -467,12 +467,12 @@ def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, w
             say("DONE", dict(check=check, hold=hold))
             return 0
         else:
-            raise ValueError(f"csb.bench_peers --serve: unknown command {line.strip()!r}")
+            raise ValueError(f"csb.bench.peers --serve: unknown command {line.strip()!r}")
     return 1  # the driver went away
 
 
 def _worker_main(argv: Sequence[str]) -> int:
-    p = argparse.ArgumentParser(prog="python -m csb.bench_peers")
+    p = argparse.ArgumentParser(prog="python -m csb.bench.peers")
     p.add_argument("--serve", required=True, choices=sorted(SIDE_CLASSES))
     p.add_argument("--size", type=int, required=True)
     p.add_argument("--case", required=True, help="SUBSTEPSxITERATIONS")
@@ -501,14 +501,14 @@ class WorkerFailed(RuntimeError):
 
 
 class Worker:
-    """The driver's end of one side's process for one row (``python -m csb.bench_peers --serve``).
+    """The driver's end of one side's process for one row (``python -m csb.bench.peers --serve``).
     Its turns go through the pipe; the process is built and ready before the row's first turn."""
 
     def __init__(self, run: Run, n: int, case: tuple[int, int], frames: int, warmup: int,
                  timeout: float = 3600):
         self.run, self.timeout = run, timeout
         self.stderr = tempfile.TemporaryFile(mode="w+")
-        cmd = [sys.executable, "-m", "csb.bench_peers", "--serve", run.side, "--size", str(n),
+        cmd = [sys.executable, "-m", "csb.bench.peers", "--serve", run.side, "--size", str(n),
                "--case", f"{case[0]}x{case[1]}", "--frames", str(frames), "--warmup", str(warmup)]
         self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.stderr,
                                      text=True, env={**os.environ, **run.env})

@@ -1,7 +1,7 @@
 """The main job's report: runs the validation studies and the benchmarks, keeps what each printed
 and wrote, and gathers it all into one Markdown page, ``<out>/report.md``.
 
-    python -m csb.report --studies validation --out out
+    python -m csb.studies.report --studies validation --out out
 
 Every study is a script that takes ``--out DIR`` and writes CSV and PNG files there; its printed
 findings are kept beside them as ``<study>.txt``. The page has, per study, the first paragraph of
@@ -72,7 +72,7 @@ def write_report(out: Path, sections: list[Section], bench: str | None, bench_co
     """Writes ``out/report.md`` from the studies' sections, the benchmark output and, if it exists,
     the bundled scene run in ``out/cloth_drop``."""
     lines = ["# csb: the main job's report", "",
-             "Written by `python -m csb.report` (run by `./dev run`). Every figure below was measured in this run; "
+             "Written by `python -m csb.studies.report` (run by `./dev run`). Every figure below was measured in this run; "
              "the charts and CSV tables are in `validation/`. The methods and their papers are described in "
              "`papers/` of the repository.", ""]
     failed = [s.name for s in sections if s.returncode != 0] + (["benchmarks"] if bench_code != 0 else [])
@@ -113,7 +113,7 @@ def write_report(out: Path, sections: list[Section], bench: str | None, bench_co
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m csb.report", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m csb.studies.report", description=__doc__.split("\n\n")[0])
     parser.add_argument("--studies", default="validation", help="directory of study scripts (default: validation)")
     parser.add_argument("--out", default="out", help="output directory (default: out); studies write to OUT/validation")
     parser.add_argument("--no-bench", action="store_true", help="skip the benchmarks")

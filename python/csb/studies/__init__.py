@@ -1,4 +1,7 @@
-"""Small measurement set-ups shared by the validation studies and their quick versions in the tests."""
+"""csb.studies: the study framework. This module holds the small measurement set-ups shared by the
+validation studies (validation/) and their quick versions in the tests; csb.studies.collisions and
+csb.studies.soft_bodies the collision and soft-body set-ups, csb.studies.report the main job's
+report. They use the library (csb), never the benchmarks."""
 
 from __future__ import annotations
 
@@ -11,9 +14,9 @@ import warnings
 
 import numpy as np
 
-from . import _core
-from .model import ModelBuilder
-from .scene import Scene
+from .. import _core
+from ..model import ModelBuilder
+from ..scene import Scene
 
 
 def write_csv(path, rows: list[dict]) -> None:
@@ -210,7 +213,7 @@ def energy_series(model: _core.Model, start: _core.State, times: np.ndarray, gra
     """Energy at ``times`` (multiples of dt) for ``method`` "reference" (with the settings of
     ``reference``, e.g. its ``frequency``) or "pbd" (undamped)."""
     if method == "reference":
-        from .reference import integrate_reference
+        from ..reference import integrate_reference
 
         r = integrate_reference(model, start, times, gravity=gravity, **(reference or {}))
         return np.array([method_energy(model, s, gravity, reference=True) for s in r.states(model)])
@@ -269,7 +272,7 @@ def omega_max(model: _core.Model, state: _core.State, gravity=(0.0, -9.81, 0.0))
     """The largest angular frequency of the spring network at `state` (rad/s): ω_max² is the
     largest eigenvalue of M⁻¹K, K the Hessian of the spring energy (read from the analytic
     Jacobian's ∂v̇/∂x block, which is -M⁻¹K)."""
-    from .reference import SpringNetwork
+    from ..reference import SpringNetwork
 
     net = SpringNetwork(model, state, gravity=gravity)
     n3 = net.size // 2
