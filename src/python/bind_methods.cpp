@@ -8,9 +8,7 @@ namespace csb::python {
 void bind_methods(py::module_& m, const Warnings& warnings) {
   // ---------------------------------------------------------------- PBD
   py::class_<PbdSettings>(m, "PbdSettings", "Settings of a position-based stepper (SI units).")
-      .def_property_readonly("method", [](const PbdSettings& s) {
-        return s.method == Method::Pbd ? "pbd" : s.method == Method::Xpbd ? "xpbd" : "jakobsen";
-      })
+      .def_property_readonly("method", [](const PbdSettings& s) { return method_info(s.method).name; })
       .def_readonly("dt", &PbdSettings::dt, "s, time advanced by one step")
       .def_readonly("substeps", &PbdSettings::substeps)
       .def_readonly("iterations", &PbdSettings::iterations)
@@ -31,7 +29,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
       .def_readonly("threads", &PbdSettings::threads, "threads that share a sweep (parts and interfaces as tasks); 0: automatic")
       .def("__repr__", [](const PbdSettings& s) {
         std::ostringstream o;
-        o << "PbdSettings(method=" << (s.method == Method::Pbd ? "'pbd'" : s.method == Method::Xpbd ? "'xpbd'" : "'jakobsen'")
+        o << "PbdSettings(method='" << method_info(s.method).name << "'"
           << ", dt=" << s.dt << ", substeps=" << s.substeps << ", iterations=" << s.iterations << ", gravity=("
           << s.gravity.x() << ", " << s.gravity.y() << ", " << s.gravity.z() << "), damping=" << s.damping
           << ", stiffness_correction=" << (s.stiffness_correction ? "True" : "False") << ", front_end='"
@@ -51,10 +49,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
                        const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation,
                        const std::string& ordering, IntArg threads, double max_speed) {
              PbdSettings s;
-             if (method == "pbd") s.method = Method::Pbd;
-             else if (method == "xpbd") s.method = Method::Xpbd;
-             else if (method == "jakobsen") s.method = Method::Jakobsen;
-             else throw InvalidArgument("method must be 'pbd', 'xpbd' or 'jakobsen', got '" + method + "'");
+             s.method = pbd_variant(method);
              s.dt = dt;
              s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
              s.iterations = in_range<int>(iterations, "iterations", 1, kMaxIterations);
@@ -245,11 +240,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
       .def(py::init([](const std::string& method, double dt, IntArg substeps, py::handle gravity, double damping,
                        double drag) {
              ForceSettings s;
-             if (method == "explicit-euler") s.method = ForceIntegrator::ExplicitEuler;
-             else if (method == "symplectic-euler") s.method = ForceIntegrator::SymplecticEuler;
-             else if (method == "velocity-verlet") s.method = ForceIntegrator::VelocityVerlet;
-             else throw InvalidArgument("method must be 'explicit-euler', 'symplectic-euler' or 'velocity-verlet', got '" +
-                                        method + "'");
+             s.method = force_integrator(method);
              s.dt = dt;
              s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
              s.gravity = to_vec3(gravity, "gravity");

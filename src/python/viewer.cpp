@@ -4,6 +4,7 @@
 
 #include "int_arg.hpp"
 
+#include "csb/methods/registry.hpp"
 #include "viewer/capture.hpp"
 #include "viewer/viewer.hpp"
 
@@ -20,16 +21,9 @@ using namespace csb::python;
 
 namespace {
 
-Method parse_method(const std::string& m) {
-  if (m == "pbd") return Method::Pbd;
-  if (m == "xpbd") return Method::Xpbd;
-  if (m == "jakobsen" || m == "verlet") return Method::Jakobsen;
-  throw InvalidArgument("method must be 'pbd', 'xpbd' or 'jakobsen' (alias 'verlet'), got '" + m + "'");
-}
+Method parse_method(const std::string& m) { return pbd_variant(m); }
 
-const char* method_str(Method m) {
-  return m == Method::Pbd ? "pbd" : m == Method::Xpbd ? "xpbd" : "jakobsen";
-}
+const char* method_str(Method m) { return method_info(m).name.c_str(); }
 
 Vec3 vec3(const py::handle& obj, const char* what) {
   const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(obj);

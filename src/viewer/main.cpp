@@ -90,8 +90,7 @@ int main(int argc, char** argv) {
     else if (a == "--pin") pin = value();
     else if (a == "--no-ground") ground = false;
     else if (a == "--method") {
-      std::string m = value();
-      if (m == "verlet") m = "jakobsen";  // Jakobsen's method by its integrator's name
+      const std::string m = value();
       const MethodInfo* info = nullptr;
       try {
         info = &method_info(m);

@@ -1,6 +1,7 @@
 #include "viewer/viewer.hpp"
 
 #include "csb/interaction/pick.hpp"
+#include "csb/methods/registry.hpp"
 #include "csb/metrics.hpp"
 #include "csb/tearing.hpp"
 #include "viewer/gl.hpp"
@@ -37,13 +38,9 @@ void on_glfw_error(int code, const char* description) {
   glfw_error() = "GLFW error " + std::to_string(code) + ": " + (description ? description : "");
 }
 
-const char* method_name(Method m) {
-  switch (m) {
-    case Method::Pbd: return "PBD (Mueller 2007)";
-    case Method::Xpbd: return "XPBD (Macklin 2016)";
-    case Method::Jakobsen: return "Verlet (Jakobsen 2001)";
-  }
-  return "?";
+std::string method_name(Method m) {
+  const MethodInfo& info = method_info(m);
+  return info.label + " (" + info.source + ")";
 }
 
 // What `method` cannot read of the model's material (material.hpp), a line per constraint family
@@ -497,14 +494,18 @@ void Viewer::key(int k) {
     case GLFW_KEY_G: draw_.grid = !draw_.grid; break;
     case GLFW_KEY_O: options_.overlay = !options_.overlay; break;
     case GLFW_KEY_F: frame_scene(); break;
-    case GLFW_KEY_M:
-      set_method(settings_.method == Method::Pbd    ? Method::Xpbd
-                 : settings_.method == Method::Xpbd ? Method::Jakobsen
-                                                    : Method::Pbd);
+    case GLFW_KEY_M: {  // the next position-based method of the registry's list
+      const std::vector<Method> variants = pbd_variants();
+      const auto at = std::find(variants.begin(), variants.end(), settings_.method);
+      set_method(at == variants.end() || at + 1 == variants.end() ? variants.front() : *(at + 1));
       break;
-    case GLFW_KEY_1: set_method(Method::Pbd); break;
-    case GLFW_KEY_2: set_method(Method::Xpbd); break;
-    case GLFW_KEY_3: set_method(Method::Jakobsen); break;
+    }
+    case GLFW_KEY_1: case GLFW_KEY_2: case GLFW_KEY_3: case GLFW_KEY_4: case GLFW_KEY_5:
+    case GLFW_KEY_6: case GLFW_KEY_7: case GLFW_KEY_8: case GLFW_KEY_9: {  // the n-th of them
+      const std::vector<Method> variants = pbd_variants();
+      if (const std::size_t n = k - GLFW_KEY_1; n < variants.size()) set_method(variants[n]);
+      break;
+    }
     case GLFW_KEY_C: {
       const std::string path = options_.screenshot_prefix + "-" + std::to_string(++screenshots_) + ".png";
       try {
@@ -584,7 +585,7 @@ void Viewer::build_overlay() {
                                  ImGuiWindowFlags_NoNav | ImGuiWindowFlags_NoMove;
   if (ImGui::Begin("csb", nullptr, flags)) {
     const Real dt = settings_.dt;
-    ImGui::Text("%s%s", method_name(settings_.method), paused_ ? "   [paused]" : "");
+    ImGui::Text("%s%s", method_name(settings_.method).c_str(), paused_ ? "   [paused]" : "");
     ImGui::Text("%.1f fps   %.2f ms/frame", stats_.fps, stats_.frame_ms);
     ImGui::Text("%.3f ms/step  (%d step%s/frame, dt %.4g s)", stats_.step_ms, steps_per_frame_,
                 steps_per_frame_ == 1 ? "" : "s", dt);

@@ -7,6 +7,7 @@ namespace csb {
 MethodInfo jakobsen_method() {
   MethodInfo m;
   m.name = "jakobsen";
+  m.aliases = {"verlet"};  // by its integrator's name
   m.label = "Jakobsen";
   m.source = "Jakobsen 2001";
   m.reads = "stiffness";

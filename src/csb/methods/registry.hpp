@@ -25,6 +25,7 @@ struct MethodOptions {
 
 struct MethodInfo {
   std::string name;    // how users ask for it: "pbd", "xpbd", "symplectic-euler", ...
+  std::vector<std::string> aliases;  // other names it answers to ("verlet" for Jakobsen's)
   std::string label;   // for tables and the viewer: "XPBD"
   std::string source;  // where it comes from: "Macklin, Müller and Chentanez 2016"
   std::string reads;   // what it reads of a constraint's material: "stiffness" or "compliance"
@@ -38,8 +39,16 @@ struct MethodInfo {
 
 // Every method, in the order of registry.cpp's list.
 const std::vector<MethodInfo>& methods();
-// The method of that name; InvalidArgument naming the known ones otherwise.
+// The method of that name (or alias); InvalidArgument naming the known ones otherwise.
 const MethodInfo& method_info(const std::string& name);
+// The position-based variant PbdStepper runs for that name ("pbd", "xpbd", "jakobsen" and their
+// aliases: the methods that are a variant by their own name, not a way of setting one up, as small
+// steps are); InvalidArgument naming them otherwise.
+Method pbd_variant(const std::string& name);
+// Those variants, in the list's order (the viewer's method keys go through them).
+std::vector<Method> pbd_variants();
+// The force-based integrator ForceStepper runs for that name; InvalidArgument naming them otherwise.
+ForceIntegrator force_integrator(const std::string& name);
 // The registered method of a position-based variant or a force-based integrator.
 const MethodInfo& method_info(Method method);
 const MethodInfo& method_info(ForceIntegrator integrator);
