@@ -2,6 +2,7 @@
 #pragma once
 
 #include "csb/build_info.hpp"
+#include "csb/constraints/families.hpp"
 #include "csb/io.hpp"
 #include "csb/mesh.hpp"
 #include "csb/metrics.hpp"

@@ -76,6 +76,10 @@ std::vector<MaterialNote> material_notes(const Model& model, Method method) {
   add(check("volume", "volume", "m⁶/J", model.volume.stiffness, model.volume.compliance, method));
   add(check("balloon", "balloon", "m⁶/J", model.balloons.stiffness, model.balloons.compliance, method));
   add(check("attachment", "attachment", "m/N", model.attachments.stiffness, model.attachments.compliance, method));
+  for (const auto& f : model.families) {
+    const FamilyInfo& info = f->info();
+    add(check(info.name.c_str(), info.label.c_str(), info.compliance_unit.c_str(), f->stiffness, f->compliance, method));
+  }
   return notes;
 }
 

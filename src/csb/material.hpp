@@ -29,7 +29,7 @@ namespace csb {
 enum class Method;  // pbd.hpp
 
 struct MaterialNote {
-  std::string family;   // "distance", "bending", "volume", "balloon" or "attachment"
+  std::string family;   // "distance", "bending", "volume", "balloon", "attachment" or a family's name ("tethers")
   Index count = 0;      // constraints of the family whose declared form the method ignores
   Real ignored_min = 0, ignored_max = 0;  // range of the ignored values (k, or α in SI units)
   Real used = 0;        // the value read instead: k = 1 (PBD, Jakobsen) or α = 0 (XPBD)
@@ -39,7 +39,8 @@ struct MaterialNote {
 // The method's name in messages: "PBD", "XPBD" or "Jakobsen".
 const char* method_label(Method method);
 
-// One note per constraint family (in the order distance, bending, volume, balloon, attachment)
+// One note per constraint family (in the order distance, bending, volume, balloon, attachment,
+// then Model::families)
 // that has constraints `method` would make rigid against their declared material: for PBD and
 // Jakobsen those with α > 0 and k = 1, for XPBD those with k < 1 and α = 0. Empty when the
 // method reads every constraint as declared.

@@ -89,11 +89,13 @@ Real potential(const std::vector<Real>& violation, const std::vector<Real>& comp
 }  // namespace
 
 Real elastic_energy(const Model& model, const State& state) {
-  return potential(distance_violations(model, state), model.distance.compliance) +
-         potential(bending_violations(model, state), model.bending.compliance) +
-         potential(volume_violations(model, state), model.volume.compliance) +
-         potential(balloon_violations(model, state), model.balloons.compliance) +
-         potential(attachment_violations(model, state), model.attachments.compliance);
+  Real e = potential(distance_violations(model, state), model.distance.compliance) +
+           potential(bending_violations(model, state), model.bending.compliance) +
+           potential(volume_violations(model, state), model.volume.compliance) +
+           potential(balloon_violations(model, state), model.balloons.compliance) +
+           potential(attachment_violations(model, state), model.attachments.compliance);
+  for (const auto& f : model.families) e += f->energy(state.x.data());
+  return e;
 }
 
 Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
@@ -122,6 +124,12 @@ Metrics measure(const Model& model, const State& state, const Vec3& gravity) {
   m.elastic_energy = potential(dv, model.distance.compliance) + potential(bv, model.bending.compliance) +
                      potential(av, model.attachments.compliance) + potential(vv, model.volume.compliance) +
                      potential(pv, model.balloons.compliance);
+  for (const auto& f : model.families) {
+    std::vector<Real> fv(static_cast<std::size_t>(f->size()));
+    f->violations(state.x.data(), fv.data());
+    m.families.push_back({f->info().name, summarise(fv)});
+    m.elastic_energy += f->energy(state.x.data());
+  }
   std::vector<Real> strain(dv.size());
   for (std::size_t c = 0; c < dv.size(); ++c) strain[c] = dv[c] / model.distance.rest_length[c];
   const Violation s = summarise(strain);

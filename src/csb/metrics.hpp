@@ -26,6 +26,9 @@ struct Metrics {
   Violation attachment;            // m
   Violation volume;                // m³, V - V0 per tet
   Violation balloon;               // m³, V - pressure V0 per balloon
+  // Per constraint family (Model::families, in its order): its name and its violations C₊
+  // (max(C, 0) for a unilateral family such as tethers), in its C's unit.
+  std::vector<std::pair<std::string, Violation>> families;
   Real max_strain = 0;             // max |violation| / rest length over distance constraints
   Real rms_strain = 0;
 };

@@ -2,6 +2,7 @@
 #include "csb/format.hpp"
 
 #include "csb/constraints/bending.hpp"
+#include "csb/constraints/families.hpp"
 #include "csb/constraints/volume.hpp"
 
 #include <algorithm>
@@ -382,6 +383,40 @@ Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness, Real com
   return static_cast<Index>(attached_.size() - 1);
 }
 
+Index ModelBuilder::add_constraint(const std::string& family, const std::vector<Index>& particles,
+                                   const std::vector<Real>& params, Real stiffness, Real compliance) {
+  const Index f = family_index(family);
+  const FamilyInfo& info = *families()[f];
+  if (families_.batches.empty())
+    for (const FamilyInfo* i : families()) families_.batches.push_back(i->make());
+  FamilyBatch& batch = *families_.batches[f];
+  std::string what = info.label + " " + std::to_string(batch.size()) + " (particles";
+  for (std::size_t k = 0; k < particles.size(); ++k) what += (k ? ", " : " ") + std::to_string(particles[k]);
+  what += ")";
+  if (static_cast<int>(particles.size()) != info.arity)
+    throw InvalidArgument(what + ": a " + info.label + " joins " + std::to_string(info.arity) + " particles, got " +
+                          std::to_string(particles.size()));
+  for (std::size_t k = 0; k < particles.size(); ++k) {
+    require_particle(particles[k], what);
+    for (std::size_t j = 0; j < k; ++j)
+      if (particles[j] == particles[k]) throw InvalidArgument(what + ": repeats particle " + std::to_string(particles[k]));
+  }
+  if (static_cast<int>(params.size()) != info.num_params()) {
+    std::string names;
+    for (const std::string& n : info.param_names) names += (names.empty() ? "" : ", ") + n;
+    throw InvalidArgument(what + ": needs " + std::to_string(info.num_params()) + " parameters (" + names + "), got " +
+                          std::to_string(params.size()));
+  }
+  const std::string wrong = batch.check(params.data());
+  if (!wrong.empty()) throw InvalidArgument(what + ": " + wrong);
+  require_stiffness(stiffness, what);
+  if (!(compliance >= 0) || !std::isfinite(compliance))
+    throw InvalidArgument(what + ": compliance must be a finite number >= 0 " + info.compliance_unit + " (0: hard), got " +
+                          str(compliance));
+  batch.append(particles.data(), params.data(), stiffness, compliance);
+  return batch.size() - 1;
+}
+
 // ------------------------------------------------------------------------------------ collisions
 
 std::string ModelBuilder::collider_what(ColliderKind kind, const std::string& name) const {
@@ -584,6 +619,8 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
   model->attachments.target.resize(3, static_cast<Eigen::Index>(attached_.size()));
   for (std::size_t k = 0; k < attached_.size(); ++k)
     model->attachments.target.col(static_cast<Eigen::Index>(k)) = attachment_targets_[k];
+  for (std::size_t f = 0; f < families().size(); ++f)
+    model->families.push_back(families_.batches.empty() ? families()[f]->make() : families_.batches[f]->clone());
   colour_batches(*model);
   return model;
 }
@@ -807,6 +844,7 @@ ModelMemory model_memory(const Model& m) {
   const auto& a = m.attachments;
   r.attachments = bytes(a.particle) + sizeof(Real) * static_cast<std::size_t>(a.target.size()) + bytes(a.stiffness) +
                   bytes(a.compliance) + bytes(a.colours);
+  for (const auto& f : m.families) r.families += f->bytes();
   r.other = bytes(m.triangles) + bytes(m.group_offsets) + bytes(m.self_collision_thickness) +
             m.colliders.capacity() * sizeof(Collider);
   return r;

@@ -6,6 +6,7 @@
 #pragma once
 
 #include "csb/collision/collision.hpp"
+#include "csb/constraints/family.hpp"
 #include "csb/mesh.hpp"
 #include "csb/tetmesh.hpp"
 #include "csb/types.hpp"
@@ -142,7 +143,15 @@ class Model {
  public:
   Index num_particles() const { return static_cast<Index>(mass.size()); }
   Index num_constraints() const {
-    return distance.size() + bending.size() + volume.size() + balloons.size() + attachments.size();
+    Index n = distance.size() + bending.size() + volume.size() + balloons.size() + attachments.size();
+    for (const auto& f : families) n += f->size();
+    return n;
+  }
+  // The batch of the constraint family of that name (constraints/families.hpp), or null.
+  const FamilyBatch* family(const std::string& name) const {
+    for (const auto& f : families)
+      if (f->info().name == name) return f.get();
+    return nullptr;
   }
   Index num_groups() const { return static_cast<Index>(group_names.size()); }
   // Rest positions, zero velocities, t = 0.
@@ -167,6 +176,9 @@ class Model {
   VolumeBatch volume;
   BalloonBatch balloons;
   AttachmentBatch attachments;
+  // One batch per constraint family (constraints/families.cpp's list, in its order): the kinds
+  // added through the family mechanism (tethers, ...), projected after the batches above.
+  std::vector<std::shared_ptr<const FamilyBatch>> families;
   // Collisions (collision.hpp): static colliders, each particle's collision radius, and per group
   // the self-collision thickness h of its cloth (0: the group does not collide with itself).
   std::vector<Collider> colliders;
@@ -187,8 +199,11 @@ void colour_batches(Model& model);
 // Bytes the model's arrays hold (from their capacities), split into what belongs to the
 // particles and to each constraint type (its colouring included).
 struct ModelMemory {
-  std::size_t particles = 0, distance = 0, bending = 0, volume = 0, balloons = 0, attachments = 0, other = 0;
-  std::size_t total() const { return particles + distance + bending + volume + balloons + attachments + other; }
+  std::size_t particles = 0, distance = 0, bending = 0, volume = 0, balloons = 0, attachments = 0, families = 0,
+              other = 0;
+  std::size_t total() const {
+    return particles + distance + bending + volume + balloons + attachments + families + other;
+  }
 };
 ModelMemory model_memory(const Model& model);
 
@@ -282,6 +297,12 @@ class ModelBuilder {
   void pin(Index i);
   // Holds particle i at a world point (m) with stiffness in [0, 1] and compliance in m/N.
   Index attach(Index i, const Vec3& target, Real stiffness = 1, Real compliance = 0);
+  // A constraint of a registered family (constraints/families.cpp): its particles (the family's
+  // arity, distinct), its parameters (the family's param_names, in their units), PBD stiffness in
+  // [0, 1] and compliance in the family's unit (0: hard). Returns its index in the family's batch.
+  // Throws InvalidArgument naming the family, the constraint and what is wrong.
+  Index add_constraint(const std::string& family, const std::vector<Index>& particles, const std::vector<Real>& params,
+                       Real stiffness = 1, Real compliance = 0);
 
   // Static colliders (collision.hpp), each with its ContactMaterial (μs >= μk >= 0, e in [0, 1]);
   // `name` labels it in messages (default: its kind and index). Each returns the collider's
@@ -310,6 +331,8 @@ class ModelBuilder {
 
   Index num_particles() const { return static_cast<Index>(mass_.size()); }
   const Vec3& position(Index i) const { return points_.at(i); }
+  bool pinned(Index i) const { return pinned_.at(i) != 0; }
+  const DistanceBatch& distance_constraints() const { return distance_; }
 
   // Checks what was added once more and returns the immutable model.
   std::shared_ptr<const Model> build() const;
@@ -333,6 +356,24 @@ class ModelBuilder {
   std::vector<Vec3> attachment_targets_;
   std::vector<Real> attachment_stiffness_;
   std::vector<Real> attachment_compliance_;
+  // The family batches, one per registered family once the first family constraint is added;
+  // a copy of the builder copies them.
+  struct Families {
+    std::vector<std::unique_ptr<FamilyBatch>> batches;
+    Families() = default;
+    Families(const Families& o) {
+      for (const auto& b : o.batches) batches.push_back(b->clone());
+    }
+    Families& operator=(const Families& o) {
+      if (this != &o) {
+        Families copy(o);
+        batches = std::move(copy.batches);
+      }
+      return *this;
+    }
+    Families(Families&&) = default;
+    Families& operator=(Families&&) = default;
+  } families_;
   // collisions
   std::string collider_what(ColliderKind kind, const std::string& name) const;
   Index push_collider(Collider c, const std::string& what);

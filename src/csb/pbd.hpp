@@ -8,8 +8,9 @@
 //        or p <- x + (1 - d)(x - x*) + h² g                                    [Verlet front end]
 //   (8)  generate collision constraints: contacts with the colliders along x -> p (§4.3) and,
 //        per self-colliding group, point-triangle contacts of its cloth (§4.4); see below
-//   (9-11) `iterations` sweeps of projectConstraints over every distance, bending, volume, balloon
-//          and attachment constraint: Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
+//   (9-11) `iterations` sweeps of projectConstraints over every distance, bending, volume, balloon,
+//          attachment and constraint family's (tethers, constraints/families.hpp) constraint:
+//          Gauss-Seidel (each sees the corrections before it) or Jacobi (all from
 //          the positions at the start of the sweep, corrections averaged or summed)
 //   (12-15) v <- (p - x)/h, x <- p      (Verlet: x* <- x, x <- p)
 //   (16) velocityUpdate: friction (apply_friction, on p before (12)) and restitution
@@ -106,6 +107,7 @@ void validate(const PbdSettings& settings);
 struct Multipliers {
   std::vector<Real> distance, bending, attachment;
   std::vector<Real> volume, balloon;
+  std::vector<std::vector<Real>> family;  // per constraint family, as Model::families
 };
 
 // A particle held by the user's hand at a moving point (click and drag). The stepper owns its
@@ -279,6 +281,12 @@ class PbdStepper : public Integrator {
   };
   void project(const Model& model, const Positions& x_start, Fused* fused = nullptr);
   void project_sequential(const Model& model, const Positions& x_start);
+  // One sweep of every constraint family (after the other batches, on the calling thread): the
+  // positions read and moved (Gauss-Seidel: read = out = p; Jacobi: read = the sweep's start,
+  // out = the corrections' sums, count the corrections per particle or null when counted
+  // beforehand), the sub-step's start and XPBD's relaxation (or null).
+  void project_families(const Model& model, const Real* w, const Real* read, Real* out, Real* count,
+                        const Real* x_start, const Real* relax);
   template <Method M, bool Jacobi>
   void project_coloured(const Model& model, const Positions& x_start, Fused* fused);
   void build_coloured(const Model& model, const Real* w);
@@ -311,6 +319,10 @@ class PbdStepper : public Integrator {
   std::vector<Real> k_volume_, a_volume_, g_volume_;     // volume: PBD stiffness, XPBD α̃ and γ
   std::vector<Real> k_balloon_, a_balloon_, g_balloon_;  // balloons: the same
   std::vector<Vec3> balloon_grad_;                       // balloon gradient workspace (largest balloon)
+  struct FamilyTerms {
+    std::vector<Real> k, alpha, gamma;  // PBD stiffness as iterated; XPBD α̃ = α/h², γ = α β / h
+  };
+  std::vector<FamilyTerms> family_terms_;                // per constraint family, as Model::families
   // Multipliers in the model's order; in coloured ordering filled from coloured_ on request.
   mutable Multipliers lambda_;
   mutable bool lambda_stale_ = false;

@@ -186,10 +186,29 @@ SpringNetwork::SpringNetwork(const Model& model, const State& start, const Refer
     if (s < 0) continue;
     anchors_.push_back({s, a.target.col(c), 1 / a.compliance[c]});
   }
+  for (const auto& f : model.families) {
+    if (f->size() == 0) continue;
+    for (Index c = 0; c < f->size(); ++c)
+      if (!(f->compliance[c] > 0))
+        throw InvalidArgument(hard_message(f->info().label, c, f->info().compliance_unit.c_str()));
+    families_.push_back({f, {}});
+  }
   if (settings_.linear_solver == ReferenceSettings::Linear::Klu && !has_analytic_jacobian())
     throw InvalidArgument("linear_solver 'klu' needs an analytic Jacobian, but the model has compliant bending "
-                          "constraints or balloons: use 'gmres' or 'auto'");
+                          "constraints, balloons or a constraint family without its Hessian: use 'gmres' or 'auto'");
   if (with_jacobian) build_structure();
+}
+
+bool SpringNetwork::has_analytic_jacobian() const {
+  for (const FamilyTerm& t : families_)
+    if (!t.batch->info().has_hessian) return false;
+  return bending_.empty() && balloons_.empty();
+}
+
+void SpringNetwork::full_positions(const Real* y, std::vector<Real>& x) const {
+  x.assign(pinned_x_.data(), pinned_x_.data() + pinned_x_.size());
+  for (std::size_t s = 0; s < dynamic_.size(); ++s)
+    for (int k = 0; k < 3; ++k) x[3 * static_cast<std::size_t>(dynamic_[s]) + k] = y[3 * s + k];
 }
 
 void SpringNetwork::build_structure() {
@@ -220,6 +239,16 @@ void SpringNetwork::build_structure() {
     for (int i = 0; i < 4; ++i)
       for (int j = 0; j < 4; ++j)
         if (e.slot[i] >= 0 && e.slot[j] >= 0) block(e.slot[i], e.slot[j], false);
+  for (const FamilyTerm& t : families_) {
+    const int arity = t.batch->info().arity;
+    const Index* q = t.batch->particle_data();
+    for (Index c = 0; c < t.batch->size(); ++c)
+      for (int i = 0; i < arity; ++i)
+        for (int j = 0; j < arity; ++j) {
+          const Index si = slot_of_[q[c * arity + i]], sj = slot_of_[q[c * arity + j]];
+          if (si >= 0 && sj >= 0) block(si, sj, false);
+        }
+  }
   Csc pattern(std::move(entries), N);
   col_start_ = pattern.col_start;
   row_index_ = pattern.row_index;
@@ -249,6 +278,16 @@ void SpringNetwork::build_structure() {
   for (std::size_t k = 0; k < volumes_.size(); ++k)
     for (int i = 0; i < 4; ++i)
       for (int j = 0; j < 4; ++j) positions(volumes_[k].slot[i], volumes_[k].slot[j], false, volume_blocks_[k].x[4 * i + j]);
+  for (FamilyTerm& t : families_) {
+    const int arity = t.batch->info().arity;
+    const Index* q = t.batch->particle_data();
+    t.blocks.resize(static_cast<std::size_t>(t.batch->size()) * arity * arity * 9);
+    for (Index c = 0; c < t.batch->size(); ++c)
+      for (int i = 0; i < arity; ++i)
+        for (int j = 0; j < arity; ++j)
+          positions(slot_of_[q[c * arity + i]], slot_of_[q[c * arity + j]], false,
+                    t.blocks.data() + ((static_cast<std::size_t>(c) * arity + i) * arity + j) * 9);
+  }
   identity_.resize(3 * n);
   for (std::int64_t r = 0; r < 3 * n; ++r) identity_[r] = find(r, 3 * n + r);
   drag_diagonal_.resize(3 * n);
@@ -331,6 +370,13 @@ void SpringNetwork::rhs(const Real* y, Real* ydot) const {
     for (Index k = 0; k < m; ++k) add(b.slot[k], -b.k * C * grad[k]);
   }
   for (const auto& q : anchors_) add(q.slot, -q.k * (position(y, q.slot, q.target) - q.target) - c * vel(q.slot));
+  if (!families_.empty()) {  // -(C₊/α) ∇C, on all particles' positions (the pinned ones' forces dropped)
+    std::vector<Real> x, f(static_cast<std::size_t>(pinned_x_.size()), 0.0);
+    full_positions(y, x);
+    for (const FamilyTerm& t : families_) t.batch->add_forces(x.data(), f.data());
+    for (Index s = 0; s < n; ++s)
+      for (int k = 0; k < 3; ++k) a[3 * s + k] += f[3 * static_cast<std::size_t>(dynamic_[s]) + k];
+  }
   for (Index s = 0; s < n; ++s)
     for (int k = 0; k < 3; ++k)
       a[3 * s + k] = a[3 * s + k] / mass_[s] + settings_.gravity[k] - settings_.drag * v[3 * s + k];
@@ -401,6 +447,28 @@ void SpringNetwork::jacobian(const Real* y, Real* values) const {
         const Mat3r K = e.k * (g[i] * g[j].transpose() + C * H[i][j]);
         put(volume_blocks_[k].x[4 * i + j], K, -im);
       }
+    }
+  }
+  // Families: their blocks ∂f_i/∂x_j (Gauss-Newton, plus curvature where the family has it), / m_i.
+  if (!families_.empty()) {
+    std::vector<Real> x, K;
+    full_positions(y, x);
+    for (const FamilyTerm& t : families_) {
+      const int arity = t.batch->info().arity;
+      const Index* q = t.batch->particle_data();
+      K.resize(t.blocks.size());
+      t.batch->stiffness_blocks(x.data(), K.data());
+      for (Index c = 0; c < t.batch->size(); ++c)
+        for (int i = 0; i < arity; ++i) {
+          const Index si = slot_of_[q[c * arity + i]];
+          if (si < 0) continue;
+          const Real im = 1 / mass_[si];
+          for (int j = 0; j < arity; ++j) {
+            const std::size_t b = ((static_cast<std::size_t>(c) * arity + i) * arity + j) * 9;
+            if (t.blocks[b] < 0) continue;
+            for (int e = 0; e < 9; ++e) values[t.blocks[b + e]] += im * K[b + e];
+          }
+        }
     }
   }
 }

@@ -10,7 +10,9 @@
 // with D an optional dashpot along every distance constraint (and an isotropic one on every
 // attachment) and β an optional drag rate on every particle, both off by default. (A dashpot
 // along a spring does not damp a pendulum's swing; the drag does, and brings a hanging chain to
-// rest.) Only the constraint types present in the model are evaluated.
+// rest.) Only the constraint types present in the model are evaluated. The constraint families
+// (tethers, ...; constraints/family.hpp) give their own potential C₊²/(2α), forces and Jacobian
+// blocks; they are not damped.
 //
 // CVODE integrates it with BDF and Newton iterations. For springs, attachments and tetrahedral
 // volume constraints the Jacobian is analytic and sparse and the Newton systems are solved by
@@ -88,8 +90,8 @@ class SpringNetwork {
   Index num_dynamic() const { return static_cast<Index>(dynamic_.size()); }
   std::size_t size() const { return 6 * dynamic_.size(); }  // length of y
   // True when every force has an analytic sparse Jacobian (no compliant bending constraints, no
-  // balloons).
-  bool has_analytic_jacobian() const { return bending_.empty() && balloons_.empty(); }
+  // balloons, no constraint family without its Hessian).
+  bool has_analytic_jacobian() const;
 
   const std::vector<Index>& dynamic_particles() const { return dynamic_; }
   void pack(const State& state, Real* y) const;             // y = [x_dyn; v_dyn]
@@ -146,6 +148,15 @@ class SpringNetwork {
   std::vector<Volume> volumes_;
   std::vector<Balloon> balloons_;
   std::vector<Anchor> anchors_;
+  // A constraint family's batch and, per constraint, the value positions of its arity x arity
+  // blocks ∂(force on i)/∂x_j (9 each, -1 where i or j is pinned).
+  struct FamilyTerm {
+    std::shared_ptr<const FamilyBatch> batch;
+    std::vector<std::int64_t> blocks;
+  };
+  std::vector<FamilyTerm> families_;
+  // All particles' positions (pinned ones from the start state, the others from y), for the families.
+  void full_positions(const Real* y, std::vector<Real>& x) const;
   std::vector<std::int64_t> col_start_, row_index_;
   // For each spring: value positions of the 3x3 blocks (aa, ab, ba, bb) in the x- and the
   // v-columns; -1 where an end is fixed. For each anchor: its aa blocks.

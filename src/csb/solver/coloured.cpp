@@ -30,6 +30,7 @@ using namespace stepper_detail;
 //     interface phases, whose interfaces share no particle (one phase for a cloth);
 //  3. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
 //     after each (constraints across non-adjacent parts; usually none).
+// Balloons, the constraint families (tethers, ...) and contacts follow on one thread, in order.
 // The tasks of one phase share no particle, and threads take them dynamically, so a thread
 // slowed by a busy core takes fewer. A cloth's sweep thus has two barriers where colour by
 // colour it had one per colour, 26; and a part's particles stay in the core's cache while all of
@@ -220,7 +221,9 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const Real* x = x_start.data();
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   const bool contacts = !contacts_.empty() || !self_contacts_.empty();
-  const bool tail = model.balloons.size() > 0 || contacts;
+  bool families = false;  // constraint families: projected after the coloured batches, on one thread
+  for (const auto& f : model.families) families = families || f->size() > 0;
+  const bool tail = model.balloons.size() > 0 || contacts || families;
   bool compliant_grabs = false;
   for (const Grab& g : grabs_) compliant_grabs = compliant_grabs || g.compliance > 0;
   set_relaxation(model);
@@ -322,6 +325,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
                 project_balloon(r, o, nullptr, w, ids, bal.num_particles(c), tris, bal.num_triangles(c), target,
                                 k_balloon_[c], nullptr, 0, 0, nullptr, balloon_grad_.data());
             }
+            // The constraint families, in the model's order (their Jacobi counts are in count0).
+            if (families) project_families(model, w, r, o, nullptr, x, relax);
             if (contacts) project_contacts(model, Jacobi);
           });
         }

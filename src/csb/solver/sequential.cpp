@@ -1,5 +1,6 @@
 // csb — the sequential sweep (Müller's loop as written: every batch in model order, one constraint after
-// the other, Gauss-Seidel or Jacobi) and the relaxation of XPBD's averaged Jacobi.
+// the other, Gauss-Seidel or Jacobi), the constraint families' sweep (both orderings) and the
+// relaxation of XPBD's averaged Jacobi.
 #include "csb/solver/sequential.hpp"
 #include "csb/pbd.hpp"
 #include "csb/format.hpp"
@@ -52,6 +53,7 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
         jacobi ? run(Jak{}, std::true_type{}) : run(Jak{}, std::false_type{});
         break;
     }
+    project_families(model, w, from, jacobi ? delta : p, count, x_start.data(), relax);
     if (!contacts_.empty() || !self_contacts_.empty()) project_contacts(model, jacobi);
     if (jacobi) {
       // Averaged Jacobi moves each particle by the mean of the corrections it received (XPBD: by
@@ -65,6 +67,32 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
       if (!contacts_.empty() && settings_.method != Method::Xpbd) settle_contact_moves(average);
     }
     project_grabs(x_start);
+  }
+}
+
+
+void PbdStepper::project_families(const Model& model, const Real* w, const Real* read, Real* out, Real* count,
+                                  const Real* x_start, const Real* relax) {
+  const bool xpbd = settings_.method == Method::Xpbd;
+  for (std::size_t f = 0; f < model.families.size(); ++f) {
+    const FamilyBatch& batch = *model.families[f];
+    if (batch.size() == 0) continue;
+    FamilySweep s;
+    s.xpbd = xpbd;
+    s.jacobi = read != out;
+    s.w = w;
+    s.read = read;
+    s.out = out;
+    s.count = count;
+    s.x_start = x_start;
+    s.k = family_terms_[f].k.data();
+    if (xpbd) {
+      s.alpha = family_terms_[f].alpha.data();
+      s.gamma = family_terms_[f].gamma.data();
+      s.lambda = lambda_.family[f].data();
+      s.relax = relax;
+    }
+    batch.sweep(s);
   }
 }
 

@@ -42,6 +42,11 @@ inline void jacobi_counts(const Model& model, std::vector<Real>& count) {
     for (Index i : q) count[i] += 1;
   for (Index i : model.balloons.particles) count[i] += 1;
   for (Index i : model.attachments.particle) count[i] += 1;
+  for (const auto& f : model.families) {
+    const Index* q = f->particle_data();
+    const std::size_t ids = static_cast<std::size_t>(f->size()) * static_cast<std::size_t>(f->info().arity);
+    for (std::size_t k = 0; k < ids; ++k) count[q[k]] += 1;
+  }
 }
 
 // XPBD with averaged Jacobi: the relaxation of a constraint on particles ids[0 .. count), the

@@ -32,6 +32,8 @@ void PbdStepper::prepare(const Model& model) {
   stiffness(model.volume.stiffness, k_volume_);
   stiffness(model.balloons.stiffness, k_balloon_);
   stiffness(model.attachments.stiffness, k_attachment_);
+  family_terms_.resize(model.families.size());
+  for (std::size_t f = 0; f < model.families.size(); ++f) stiffness(model.families[f]->stiffness, family_terms_[f].k);
   if (settings_.method == Method::Xpbd) {
     compliance(model.distance.compliance, a_distance_, g_distance_);
     compliance(model.bending.compliance, a_bending_, g_bending_);
@@ -43,6 +45,11 @@ void PbdStepper::prepare(const Model& model) {
     lambda_.volume.assign(model.volume.size(), 0);
     lambda_.balloon.assign(model.balloons.size(), 0);
     lambda_.attachment.assign(model.attachments.size(), 0);
+    lambda_.family.resize(model.families.size());
+    for (std::size_t f = 0; f < model.families.size(); ++f) {
+      compliance(model.families[f]->compliance, family_terms_[f].alpha, family_terms_[f].gamma);
+      lambda_.family[f].assign(model.families[f]->size(), 0);
+    }
   }
   const Index n = model.num_particles();
   p_.resize(3, n);
@@ -111,11 +118,14 @@ void PbdStepper::prepare(const Model& model) {
 
 
 void PbdStepper::zero_coloured_multipliers(int share, int shares) {
+  const auto zero = [share, shares](std::vector<Real>& l) {
+    const std::int64_t m = static_cast<std::int64_t>(l.size());
+    std::fill(l.begin() + m * share / shares, l.begin() + m * (share + 1) / shares, 0.0);
+  };
   for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
-                               &coloured_.attachments.lambda, &lambda_.balloon}) {
-    const std::int64_t m = static_cast<std::int64_t>(l->size());
-    std::fill(l->begin() + m * share / shares, l->begin() + m * (share + 1) / shares, 0.0);
-  }
+                               &coloured_.attachments.lambda, &lambda_.balloon})
+    zero(*l);
+  for (std::vector<Real>& l : lambda_.family) zero(l);
 }
 
 
@@ -147,6 +157,8 @@ std::size_t PbdStepper::workspace_bytes() const {
     s += capacity_bytes(*v);
   for (const auto* v : {&lambda_.distance, &lambda_.bending, &lambda_.attachment, &lambda_.volume, &lambda_.balloon})
     s += capacity_bytes(*v);
+  for (const auto& l : lambda_.family) s += capacity_bytes(l);
+  for (const FamilyTerms& t : family_terms_) s += capacity_bytes(t.k) + capacity_bytes(t.alpha) + capacity_bytes(t.gamma);
   s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.bending) +
        capacity_bytes(coloured_order_.volume) + capacity_bytes(coloured_order_.attachment);
   return s + coloured_.bytes();
@@ -165,6 +177,7 @@ void PbdStepper::reset_multipliers() {
   std::fill(lambda_.volume.begin(), lambda_.volume.end(), 0.0);
   std::fill(lambda_.balloon.begin(), lambda_.balloon.end(), 0.0);
   std::fill(lambda_.attachment.begin(), lambda_.attachment.end(), 0.0);
+  for (std::vector<Real>& l : lambda_.family) std::fill(l.begin(), l.end(), 0.0);
 }
 
 }  // namespace csb
