@@ -158,6 +158,18 @@ class TearingSpec:
 
 
 @dataclass(frozen=True)
+class TetherSpec:
+    """Long range attachments (Kim, Chentanez and Müller 2012): every free particle tethered to its
+    nearest pinned particles, at most max_stretch x its rest distance from them."""
+
+    mode: str = "geodesic"          # "geodesic" (through the distance constraints) or "euclidean"
+    max_stretch: float = 1.0        # >= 1
+    stiffness: float = 1.0          # PBD, in [0, 1]
+    compliance: float = 0.0         # m/N
+    anchors: int = 1                # nearest pinned particles per free particle
+
+
+@dataclass(frozen=True)
 class OutputSpec:
     fps: float = 30.0     # frames per simulated second
     xdmf: bool = True
@@ -200,6 +212,7 @@ class Scene:
     description: str = ""
     colliders: tuple[ColliderSpec, ...] = ()
     tearing: TearingSpec | None = None
+    tethers: TetherSpec | None = None
 
     @property
     def steps(self) -> int:
@@ -256,6 +269,13 @@ class Scene:
                 for k, i in enumerate(chosen):
                     target = targets[k] if targets is not None else inst.vertices[i - inst.first_particle]
                     builder.attach(i, target, stiffness=spec.attach.stiffness, compliance=spec.attach.compliance)
+        if self.tethers is not None:  # after every mesh's pins and stretch constraints
+            t = self.tethers
+            try:
+                builder.add_tethers(mode=t.mode, max_stretch=t.max_stretch, stiffness=t.stiffness,
+                                    compliance=t.compliance, anchors=t.anchors)
+            except _core.ParameterError as e:
+                raise SceneError(f"{self.path}: tethers: {e}") from None
         for c in self.colliders:
             _add_collider(self, builder, c)
         try:
@@ -604,6 +624,18 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         )
         te.finish()
 
+    tethers = None
+    tt = top.table("tethers", "tethers")
+    if tt is not None:
+        tethers = TetherSpec(
+            mode=tt.string("mode", "geodesic", choices=("geodesic", "euclidean")),
+            max_stretch=tt.number("max_stretch", 1.0, check=lambda x: x >= 1, expect="a stretch factor >= 1"),
+            stiffness=tt.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]"),
+            compliance=tt.number("compliance", 0.0, check=lambda x: x >= 0, expect="a compliance >= 0 (m/N)"),
+            anchors=tt.integer("anchors", 1, minimum=1),
+        )
+        tt.finish()
+
     out = top.table("output", "output")
     # A torn model gains particles, which an XDMF series cannot follow: VTU only by default.
     output = OutputSpec(xdmf=tearing is None)
@@ -618,7 +650,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
                                     "use the VTU series")
         out.finish()
     top.finish()
-    return Scene(p, name, duration, solver, meshes, output, description, colliders, tearing)
+    return Scene(p, name, duration, solver, meshes, output, description, colliders, tearing, tethers)
 
 
 def bundled_scenes() -> dict[str, Path]:

@@ -2,6 +2,7 @@
 // and the solver machinery's benchmarks.
 #include "bindings.hpp"
 #include "bench/dispatch.hpp"
+#include "csb/constraints/families.hpp"
 
 namespace csb::python {
 
@@ -133,10 +134,12 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["attachment"] = py::array_t<Real>(static_cast<py::ssize_t>(l.attachment.size()), l.attachment.data());
         d["volume"] = py::array_t<Real>(static_cast<py::ssize_t>(l.volume.size()), l.volume.data());
         d["balloon"] = py::array_t<Real>(static_cast<py::ssize_t>(l.balloon.size()), l.balloon.data());
+        for (std::size_t f = 0; f < l.family.size() && f < families().size(); ++f)
+          d[families()[f]->name.c_str()] = py::array_t<Real>(static_cast<py::ssize_t>(l.family[f].size()), l.family[f].data());
         return d;
-      }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); "
-         "the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a "
-         "pressure, Pa).")
+      }, "XPBD: the Lagrange multipliers λ of the last sub-step per batch and per constraint family (tethers: "
+         "λ <= 0) (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints and tethers; "
+         "for volume and balloon λ/h² is a pressure, Pa).")
       .def("contacts", [](const PbdStepper& s) {
         const UseGuard::Scope in_use(s.use_guard(), "PbdStepper.contacts");
         const ContactSummary& sum = s.contact_summary();

@@ -20,6 +20,7 @@ void bind_metrics(py::module_& m) {
     d["attachment"] = violation_dict(r.attachment);
     d["volume"] = violation_dict(r.volume);
     d["balloon"] = violation_dict(r.balloon);
+    for (const auto& [name, v] : r.families) d[name.c_str()] = violation_dict(v);
     d["max_strain"] = r.max_strain;
     d["rms_strain"] = r.rms_strain;
     return d;

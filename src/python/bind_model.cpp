@@ -1,7 +1,51 @@
 // csb._core: State, Model and ModelBuilder.
 #include "bindings.hpp"
 
+#include "csb/constraints/families.hpp"
+#include "csb/constraints/tether.hpp"
+
 namespace csb::python {
+
+namespace {
+
+// A constraint family's batch as read-only views: particles (M, arity), one (M,) array per
+// parameter, stiffness and compliance.
+py::dict family_views(py::object self, const FamilyBatch* b, const FamilyInfo& info) {
+  const py::ssize_t m = b ? b->size() : 0;
+  py::dict d;
+  if (!b) {
+    d["particles"] = py::array_t<Index>({m, py::ssize_t(info.arity)});
+    for (const std::string& name : info.param_names) d[name.c_str()] = py::array_t<Real>(m);
+    d["stiffness"] = py::array_t<Real>(m);
+    d["compliance"] = py::array_t<Real>(m);
+    return d;
+  }
+  d["particles"] = view(b->particle_data(), {m, py::ssize_t(info.arity)}, self, false);
+  const py::ssize_t np = info.num_params();
+  for (py::ssize_t k = 0; k < np; ++k) {
+    py::array a(py::dtype::of<Real>(), {m}, {static_cast<py::ssize_t>(sizeof(Real)) * np}, b->param_data() + k, self);
+    a.attr("setflags")(py::arg("write") = false);
+    d[info.param_names[static_cast<std::size_t>(k)].c_str()] = a;
+  }
+  d["stiffness"] = view(b->stiffness.data(), {m}, self, false);
+  d["compliance"] = view(b->compliance.data(), {m}, self, false);
+  return d;
+}
+
+std::string family_doc(const FamilyInfo& info) {
+  std::string doc = info.name + " batch: particles (M, " + std::to_string(info.arity) + ")";
+  for (int k = 0; k < info.num_params(); ++k) doc += ", " + info.param_names[k] + " (" + info.param_units[k] + ")";
+  return doc + ", stiffness, compliance (" + info.compliance_unit + ")" +
+         (info.unilateral ? "; unilateral: C <= 0 is satisfied" : "") + ". A constraint family (constraints/family.hpp).";
+}
+
+TetherMode parse_tether_mode(const std::string& s) {
+  if (s == "euclidean") return TetherMode::Euclidean;
+  if (s == "geodesic") return TetherMode::Geodesic;
+  throw InvalidArgument("add_tethers: mode must be 'euclidean' or 'geodesic', got '" + s + "'");
+}
+
+}  // namespace
 
 void bind_model(py::module_& m) {
   // ---------------------------------------------------------------- model
@@ -34,8 +78,9 @@ void bind_model(py::module_& m) {
         return o.str();
       });
 
-  py::class_<Model, std::shared_ptr<Model>>(m, "Model",
-      "Immutable: rest positions, masses, and one batch per constraint type. Arrays are read-only views.")
+  py::class_<Model, std::shared_ptr<Model>> model_class(m, "Model",
+      "Immutable: rest positions, masses, and one batch per constraint type. Arrays are read-only views.");
+  model_class
       .def_property_readonly("num_particles", &Model::num_particles)
       .def_property_readonly("num_constraints", &Model::num_constraints)
       .def_readonly("group_names", &Model::group_names)
@@ -97,6 +142,7 @@ void bind_model(py::module_& m) {
         d["volume"] = r.volume;
         d["balloons"] = r.balloons;
         d["attachments"] = r.attachments;
+        d["families"] = r.families;
         d["other"] = r.other;
         d["total"] = r.total();
         return d;
@@ -209,12 +255,57 @@ void bind_model(py::module_& m) {
          "restitution) and the geometry of its kind, in m.")
       .def("initial_state", [](const Model& s) { return std::make_shared<State>(s.initial_state()); },
            "A new State at the rest positions with zero velocities and t = 0.")
+      .def_property_readonly("families", [](py::object self) {
+        const Model& s = self.cast<const Model&>();
+        py::dict d;
+        for (const FamilyInfo* info : families()) d[info->name.c_str()] = family_views(self, s.family(info->name), *info);
+        return d;
+      }, "Every constraint family's batch by name (see each family's own property, e.g. tethers)")
+      .def("evaluate_family", [](const Model& s, const std::string& name, py::handle x_arg) {
+        family_index(name);  // an unknown name: the error lists the known ones
+        const FamilyBatch* b = s.family(name);
+        const Positions x = to_positions(x_arg, "x");
+        if (x.cols() != s.num_particles())
+          throw InvalidArgument("x must have shape (" + std::to_string(s.num_particles()) + ", 3)");
+        const FamilyInfo& info = *families()[family_index(name)];
+        const py::ssize_t mc = b ? b->size() : 0, a = info.arity;
+        py::array_t<Real> c(mc), grad({mc, a, py::ssize_t(3)}), forces({py::ssize_t(s.num_particles()), py::ssize_t(3)}),
+            jac({mc, a, a, py::ssize_t(3), py::ssize_t(3)});
+        std::fill(forces.mutable_data(), forces.mutable_data() + forces.size(), 0.0);
+        py::dict d;
+        d["energy"] = b ? b->energy(x.data()) : 0.0;
+        if (b && mc > 0) {
+          b->evaluate(x.data(), c.mutable_data(), grad.mutable_data());
+          b->add_forces(x.data(), forces.mutable_data());
+          b->stiffness_blocks(x.data(), jac.mutable_data());
+        }
+        d["C"] = c;
+        d["grad"] = grad;
+        d["forces"] = forces;
+        d["jacobian"] = jac;
+        return d;
+      }, py::arg("family"), py::arg("x"),
+         "A constraint family at positions x (N, 3) m, as the references see it: C (M,), grad (M, arity, 3) = ∂C/∂x, "
+         "energy = Σ C₊²/(2α) J (C₊ = max(C, 0) for a unilateral family), forces (N, 3) = -∂energy/∂x N, jacobian "
+         "(M, arity, arity, 3, 3): per constraint the blocks ∂f_i/∂x_j N/m (the Gauss-Newton term plus the "
+         "curvature term where the family gives its Hessian). Hard constraints (α = 0) have no potential.")
       .def("__repr__", [](const Model& s) {
+        std::string families;
+        for (const auto& f : s.families)
+          if (f->size() > 0) families += ", " + std::to_string(f->size()) + " " + f->info().name;
         return "<csb.Model " + std::to_string(s.num_particles()) + " particles, " + std::to_string(s.distance.size()) +
                " distance, " + std::to_string(s.bending.size()) + " bending, " + std::to_string(s.volume.size()) +
                " volume, " + std::to_string(s.balloons.size()) + " balloon, " + std::to_string(s.attachments.size()) +
-               " attachment constraints>";
+               " attachment constraints" + families + ">";
       });
+  static std::vector<std::string> family_docs;  // the docstrings outlive the module's set-up
+  for (const FamilyInfo* info : families()) family_docs.push_back(family_doc(*info));
+  for (std::size_t f = 0; f < families().size(); ++f) {
+    const FamilyInfo* info = families()[f];
+    model_class.def_property_readonly(info->name.c_str(), [info](py::object self) {
+      return family_views(self, self.cast<const Model&>().family(info->name), *info);
+    }, family_docs[f].c_str());
+  }
 
   py::class_<ModelBuilder>(m, "ModelBuilder", "Collects particles and constraints; build() returns the immutable Model.")
       .def(py::init<>())
@@ -290,6 +381,33 @@ void bind_model(py::module_& m) {
         return b.attach(index_arg(i, "attach: i"), to_vec3(target, "target"), stiffness, compliance);
       }, py::arg("i"), py::arg("target"), py::arg("stiffness") = 1.0, py::arg("compliance") = 0.0,
          "Holds particle i at a world point (m): PBD stiffness in [0, 1], compliance in m/N (0: hard).")
+      .def("add_constraint", [](ModelBuilder& b, const std::string& family, const std::vector<IntArg>& particles,
+                                std::vector<double> params, double stiffness, double compliance) {
+        std::vector<Index> ids;
+        for (const IntArg& i : particles) ids.push_back(index_arg(i, "add_constraint: particles"));
+        return b.add_constraint(family, ids, params, stiffness, compliance);
+      }, py::arg("family"), py::arg("particles"), py::arg("params"), py::arg("stiffness") = 1.0,
+         py::arg("compliance") = 0.0,
+         "A constraint of a constraint family (Model.families): its particles (the family's arity), its parameters "
+         "(the family's, in order and in their units), PBD stiffness in [0, 1], compliance in the family's unit "
+         "(0: hard). Returns its index in the family's batch.")
+      .def("add_tethers", [](ModelBuilder& b, const std::string& mode, double max_stretch, double stiffness,
+                             double compliance, IntArg anchors) {
+        TetherOptions o;
+        o.mode = parse_tether_mode(mode);
+        o.max_stretch = max_stretch;
+        o.stiffness = stiffness;
+        o.compliance = compliance;
+        o.anchors = in_range<Index>(anchors, "add_tethers: anchors", 1, kMaxIndex);
+        return add_tethers(b, o);
+      }, py::kw_only(), py::arg("mode") = "geodesic", py::arg("max_stretch") = 1.0, py::arg("stiffness") = 1.0,
+         py::arg("compliance") = 0.0, py::arg("anchors") = 1,
+         "Long range attachments (Kim, Chentanez and Müller 2012): tethers every free particle to its `anchors` "
+         "nearest pinned particles (among those its distance constraints reach) with the unilateral constraint "
+         "|x_i - x_a| <= L, L = max_stretch (>= 1) x the rest distance: 'euclidean' (the straight line in the rest "
+         "positions) or 'geodesic' (the shortest path through the distance constraints, by rest length). Pin and "
+         "add the meshes first. PBD stiffness in [0, 1], compliance in m/N (0: hard). Returns the tethers added; "
+         "they are in Model.tethers.")
       .def("position", [](const ModelBuilder& b, IntArg particle) {
         const Index i = index_arg(particle, "position: i");
         if (i < 0 || i >= b.num_particles()) throw InvalidArgument("particle index " + std::to_string(i) + " is out of range");

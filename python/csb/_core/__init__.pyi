@@ -310,6 +310,10 @@ class Model:
         """
         The batch's graph colouring: order (constraint indices colour by colour), colour_offsets (colour k is order[offsets[k]:offsets[k+1]]), serial (per colour: its constraints may share particles and are projected in order), group_colours (group g owns colours group_colours[g]:group_colours[g+1]; with P = num_parts, groups 0..P-1 are the parts' interiors, P+i the interface of parts i and i+1, 2P-1 the rest)
         """
+    def evaluate_family(self, family: str, x: typing.Any) -> dict:
+        """
+        A constraint family at positions x (N, 3) m, as the references see it: C (M,), grad (M, arity, 3) = ∂C/∂x, energy = Σ C₊²/(2α) J (C₊ = max(C, 0) for a unilateral family), forces (N, 3) = -∂energy/∂x N, jacobian (M, arity, arity, 3, 3): per constraint the blocks ∂f_i/∂x_j N/m (the Gauss-Newton term plus the curvature term where the family gives its Hessian). Hard constraints (α = 0) have no potential.
+        """
     def initial_state(self) -> State:
         """
         A new State at the rest positions with zero velocities and t = 0.
@@ -338,6 +342,11 @@ class Model:
     def distance(self) -> dict:
         """
         distance batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N), sense (0: ==, +1: >=, -1: <=)
+        """
+    @property
+    def families(self) -> dict:
+        """
+        Every constraint family's batch by name (see each family's own property, e.g. tethers)
         """
     @property
     def group(self) -> numpy.ndarray:
@@ -394,6 +403,11 @@ class Model:
         (G,) self-collision thickness h of each group, m (0: off)
         """
     @property
+    def tethers(self) -> dict:
+        """
+        tethers batch: particles (M, 2), rest_length (m), stiffness, compliance (m/N); unilateral: C <= 0 is satisfied. A constraint family (constraints/family.hpp).
+        """
+    @property
     def thickness(self) -> numpy.ndarray:
         """
         (N,) collision radius of each particle against the colliders, m
@@ -436,6 +450,10 @@ class ModelBuilder:
         """
         Static triangle-mesh collider (any mesh csb.load_mesh reads), a two-sided sheet: a particle keeps the side it is on. Material as add_plane.
         """
+    def add_constraint(self, family: str, particles: collections.abc.Sequence[int], params: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
+        """
+        A constraint of a constraint family (Model.families): its particles (the family's arity), its parameters (the family's, in order and in their units), PBD stiffness in [0, 1], compliance in the family's unit (0: hard). Returns its index in the family's batch.
+        """
     def add_distance(self, i: int, j: int, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, rest_length: typing.SupportsFloat | typing.SupportsIndex | None = None, sense: str = '==', compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Distance constraint: PBD stiffness in [0, 1], compliance in m/N (0: hard); rest_length in m, default the current distance; sense '==', '>=' (at least) or '<=' (at most, a tether). Returns its index.
@@ -455,6 +473,10 @@ class ModelBuilder:
     def add_sphere(self, *, center: typing.Any, radius: typing.SupportsFloat | typing.SupportsIndex, friction_static: typing.SupportsFloat | typing.SupportsIndex = 0.0, friction_kinetic: typing.SupportsFloat | typing.SupportsIndex = 0.0, restitution: typing.SupportsFloat | typing.SupportsIndex = 0.0, name: str = '') -> int:
         """
         Static sphere collider: center in m, radius > 0 m; material as add_plane.
+        """
+    def add_tethers(self, *, mode: str = 'geodesic', max_stretch: typing.SupportsFloat | typing.SupportsIndex = 1.0, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, anchors: int = 1) -> int:
+        """
+        Long range attachments (Kim, Chentanez and Müller 2012): tethers every free particle to its `anchors` nearest pinned particles (among those its distance constraints reach) with the unilateral constraint |x_i - x_a| <= L, L = max_stretch (>= 1) x the rest distance: 'euclidean' (the straight line in the rest positions) or 'geodesic' (the shortest path through the distance constraints, by rest length). Pin and add the meshes first. PBD stiffness in [0, 1], compliance in m/N (0: hard). Returns the tethers added; they are in Model.tethers.
         """
     def add_tetrahedron(self, a: int, b: int, c: int, d: int, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, rest_volume: typing.SupportsFloat | typing.SupportsIndex | None = None) -> int:
         """
@@ -573,7 +595,7 @@ class PbdStepper:
         """
     def multipliers(self) -> dict:
         """
-        XPBD: the Lagrange multipliers λ of the last sub-step per batch (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints; for volume and balloon λ/h² is a pressure, Pa).
+        XPBD: the Lagrange multipliers λ of the last sub-step per batch and per constraint family (tethers: λ <= 0) (empty otherwise); the constraint force is λ/h² along ∇C (N for distance constraints and tethers; for volume and balloon λ/h² is a pressure, Pa).
         """
     def operations(self, model: Model, steps: int) -> float:
         """
