@@ -139,7 +139,10 @@ struct State {
   std::int64_t step = 0;  // number of completed steps
 };
 
-class Model {
+// Held by std::shared_ptr wherever it is shared (ModelBuilder::build, tear, the viewer, Python);
+// enable_shared_from_this lets a reference handed to a user's method (a Python Integrator) keep
+// the model alive if the method keeps it.
+class Model : public std::enable_shared_from_this<Model> {
  public:
   Index num_particles() const { return static_cast<Index>(mass.size()); }
   Index num_constraints() const {

@@ -43,7 +43,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         return o.str();
       });
 
-  py::class_<PbdStepper>(m, "PbdStepper",
+  py::class_<PbdStepper, Integrator, py::smart_holder>(m, "PbdStepper",
       "Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.")
       .def(py::init([](const std::string& method, double dt, IntArg substeps, IntArg iterations, py::handle gravity,
                        double damping, bool stiffness_correction, const std::string& front_end,
@@ -98,7 +98,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
       .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,
                              "bytes of the stepper's per-model workspace (from the vectors' capacities)")
       .def_property_readonly("substep_size", &PbdStepper::substep_size, "h = dt/substeps, s")
-      .def("step", [warnings](PbdStepper& s, const Model& model, State& state, IntArg steps_arg) {
+      .def("step", [warnings](PbdStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
         const std::int64_t steps = in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64);
         {
           // Once per model and stepper, at the caller's line: what the method ignores of the material.
@@ -111,10 +111,11 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
           for (const std::string& note : s.degenerate_notes_to_report(model, state))
             if (PyErr_WarnEx(warnings.accuracy, note.c_str(), 1) < 0) throw py::error_already_set();
         }
-        step_interruptibly(s, model, state, steps);
-      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
-         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between "
-         "sub-steps, the state left at the end of the last completed one; a second thread stepping the same "
+        step_interruptibly(s, model, state, steps, interrupt);
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1, py::arg("interrupt") = py::none(),
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C, or `interrupt` (a callable "
+         "asked between sub-steps) returning True, stops it between sub-steps, the state left at the end of the "
+         "last completed one; a second thread stepping the same "
          "stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper "
          "steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot "
          "read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 "
@@ -237,7 +238,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
      "The particle under a ray (the cursor): the first surface triangle it crosses, then that triangle's vertex "
      "nearest the hit; without a hit, the particle nearest the ray within max_distance (m).");
 
-  py::class_<ForceStepper>(m, "ForceStepper",
+  py::class_<ForceStepper, Integrator, py::smart_holder>(m, "ForceStepper",
       "Force-based mass-spring integrators on the reference's spring network (every constraint a spring of "
       "stiffness 1/α): the methods that fail, for the stability studies.")
       .def(py::init([](const std::string& method, double dt, IntArg substeps, py::handle gravity, double damping,
@@ -255,10 +256,11 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
            py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("damping") = 0.0, py::arg("drag") = 0.0,
            "method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. "
            "drag: 1/s.")
-      .def("step", [](ForceStepper& s, const Model& model, State& state, IntArg steps_arg) {
-        step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64));
-      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1,
-         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between steps, "
+      .def("step", [](ForceStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
+        step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64), interrupt);
+      }, py::arg("model"), py::arg("state"), py::arg("steps") = 1, py::arg("interrupt") = py::none(),
+         "Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C, or `interrupt` (a callable "
+         "asked between steps) returning True, stops it between steps, "
          "the state left at the end of the last completed one). A request that would take more than a year "
          "at 1e9 spring and particle updates a second is refused (csb.ParameterError, with the estimate).")
       .def_property_readonly("force_evaluations", &ForceStepper::force_evaluations,

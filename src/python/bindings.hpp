@@ -146,15 +146,37 @@ inline std::function<bool()> python_interrupt() {
   };
 }
 
-// Steps without the GIL, asking Python's signal handlers between (sub-)steps; what a handler
-// raised (KeyboardInterrupt for Ctrl-C) is raised here, the state left where the stepper stopped.
+// The interrupt of a C++ method's step called from Python: Ctrl-C (python_interrupt) and, if
+// given, the caller's own callable (Integrator.step's `interrupt`), asked with the GIL held. It
+// holds the callable by handle (the caller's argument outlives the step), so that copying the
+// function needs no GIL.
+inline std::function<bool()> with_callers(py::handle interrupt) {
+  if (!interrupt.is_none() && !PyCallable_Check(interrupt.ptr()))
+    throw InvalidArgument("interrupt must be None or a callable returning whether to stop, got " +
+                          std::string(py::repr(interrupt)));
+  std::function<bool()> signals = python_interrupt();
+  if (interrupt.is_none()) return signals;
+  return [signals, interrupt]() mutable {
+    if (signals()) return true;
+    py::gil_scoped_acquire gil;
+    return py::bool_(interrupt()).cast<bool>();
+  };
+}
+
+// Steps without the GIL, asking Python's signal handlers (and the caller's `interrupt`) between
+// (sub-)steps; what a handler raised (KeyboardInterrupt for Ctrl-C) is raised here, the state
+// left where the stepper stopped; a stop the caller's interrupt asked for is a csb.Error saying
+// where.
 template <class Stepper>
-void step_interruptibly(Stepper& stepper, const Model& model, State& state, std::int64_t steps) {
+void step_interruptibly(Stepper& stepper, const Model& model, State& state, std::int64_t steps,
+                        py::handle interrupt = py::none()) {
+  const std::function<bool()> ask = with_callers(interrupt);
   try {
     py::gil_scoped_release release;
-    stepper.step(model, state, steps, python_interrupt());
+    stepper.step(model, state, steps, ask);
   } catch (const Interrupted&) {
-    throw py::error_already_set();
+    if (PyErr_Occurred()) throw py::error_already_set();
+    throw;
   }
 }
 
@@ -254,6 +276,7 @@ struct Warnings {
 };
 void bind_mesh(py::module_& m);
 void bind_model(py::module_& m);
+void bind_integrator(py::module_& m);  // before bind_methods: the steppers derive from Integrator
 void bind_methods(py::module_& m, const Warnings& warnings);
 void bind_reference(py::module_& m);
 void bind_metrics(py::module_& m);

@@ -71,14 +71,14 @@ PYBIND11_MODULE(_core, m) {
 #endif
     return d;
   }, "Versions of csb and of the libraries it was built against, and whether the viewer was built.");
-#ifdef CSB_HAS_VIEWER
-  bind_viewer(m);
-#endif
-
   bind_mesh(m);
   bind_model(m);
+  bind_integrator(m);
   bind_methods(m, Warnings{material_warning, accuracy_warning});
   bind_reference(m);
   bind_metrics(m);
   bind_kernels(m);
+#ifdef CSB_HAS_VIEWER
+  bind_viewer(m);  // after the types it takes, so that its signatures name them
+#endif
 }
