@@ -61,21 +61,30 @@ class CameraPose:
 
 
 def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280, height: int = 800,
-                method: str | None = None, camera: CameraPose | None = None, **options: Any) -> "_core.Viewer":
+                method: str | None = None, camera: CameraPose | None = None,
+                stepper: "_core.Integrator | None" = None, **options: Any) -> "_core.Viewer":
     """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation),
     not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`
-    ('pbd', 'xpbd', 'jakobsen'/'verlet') overrides the scene's; `options` go to
-    :class:`csb._core.Viewer` (overlay, wireframe, particles, paused, frame_time,
-    grab_compliance, samples, vsync, title, ...). A scene with tearing tears in the viewer too."""
+    ('pbd', 'xpbd', 'jakobsen'/'verlet') overrides the scene's; `stepper`, any csb.Integrator (a
+    built-in or a user's own method), steps the scene instead of its solver (grabbing and the
+    method switch then need a PbdStepper); `options` go to :class:`csb._core.Viewer` (overlay,
+    wireframe, particles, paused, frame_time, grab_compliance, samples, vsync, title, ...). A
+    scene with tearing tears in the viewer too."""
     _require_viewer()
+    if stepper is not None and not isinstance(stepper, _core.Integrator):
+        raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
     sim = _simulation(scene)
     tearing = sim.scene.tearing
     if tearing is not None:
         options.setdefault("tear_max_strain", tearing.max_strain)
         options.setdefault("tear_max_per_step", tearing.max_per_step)
     options.setdefault("title", f"csb - {sim.scene.name}")
-    v = _core.Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
-                     **options)
+    if stepper is None and isinstance(sim.stepper, _core.PbdStepper):  # a fresh one, of the scene's settings
+        v = _core.Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
+                         **options)
+    else:
+        v = _core.Viewer(sim.model, sim.state, stepper if stepper is not None else sim.stepper, width=width,
+                         height=height, offscreen=offscreen, gravity=sim.gravity, **options)
     if method is not None:
         v.method = method
     if camera is not None:

@@ -37,6 +37,40 @@ py::array_t<std::uint8_t> image_array(const csb::viewer::Image& image) {
   return a;
 }
 
+csb::viewer::ViewerOptions viewer_options(IntArg width, IntArg height, bool offscreen, const std::string& title,
+                                          IntArg samples, bool vsync, bool overlay, bool wireframe, bool particles,
+                                          bool grid, bool paused, double frame_time, double grab_compliance,
+                                          double tear_max_strain, IntArg tear_max_per_step,
+                                          const std::string& screenshot_prefix) {
+  csb::viewer::ViewerOptions o;
+  o.width = in_range<int>(width, "viewer: width", 16, 16384);
+  o.height = in_range<int>(height, "viewer: height", 16, 16384);
+  o.offscreen = offscreen;
+  o.title = title;
+  o.samples = in_range<int>(samples, "viewer: samples", 0, 16);
+  o.vsync = vsync;
+  o.overlay = overlay;
+  o.wireframe = wireframe;
+  o.particles = particles;
+  o.grid = grid;
+  o.paused = paused;
+  o.frame_time = frame_time;
+  o.grab_compliance = grab_compliance;
+  o.tear_max_strain = tear_max_strain;
+  o.tear_max_per_step = in_range(tear_max_per_step, "viewer: tear_max_per_step", 1, kMaxIndex);
+  o.screenshot_prefix = screenshot_prefix;
+  return o;
+}
+
+// The keyword arguments both constructors take after the method.
+#define VIEWER_OPTION_ARGS                                                                                     \
+  py::kw_only(), py::arg("width") = 1280, py::arg("height") = 800, py::arg("offscreen") = false,              \
+      py::arg("title") = "csb", py::arg("samples") = 4, py::arg("vsync") = true, py::arg("overlay") = true,   \
+      py::arg("wireframe") = false, py::arg("particles") = false, py::arg("grid") = true,                     \
+      py::arg("paused") = false, py::arg("frame_time") = 1.0 / 60.0, py::arg("grab_compliance") = 0.0,       \
+      py::arg("tear_max_strain") = 0.0, py::arg("tear_max_per_step") = 1,                                      \
+      py::arg("screenshot_prefix") = "csb-screenshot"
+
 }  // namespace
 
 void bind_viewer(py::module_& m) {
@@ -68,39 +102,40 @@ void bind_viewer(py::module_& m) {
 
   py::class_<Viewer>(m, "Viewer",
       "Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().")
-      .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, IntArg width, IntArg height,
-                       bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
+      .def(py::init([](const Model& model, const State& state, std::shared_ptr<Integrator> stepper, IntArg width,
+                       IntArg height, bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
+                       bool wireframe, bool particles, bool grid, bool paused, double frame_time,
+                       double grab_compliance, double tear_max_strain, IntArg tear_max_per_step,
+                       const std::string& screenshot_prefix, py::handle gravity) {
+             csb::viewer::ViewerOptions o = viewer_options(width, height, offscreen, title, samples, vsync, overlay,
+                                                           wireframe, particles, grid, paused, frame_time,
+                                                           grab_compliance, tear_max_strain, tear_max_per_step,
+                                                           screenshot_prefix);
+             if (!gravity.is_none()) o.gravity = vec3(gravity, "gravity");
+             return std::make_unique<Viewer>(model, state, std::move(stepper), o);
+           }),
+           py::arg("model"), py::arg("state"), py::arg("stepper"), VIEWER_OPTION_ARGS, py::arg("gravity") = py::none(),
+           "Copies model and state (reset returns to them) and steps them with `stepper`, any csb.Integrator "
+           "(a built-in, or a Python subclass: kept alive by the viewer). Grabbing and the method switch need a "
+           "PbdStepper; with another method they are off. width, height: pixels. offscreen: EGL, no window. "
+           "frame_time: s of simulated time per frame (whole steps of the stepper's dt()). grab_compliance: m/N of "
+           "the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none). gravity: m/s², "
+           "for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). An exception "
+           "the stepper raises (but csb.SimulationError from a built-in, which pauses and is shown) passes "
+           "through frame(), run() and capture().")
+      .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, IntArg width,
+                       IntArg height, bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
                        bool wireframe, bool particles, bool grid, bool paused, double frame_time,
                        double grab_compliance, double tear_max_strain, IntArg tear_max_per_step,
                        const std::string& screenshot_prefix) {
-             csb::viewer::ViewerOptions o;
-             o.width = in_range<int>(width, "viewer: width", 16, 16384);
-             o.height = in_range<int>(height, "viewer: height", 16, 16384);
-             o.offscreen = offscreen;
-             o.title = title;
-             o.samples = in_range<int>(samples, "viewer: samples", 0, 16);
-             o.vsync = vsync;
-             o.overlay = overlay;
-             o.wireframe = wireframe;
-             o.particles = particles;
-             o.grid = grid;
-             o.paused = paused;
-             o.frame_time = frame_time;
-             o.grab_compliance = grab_compliance;
-             o.tear_max_strain = tear_max_strain;
-             o.tear_max_per_step = in_range(tear_max_per_step, "viewer: tear_max_per_step", 1, kMaxIndex);
-             o.screenshot_prefix = screenshot_prefix;
-             return std::make_unique<Viewer>(model, state, settings, o);
+             return std::make_unique<Viewer>(model, state, settings,
+                                             viewer_options(width, height, offscreen, title, samples, vsync, overlay,
+                                                            wireframe, particles, grid, paused, frame_time,
+                                                            grab_compliance, tear_max_strain, tear_max_per_step,
+                                                            screenshot_prefix));
            }),
-           py::arg("model"), py::arg("state"), py::arg("settings"), py::kw_only(), py::arg("width") = 1280,
-           py::arg("height") = 800, py::arg("offscreen") = false, py::arg("title") = "csb", py::arg("samples") = 4,
-           py::arg("vsync") = true, py::arg("overlay") = true, py::arg("wireframe") = false,
-           py::arg("particles") = false, py::arg("grid") = true, py::arg("paused") = false,
-           py::arg("frame_time") = 1.0 / 60.0, py::arg("grab_compliance") = 0.0, py::arg("tear_max_strain") = 0.0,
-           py::arg("tear_max_per_step") = 1, py::arg("screenshot_prefix") = "csb-screenshot",
-           "Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. "
-           "frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the "
-           "mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).")
+           py::arg("model"), py::arg("state"), py::arg("settings"), VIEWER_OPTION_ARGS,
+           "The same with a PbdStepper made from `settings`.")
       .def("run", [](Viewer& v, IntArg max_frames_arg) {
         const std::int64_t max_frames = in_range<std::int64_t>(max_frames_arg, "max_frames", 0, kMaxInt64);
         // Python's signal handlers run between frames: Ctrl-C in the terminal raises
@@ -162,8 +197,17 @@ void bind_viewer(py::module_& m) {
       .def_property("paused", &Viewer::paused, &Viewer::set_paused)
       .def("single_step", &Viewer::single_step)
       .def("reset", &Viewer::reset)
-      .def_property("method", [](const Viewer& v) { return method_str(v.method()); },
-                    [](Viewer& v, const std::string& m) { v.set_method(parse_method(m)); })
+      .def_property("method", [](const Viewer& v) -> std::string {
+                      return v.position_based() ? method_str(v.method()) : v.integrator().name();
+                    },
+                    [](Viewer& v, const std::string& m) { v.set_method(parse_method(m)); },
+                    "The method's name. Set: a built-in position-based method ('pbd', 'xpbd', 'jakobsen'), when the "
+                    "viewer steps a PbdStepper (csb.ParameterError otherwise).")
+      .def_property_readonly("stepper", [](const Viewer& v) { return v.integrator_ptr(); },
+                             "The Integrator being stepped (after a method switch or a reset of a PbdStepper, a new one).")
+      .def_property_readonly("position_based", &Viewer::position_based,
+                             "Whether the method is a PbdStepper: grabbing and the method switch work only then.")
+      .def_property_readonly("dt", &Viewer::dt, "s, the method's step")
       .def_property_readonly("message", [](const Viewer& v) { return v.message(); },
                              "The overlay's last notice: a method switch (with what the method cannot read of the "
                              "model's material), a screenshot written, a simulation error.")
@@ -180,7 +224,9 @@ void bind_viewer(py::module_& m) {
                              "A copy of the model being simulated (a tear makes a new one).")
       .def_property_readonly("state", py::overload_cast<>(&Viewer::state), py::return_value_policy::reference_internal,
                              "The live state (positions and velocities as numpy views).")
-      .def_property_readonly("settings", &Viewer::settings)
+      .def_property_readonly("settings", [](const Viewer& v) -> py::object {
+        return v.position_based() ? py::cast(v.settings()) : py::object(py::none());
+      }, "The PbdStepper's settings, or None for another method.")
       .def_property_readonly("held_particle", &Viewer::held_particle, "The particle under the mouse's grab, or -1.")
       .def_property_readonly("steps_per_frame", &Viewer::steps_per_frame)
       .def_property_readonly("stats", [](const Viewer& v) {

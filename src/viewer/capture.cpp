@@ -111,7 +111,7 @@ CaptureResult capture(Viewer& viewer, const CaptureOptions& o) {
     } else {
       video = (std::filesystem::path(o.directory) / (o.prefix + ".mp4")).string();
       const Camera& cam = viewer.camera();
-      const double fps = 1.0 / (viewer.steps_per_frame() * viewer.settings().dt);
+      const double fps = 1.0 / (viewer.steps_per_frame() * viewer.dt());
       std::ostringstream cmd;
       cmd << quote(ffmpeg) << " -y -loglevel error -f rawvideo -pix_fmt rgb24 -s " << cam.width << "x" << cam.height
           << " -r " << fps << " -i - -vf 'scale=trunc(iw/2)*2:trunc(ih/2)*2' "

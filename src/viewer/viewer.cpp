@@ -203,14 +203,18 @@ struct Viewer::Context {
 };
 
 Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settings, const ViewerOptions& options)
+    : Viewer(model, state, std::make_shared<PbdStepper>(settings), options) {}
+
+Viewer::Viewer(const Model& model, const State& state, std::shared_ptr<Integrator> stepper,
+               const ViewerOptions& options)
     : context_(std::make_unique<Context>()),
       options_(options),
       initial_model_(std::make_shared<const Model>(model)),
       model_(initial_model_),
       initial_state_(state),
       state_(state),
-      settings_(settings),
-      initial_settings_(settings) {
+      stepper_(std::move(stepper)) {
+  if (!stepper_) throw InvalidArgument("viewer: no method to step with (stepper is null)");
   if (options.width < 16 || options.height < 16 || options.width > 16384 || options.height > 16384)
     throw InvalidArgument("viewer: width and height must be 16 to 16384 pixels, got " + std::to_string(options.width) +
                           "x" + std::to_string(options.height));
@@ -223,11 +227,20 @@ Viewer::Viewer(const Model& model, const State& state, const PbdSettings& settin
   if (state.x.cols() != model.num_particles() || state.v.cols() != model.num_particles())
     throw InvalidArgument("viewer: the state has " + std::to_string(state.x.cols()) + " particles, the model " +
                           std::to_string(model.num_particles()));
-  validate(settings);
-  stepper_ = std::make_unique<PbdStepper>(settings_);
-  message_ = material_message(model, settings_.method);
-  if (!message_.empty()) message_.erase(0, 1);
-  steps_per_frame_ = std::max(1, static_cast<int>(std::lround(options.frame_time / settings.dt)));
+  if (!options.gravity.allFinite()) throw InvalidArgument("viewer: gravity must be finite");
+  pbd_ = dynamic_cast<PbdStepper*>(stepper_.get());
+  if (pbd_) {
+    settings_ = initial_settings_ = pbd_->settings();
+    gravity_ = settings_.gravity;
+    message_ = material_message(model, settings_.method);
+    if (!message_.empty()) message_.erase(0, 1);
+  } else {
+    gravity_ = options.gravity;
+  }
+  dt_ = stepper_->dt();
+  if (!(dt_ > 0) || !std::isfinite(dt_))
+    throw InvalidArgument("viewer: the method's dt() must be a time step > 0 s, got " + std::to_string(dt_));
+  steps_per_frame_ = std::max(1, static_cast<int>(std::lround(options.frame_time / dt_)));
   paused_ = options.paused;
   draw_.wireframe = options.wireframe;
   draw_.particles = options.particles;
@@ -373,7 +386,7 @@ void Viewer::advance(int steps) {
 }
 
 void Viewer::update_energy() {
-  const Metrics m = measure(*model_, state_, settings_.gravity);
+  const Metrics m = measure(*model_, state_, gravity_);
   stats_.kinetic = m.kinetic_energy;
   stats_.gravitational = m.gravitational_energy;
   stats_.elastic = m.elastic_energy;
@@ -389,7 +402,10 @@ void Viewer::reset() {
   release_grab();
   model_ = initial_model_;
   state_ = initial_state_;
-  stepper_ = std::make_unique<PbdStepper>(settings_);
+  if (pbd_) {  // a fresh stepper: no multipliers, grabs or workspace of the run before
+    stepper_ = std::make_shared<PbdStepper>(settings_);
+    pbd_ = static_cast<PbdStepper*>(stepper_.get());
+  }
   stats_.steps = 0;
   message_.clear();
   if (!released_) {
@@ -400,6 +416,9 @@ void Viewer::reset() {
 }
 
 void Viewer::set_method(Method method) {
+  if (!pbd_)
+    throw InvalidArgument("viewer: the method switch chooses among the built-in position-based methods; this "
+                          "viewer steps '" + stepper_->name() + "', which it cannot switch");
   if (method == settings_.method) return;
   release_grab();
   // From the settings given, so that switching back restores them. Jakobsen's method predicts
@@ -418,13 +437,14 @@ void Viewer::set_method(Method method) {
   } else if (initial_settings_.method == Method::Jakobsen) {
     settings_.front_end = FrontEnd::Euler;
   }
-  stepper_ = std::make_unique<PbdStepper>(settings_);
+  stepper_ = std::make_shared<PbdStepper>(settings_);
+  pbd_ = static_cast<PbdStepper*>(stepper_.get());
   message_ += material_message(*model_, method);
   stats_.step_ms = 0;
 }
 
 void Viewer::release_grab() {
-  if (grab_handle_) stepper_->release(grab_handle_);
+  if (grab_handle_ && pbd_) pbd_->release(grab_handle_);
   grab_handle_ = 0;
   held_particle_ = -1;
   if (drag_button_ == 2) drag_button_ = -1;
@@ -438,7 +458,7 @@ void Viewer::mouse_button(int button, bool pressed, double x, double y, bool shi
     drag_button_ = -1;
     return;
   }
-  if (button == 0 && !shift) {
+  if (button == 0 && !shift && pbd_) {  // grabbing: PbdStepper's grabs
     const Ray ray = camera_.ray(x, y);
     Vec3 lo, hi;
     context_->renderer->bounds(lo, hi);
@@ -447,7 +467,7 @@ void Viewer::mouse_button(int button, bool pressed, double x, double y, bool shi
     if (pick.particle >= 0) {
       release_grab();
       drag_point_ = state_.x.col(pick.particle);
-      grab_handle_ = stepper_->grab(*model_, state_, pick.particle, drag_point_, options_.grab_compliance);
+      grab_handle_ = pbd_->grab(*model_, state_, pick.particle, drag_point_, options_.grab_compliance);
       held_particle_ = pick.particle;
       drag_button_ = 2;
       return;
@@ -474,7 +494,7 @@ void Viewer::mouse_move(double x, double y) {
       const double s = (drag_point_ - ray.origin).dot(n) / denom;
       if (!(s > 0)) break;
       drag_point_ = ray.origin + s * ray.direction;
-      stepper_->move_grab(grab_handle_, drag_point_);
+      if (pbd_) pbd_->move_grab(grab_handle_, drag_point_);
       break;
     }
     default: break;
@@ -494,18 +514,22 @@ void Viewer::key(int k) {
     case GLFW_KEY_G: draw_.grid = !draw_.grid; break;
     case GLFW_KEY_O: options_.overlay = !options_.overlay; break;
     case GLFW_KEY_F: frame_scene(); break;
-    case GLFW_KEY_M: {  // the next position-based method of the registry's list
-      const std::vector<Method> variants = pbd_variants();
-      const auto at = std::find(variants.begin(), variants.end(), settings_.method);
-      set_method(at == variants.end() || at + 1 == variants.end() ? variants.front() : *(at + 1));
-      break;
-    }
+    case GLFW_KEY_M:
     case GLFW_KEY_1: case GLFW_KEY_2: case GLFW_KEY_3: case GLFW_KEY_4: case GLFW_KEY_5:
-    case GLFW_KEY_6: case GLFW_KEY_7: case GLFW_KEY_8: case GLFW_KEY_9: {  // the n-th of them
-      const std::vector<Method> variants = pbd_variants();
-      if (const std::size_t n = k - GLFW_KEY_1; n < variants.size()) set_method(variants[n]);
+    case GLFW_KEY_6: case GLFW_KEY_7: case GLFW_KEY_8: case GLFW_KEY_9:
+      if (!pbd_) {
+        message_ = "method keys off: " + stepper_->name() + " is not a built-in position-based method";
+        break;
+      }
+      if (k != GLFW_KEY_M) {  // the n-th position-based method of the registry's list
+        const std::vector<Method> variants = pbd_variants();
+        if (const std::size_t n = k - GLFW_KEY_1; n < variants.size()) set_method(variants[n]);
+      } else {  // the next one
+        const std::vector<Method> variants = pbd_variants();
+        const auto at = std::find(variants.begin(), variants.end(), settings_.method);
+        set_method(at == variants.end() || at + 1 == variants.end() ? variants.front() : *(at + 1));
+      }
       break;
-    }
     case GLFW_KEY_C: {
       const std::string path = options_.screenshot_prefix + "-" + std::to_string(++screenshots_) + ".png";
       try {
@@ -584,13 +608,17 @@ void Viewer::build_overlay() {
                                  ImGuiWindowFlags_NoSavedSettings | ImGuiWindowFlags_NoFocusOnAppearing |
                                  ImGuiWindowFlags_NoNav | ImGuiWindowFlags_NoMove;
   if (ImGui::Begin("csb", nullptr, flags)) {
-    const Real dt = settings_.dt;
-    ImGui::Text("%s%s", method_name(settings_.method).c_str(), paused_ ? "   [paused]" : "");
+    const Real dt = dt_;
+    const std::string method = pbd_ ? method_name(settings_.method) : stepper_->name();
+    ImGui::Text("%s%s", method.c_str(), paused_ ? "   [paused]" : "");
     ImGui::Text("%.1f fps   %.2f ms/frame", stats_.fps, stats_.frame_ms);
     ImGui::Text("%.3f ms/step  (%d step%s/frame, dt %.4g s)", stats_.step_ms, steps_per_frame_,
                 steps_per_frame_ == 1 ? "" : "s", dt);
-    ImGui::Text("%d substep%s x %d iteration%s", settings_.substeps, settings_.substeps == 1 ? "" : "s",
-                settings_.iterations, settings_.iterations == 1 ? "" : "s");
+    if (pbd_)
+      ImGui::Text("%d substep%s x %d iteration%s", settings_.substeps, settings_.substeps == 1 ? "" : "s",
+                  settings_.iterations, settings_.iterations == 1 ? "" : "s");
+    else
+      ImGui::TextDisabled("grab and method keys off: %s is not a built-in position-based method", method.c_str());
     ImGui::Text("t = %.3f s   %d particles   %d constraints", state_.t, model_->num_particles(),
                 model_->num_constraints());
     ImGui::Text("energy %.5g J (kinetic %.4g, gravity %.4g, elastic %.4g)",

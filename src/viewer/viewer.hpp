@@ -11,12 +11,18 @@
 // The overlay (Dear ImGui) shows fps, ms per step, substeps × iterations, the method, energies
 // and the simulated time.
 //
+// The viewer steps any Integrator (integrator.hpp): a built-in position-based stepper, a
+// force-based one, or a user's method (from Python through the binding's trampoline). Grabbing
+// and the method keys act through PbdStepper's grabs and settings, so they work when the method
+// is a PbdStepper; with any other method they are off, and the overlay says so.
+//
 // Every frame advances the simulation by `frame_time` of simulated time (whole steps of the
 // stepper's dt), so at 60 frames per second and frame_time = 1/60 s it runs in real time. The
 // window and the offscreen mode draw into the same offscreen target, so screenshots read the
 // same pixels in both.
 #pragma once
 
+#include "csb/integrator.hpp"
 #include "csb/pbd.hpp"
 #include "viewer/camera.hpp"
 #include "viewer/renderer.hpp"
@@ -48,6 +54,9 @@ struct ViewerOptions {
   Real tear_max_strain = 0;
   Index tear_max_per_step = 1;
   std::string screenshot_prefix = "csb-screenshot";  // the `c` key writes <prefix>-<n>.png
+  // m/s², for the overlay's gravitational energy when the method is not a PbdStepper (whose
+  // settings have their own gravity).
+  Vec3 gravity = Vec3(0, -9.81, 0);
 };
 
 // What the overlay shows, measured over the last frames.
@@ -76,9 +85,14 @@ int key_code(const std::string& name);
 
 class Viewer {
  public:
-  // Copies the model and state (reset returns to them); `settings` configure the stepper (the
-  // method switch keeps everything else). Opens the window or the offscreen context; throws
-  // csb::Error saying what is missing (no display, no OpenGL 3.3) if it cannot.
+  // Copies the model and state (reset returns to them) and steps them with `stepper` (kept, and
+  // shared with the caller). A PbdStepper's settings are what the method switch and reset start
+  // from (they make a fresh PbdStepper); any other method is stepped as it is, reset keeping it.
+  // Opens the window or the offscreen context; throws csb::Error saying what is missing (no
+  // display, no OpenGL 3.3) if it cannot, InvalidArgument for a stepper whose dt() is not > 0.
+  Viewer(const Model& model, const State& state, std::shared_ptr<Integrator> stepper,
+         const ViewerOptions& options = {});
+  // The same with a PbdStepper made from `settings`.
   Viewer(const Model& model, const State& state, const PbdSettings& settings, const ViewerOptions& options = {});
   ~Viewer();
   Viewer(const Viewer&) = delete;
@@ -115,8 +129,11 @@ class Viewer {
   bool paused() const { return paused_; }
   void single_step();  // one step of dt, also while paused
   void reset();        // the model and state given at construction; the camera stays
+  // The method switch (PbdStepper only: InvalidArgument naming the method stepped otherwise).
   void set_method(Method method);
-  Method method() const { return settings_.method; }
+  Method method() const { return settings_.method; }  // meaningful when position_based()
+  // Whether the method is a PbdStepper: grabbing and the method switch work only then.
+  bool position_based() const { return pbd_ != nullptr; }
   // The overlay's last notice: a method switch (with what the method cannot read of the
   // model's material, material.hpp), a screenshot written, a simulation error.
   const std::string& message() const { return message_; }
@@ -129,8 +146,10 @@ class Viewer {
   const Model& model() const { return *model_; }
   const State& state() const { return state_; }
   State& state() { return state_; }
-  const PbdStepper& stepper() const { return *stepper_; }
-  const PbdSettings& settings() const { return settings_; }
+  const Integrator& integrator() const { return *stepper_; }
+  const std::shared_ptr<Integrator>& integrator_ptr() const { return stepper_; }
+  const PbdSettings& settings() const { return settings_; }  // meaningful when position_based()
+  Real dt() const { return dt_; }  // s, the method's step
   // The particle held by the mouse, or -1.
   Index held_particle() const { return held_particle_; }
   const Stats& stats() const { return stats_; }
@@ -153,7 +172,10 @@ class Viewer {
   State initial_state_, state_;
   PbdSettings settings_;
   PbdSettings initial_settings_;
-  std::unique_ptr<PbdStepper> stepper_;
+  std::shared_ptr<Integrator> stepper_;
+  PbdStepper* pbd_ = nullptr;  // stepper_ as a PbdStepper, or null
+  Real dt_ = 0;                // s, stepper_->dt()
+  Vec3 gravity_ = Vec3::Zero();  // m/s², for the energies
   Camera camera_;
   bool paused_ = false;
   int steps_per_frame_ = 1;

@@ -14,179 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'measure', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
-class Camera:
-    """
-    The viewer's orbit camera (m, rad; pixels from the top-left corner).
-    """
-    def orbit(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def pan(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def project(self, point: typing.Any) -> tuple[float, float, float]:
-        """
-        (x, y, depth): where a world point (m) lands in the image, in pixels, and its depth (m) in front of the eye
-        """
-    def ray(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]]:
-        """
-        (origin, unit direction) of the ray through pixel (x, y)
-        """
-    def zoom(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def distance(self) -> float:
-        """
-        m, from the eye to the target
-        """
-    @distance.setter
-    def distance(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def eye(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        ...
-    @property
-    def forward(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        ...
-    @property
-    def fov_y(self) -> float:
-        """
-        rad, vertical field of view
-        """
-    @fov_y.setter
-    def fov_y(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def height(self) -> int:
-        ...
-    @property
-    def pitch(self) -> float:
-        """
-        rad above the horizon
-        """
-    @pitch.setter
-    def pitch(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    @property
-    def target(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
-        """
-        m, the point looked at
-        """
-    @target.setter
-    def target(self, arg1: typing.Any) -> None:
-        ...
-    @property
-    def width(self) -> int:
-        ...
-    @property
-    def yaw(self) -> float:
-        """
-        rad about +y; 0 looks along -z
-        """
-    @yaw.setter
-    def yaw(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-class Viewer:
-    """
-    Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().
-    """
-    grid: bool
-    method: str
-    particles: bool
-    paused: bool
-    wireframe: bool
-    def __enter__(self) -> Viewer:
-        ...
-    def __exit__(self, *args) -> None:
-        ...
-    def __init__(self, model: ..., state: ..., settings: ..., *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
-        """
-        Copies model and state (reset returns to them). width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of settings.dt). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none).
-        """
-    def capture(self, *, frames: int, directory: str, every: int = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
-        """
-        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
-        """
-    def close(self) -> None:
-        """
-        Releases the window (or offscreen context) now; frame() then returns False.
-        """
-    def frame(self) -> bool:
-        """
-        One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.
-        """
-    def frame_scene(self) -> None:
-        ...
-    def key(self, name: str) -> None:
-        """
-        A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.
-        """
-    def mouse_button(self, button: int, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
-        """
-        A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.
-        """
-    def mouse_move(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def redraw(self) -> None:
-        """
-        Draws the current state again without stepping.
-        """
-    def reset(self) -> None:
-        ...
-    def run(self, max_frames: int = 0) -> int:
-        """
-        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released during each frame; Python's signals (Ctrl-C: KeyboardInterrupt) are handled between frames.
-        """
-    def save_png(self, path: str) -> None:
-        ...
-    def screenshot(self) -> numpy.typing.NDArray[numpy.uint8]:
-        """
-        The last frame drawn as an (height, width, 3) uint8 array, top row first.
-        """
-    def scroll(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
-        ...
-    def set_overlay(self, on: bool) -> None:
-        ...
-    def single_step(self) -> None:
-        ...
-    @property
-    def camera(self) -> Camera:
-        ...
-    @property
-    def closed(self) -> bool:
-        """
-        The window was asked to close, or close() was called.
-        """
-    @property
-    def held_particle(self) -> int:
-        """
-        The particle under the mouse's grab, or -1.
-        """
-    @property
-    def message(self) -> str:
-        """
-        The overlay's last notice: a method switch (with what the method cannot read of the model's material), a screenshot written, a simulation error.
-        """
-    @property
-    def model(self) -> ...:
-        """
-        A copy of the model being simulated (a tear makes a new one).
-        """
-    @property
-    def settings(self) -> ...:
-        ...
-    @property
-    def state(self) -> ...:
-        """
-        The live state (positions and velocities as numpy views).
-        """
-    @property
-    def stats(self) -> dict:
-        """
-        What the overlay shows: fps, ms per frame, per step and to draw (wall clock, smoothed), energies (J).
-        """
-    @property
-    def steps_per_frame(self) -> int:
-        ...
+__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'methods', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -508,6 +336,57 @@ class ModelBuilder:
     @property
     def num_particles(self) -> int:
         ...
+class Integrator:
+    """
+    The step-level interface every method implements: name(), dt() (s) and step(model, state, steps=1, interrupt=None), which advances the state in place by `steps` steps of dt (positions, velocities, state.t and state.step). PbdStepper and ForceStepper are Integrators; so is a Python subclass that implements the three methods (calling Integrator.__init__ in its own __init__), and it is then accepted wherever a built-in is: the scene runner, csb.render and csb.view, the studies. `interrupt`, when not None, is a callable a long step may ask between steps whether to stop.
+    """
+    def __init__(self) -> None:
+        ...
+    def __repr__(self) -> str:
+        ...
+    def dt(self) -> float:
+        """
+        s, the time one step advances.
+        """
+    def name(self) -> str:
+        """
+        A short name of the method ('pbd', 'symplectic-euler', a user's own).
+        """
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
+        """
+        Advances state by `steps` steps of dt.
+        """
+class MethodInfo:
+    """
+    A method csb can step with, as listed by csb.methods().
+    """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def iterates(self) -> bool:
+        """
+        whether `iterations` means anything to it
+        """
+    @property
+    def label(self) -> str:
+        """
+        for tables and the viewer
+        """
+    @property
+    def name(self) -> str:
+        """
+        how to ask for it: make_integrator(name, dt)
+        """
+    @property
+    def reads(self) -> str:
+        """
+        what it reads of a constraint's material: 'stiffness' or 'compliance'
+        """
+    @property
+    def source(self) -> str:
+        """
+        where it comes from
+        """
 class PbdSettings:
     """
     Settings of a position-based stepper (SI units).
@@ -573,7 +452,7 @@ class PbdSettings:
         """
         XPBD constraint damping β, N s/m
         """
-class PbdStepper:
+class PbdStepper(Integrator):
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
@@ -607,9 +486,9 @@ class PbdStepper:
         """
         Lets go of a grab; the particle keeps the velocity it had.
         """
-    def step(self, model: Model, state: State, steps: int = 1) -> None:
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
         """
-        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between sub-steps, the state left at the end of the last completed one; a second thread stepping the same stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
+        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C, or `interrupt` (a callable asked between sub-steps) returning True, stops it between sub-steps, the state left at the end of the last completed one; a second thread stepping the same stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
         """
     @property
     def grabs(self) -> list:
@@ -649,7 +528,7 @@ class Pick:
     @property
     def triangle(self) -> int:
         ...
-class ForceStepper:
+class ForceStepper(Integrator):
     """
     Force-based mass-spring integrators on the reference's spring network (every constraint a spring of stiffness 1/α): the methods that fail, for the stability studies.
     """
@@ -657,9 +536,9 @@ class ForceStepper:
         """
         method: 'explicit-euler', 'symplectic-euler' or 'velocity-verlet'. dt: s. damping: N s/m along springs. drag: 1/s.
         """
-    def step(self, model: Model, state: State, steps: int = 1) -> None:
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
         """
-        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C stops it between steps, the state left at the end of the last completed one). A request that would take more than a year at 1e9 spring and particle updates a second is refused (csb.ParameterError, with the estimate).
+        Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C, or `interrupt` (a callable asked between steps) returning True, stops it between steps, the state left at the end of the last completed one). A request that would take more than a year at 1e9 spring and particle updates a second is refused (csb.ParameterError, with the estimate).
         """
     @property
     def force_evaluations(self) -> int:
@@ -690,6 +569,208 @@ class SpringNetwork:
         ...
     @property
     def size(self) -> int:
+        ...
+class Camera:
+    """
+    The viewer's orbit camera (m, rad; pixels from the top-left corner).
+    """
+    def orbit(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def pan(self, dx: typing.SupportsFloat | typing.SupportsIndex, dy: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def project(self, point: typing.Any) -> tuple[float, float, float]:
+        """
+        (x, y, depth): where a world point (m) lands in the image, in pixels, and its depth (m) in front of the eye
+        """
+    def ray(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]]:
+        """
+        (origin, unit direction) of the ray through pixel (x, y)
+        """
+    def zoom(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def distance(self) -> float:
+        """
+        m, from the eye to the target
+        """
+    @distance.setter
+    def distance(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def eye(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        ...
+    @property
+    def forward(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        ...
+    @property
+    def fov_y(self) -> float:
+        """
+        rad, vertical field of view
+        """
+    @fov_y.setter
+    def fov_y(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def height(self) -> int:
+        ...
+    @property
+    def pitch(self) -> float:
+        """
+        rad above the horizon
+        """
+    @pitch.setter
+    def pitch(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    @property
+    def target(self) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 1]"]:
+        """
+        m, the point looked at
+        """
+    @target.setter
+    def target(self, arg1: typing.Any) -> None:
+        ...
+    @property
+    def width(self) -> int:
+        ...
+    @property
+    def yaw(self) -> float:
+        """
+        rad about +y; 0 looks along -z
+        """
+    @yaw.setter
+    def yaw(self, arg0: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+class Viewer:
+    """
+    Steps a simulation in real time and draws it with OpenGL 3.3, in a window or offscreen. See csb.view().
+    """
+    grid: bool
+    particles: bool
+    paused: bool
+    wireframe: bool
+    def __enter__(self) -> Viewer:
+        ...
+    def __exit__(self, *args) -> None:
+        ...
+    @typing.overload
+    def __init__(self, model: Model, state: State, stepper: Integrator, *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot', gravity: typing.Any = None) -> None:
+        """
+        Copies model and state (reset returns to them) and steps them with `stepper`, any csb.Integrator (a built-in, or a Python subclass: kept alive by the viewer). Grabbing and the method switch need a PbdStepper; with another method they are off. width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of the stepper's dt()). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none). gravity: m/s², for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). An exception the stepper raises (but csb.SimulationError from a built-in, which pauses and is shown) passes through frame(), run() and capture().
+        """
+    @typing.overload
+    def __init__(self, model: Model, state: State, settings: PbdSettings, *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
+        """
+        The same with a PbdStepper made from `settings`.
+        """
+    def capture(self, *, frames: int, directory: str, every: int = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
+        """
+        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
+        """
+    def close(self) -> None:
+        """
+        Releases the window (or offscreen context) now; frame() then returns False.
+        """
+    def frame(self) -> bool:
+        """
+        One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.
+        """
+    def frame_scene(self) -> None:
+        ...
+    def key(self, name: str) -> None:
+        """
+        A synthetic key press by name: 'space', 'period', 'right', 'escape', or a letter or digit.
+        """
+    def mouse_button(self, button: int, pressed: bool, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex, shift: bool = False) -> None:
+        """
+        A synthetic mouse button event: button 0 left, 1 right, 2 middle; x, y in pixels.
+        """
+    def mouse_move(self, x: typing.SupportsFloat | typing.SupportsIndex, y: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def redraw(self) -> None:
+        """
+        Draws the current state again without stepping.
+        """
+    def reset(self) -> None:
+        ...
+    def run(self, max_frames: int = 0) -> int:
+        """
+        Frames until the window closes (or max_frames > 0 were drawn); returns the frames drawn. The GIL is released during each frame; Python's signals (Ctrl-C: KeyboardInterrupt) are handled between frames.
+        """
+    def save_png(self, path: str) -> None:
+        ...
+    def screenshot(self) -> numpy.typing.NDArray[numpy.uint8]:
+        """
+        The last frame drawn as an (height, width, 3) uint8 array, top row first.
+        """
+    def scroll(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
+        ...
+    def set_overlay(self, on: bool) -> None:
+        ...
+    def single_step(self) -> None:
+        ...
+    @property
+    def camera(self) -> Camera:
+        ...
+    @property
+    def closed(self) -> bool:
+        """
+        The window was asked to close, or close() was called.
+        """
+    @property
+    def dt(self) -> float:
+        """
+        s, the method's step
+        """
+    @property
+    def held_particle(self) -> int:
+        """
+        The particle under the mouse's grab, or -1.
+        """
+    @property
+    def message(self) -> str:
+        """
+        The overlay's last notice: a method switch (with what the method cannot read of the model's material), a screenshot written, a simulation error.
+        """
+    @property
+    def method(self) -> str:
+        """
+        The method's name. Set: a built-in position-based method ('pbd', 'xpbd', 'jakobsen'), when the viewer steps a PbdStepper (csb.ParameterError otherwise).
+        """
+    @method.setter
+    def method(self, arg1: str) -> None:
+        ...
+    @property
+    def model(self) -> Model:
+        """
+        A copy of the model being simulated (a tear makes a new one).
+        """
+    @property
+    def position_based(self) -> bool:
+        """
+        Whether the method is a PbdStepper: grabbing and the method switch work only then.
+        """
+    @property
+    def settings(self) -> typing.Any:
+        """
+        The PbdStepper's settings, or None for another method.
+        """
+    @property
+    def state(self) -> State:
+        """
+        The live state (positions and velocities as numpy views).
+        """
+    @property
+    def stats(self) -> dict:
+        """
+        What the overlay shows: fps, ms per frame, per step and to draw (wall clock, smoothed), energies (J).
+        """
+    @property
+    def stepper(self) -> Integrator:
+        """
+        The Integrator being stepped (after a method switch or a reset of a PbdStepper, a new one).
+        """
+    @property
+    def steps_per_frame(self) -> int:
         ...
 def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, drop_unreferenced: bool = True) -> tuple[Mesh, dict]:
     ...
@@ -755,8 +836,16 @@ def lumped_measure(mesh: Mesh) -> numpy.typing.NDArray[numpy.float64]:
     """
     Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).
     """
+def make_integrator(name: str, dt: typing.SupportsFloat | typing.SupportsIndex, *, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0]) -> Integrator:
+    """
+    The built-in method `name` (see csb.methods()) with step dt (s), `substeps` sub-steps per step, `iterations` constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); the other settings at their defaults. An unknown name is a csb.ParameterError (a ValueError) listing the known ones.
+    """
 def measure(model: Model, state: State, gravity: typing.Any) -> dict:
     ...
+def methods() -> list[MethodInfo]:
+    """
+    The built-in methods, in csb's order: name, label, source, reads, iterates.
+    """
 def pendulum(length: typing.SupportsFloat | typing.SupportsIndex, angle: typing.SupportsFloat | typing.SupportsIndex, anchor: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
     """
     Anchor (vertex 0) and bob (vertex 1) at `length` m, `angle` rad from the downward vertical towards +x.

@@ -39,7 +39,7 @@ def project_bending(a: typing.Any, b: typing.Any, c: typing.Any, d: typing.Any, 
     """
 def project_bending_coloured(points: typing.Any, quads: typing.Any, inv_mass: typing.Any, rest_angle: typing.Any, stiffness: typing.Any = None, alpha_tilde: typing.Any = None, gamma: typing.Any = None, lambda_: typing.Any = None, start: typing.Any = None, independent: bool = True) -> tuple:
     """
-    The stepper's coloured bending projection (csb/coloured_bending.hpp) over quads (a, b, c, d) in order, Gauss-Seidel in place: SIMD blocks if independent (the quads must then share no point), else one at a time. PBD with stiffness (default 1), or XPBD if alpha_tilde is given (gamma, lambda_, start: damping, multipliers, sub-step start positions). Returns (points', lambda' or None).
+    The stepper's coloured bending projection (csb/solver/coloured_bending.hpp) over quads (a, b, c, d) in order, Gauss-Seidel in place: SIMD blocks if independent (the quads must then share no point), else one at a time. PBD with stiffness (default 1), or XPBD if alpha_tilde is given (gamma, lambda_, start: damping, multipliers, sub-step start positions). Returns (points', lambda' or None).
     """
 def project_distance(p1: typing.Any, p2: typing.Any, w1: typing.SupportsFloat | typing.SupportsIndex, w2: typing.SupportsFloat | typing.SupportsIndex, rest_length: typing.SupportsFloat | typing.SupportsIndex, stiffness: typing.SupportsFloat | typing.SupportsIndex = 1.0, sense: str = '==') -> tuple[numpy.ndarray, numpy.ndarray, float]:
     """
