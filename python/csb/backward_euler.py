@@ -119,9 +119,10 @@ def _vector(value: Sequence[float], name: str) -> np.ndarray:
     return v
 
 
-class BackwardEulerStepper:
+class BackwardEulerStepper(_core.Integrator):
     """Backward Euler of the model's distance springs (energy C²/(2α)), solved by Newton's
-    method to convergence each step.
+    method to convergence each step: a csb.Integrator written in Python, so the scene runner,
+    the viewer and the studies take it as they take a built-in method.
 
     dt: time step, s (> 0). gravity: m/s². rtol: the residual at which a step stops, relative
     to the step's force scale (> 0), on top of the residual's rounding floor (module docstring).
@@ -134,13 +135,14 @@ class BackwardEulerStepper:
 
     def __init__(self, *, dt: float = 1.0 / 60.0, gravity: Sequence[float] = (0.0, -9.81, 0.0),
                  rtol: float = 1e-9, max_iterations: int = 100):
+        super().__init__()
         if not (math.isfinite(dt) and dt > 0):
             raise _core.ParameterError(f"dt must be a finite time step > 0 s, got {dt!r}")
         if not (math.isfinite(rtol) and rtol > 0):
             raise _core.ParameterError(f"rtol must be finite and > 0, got {rtol!r}")
         if int(max_iterations) != max_iterations or max_iterations < 1:
             raise _core.ParameterError(f"max_iterations must be an integer >= 1, got {max_iterations!r}")
-        self.dt = float(dt)
+        self._dt = float(dt)
         self.gravity = _vector(gravity, "gravity")
         self.rtol = float(rtol)
         self.max_iterations = int(max_iterations)
@@ -150,6 +152,13 @@ class BackwardEulerStepper:
         self.newton_iterations = 0
         self.max_residual = 0.0
         self._model: _core.Model | None = None
+
+    def name(self) -> str:
+        return "backward-euler"
+
+    def dt(self) -> float:
+        """s, the time one step advances."""
+        return self._dt
 
     # -- per-model set-up ------------------------------------------------------------------
     def _prepare(self, model: _core.Model) -> None:
@@ -203,7 +212,7 @@ class BackwardEulerStepper:
         return n, length, c
 
     def _residual(self, y, x_tilde, n, c):
-        h2 = self.dt**2
+        h2 = self._dt**2
         inertia = self._mass[:, None] * (y - x_tilde) / h2
         r = inertia.copy()
         f = (c / self._alpha)[:, None] * n
@@ -221,14 +230,14 @@ class BackwardEulerStepper:
         return float(4 * np.finfo(float).eps * np.max(size / self._alpha))
 
     def _energy(self, y, x_tilde, c):
-        return float(0.5 / self.dt**2 * np.sum(self._mass[self._free, None] * (y - x_tilde)[self._free] ** 2)
+        return float(0.5 / self._dt**2 * np.sum(self._mass[self._free, None] * (y - x_tilde)[self._free] ** 2)
                      + np.sum(c**2 / (2 * self._alpha)))
 
     def _hessian(self, n, length, c, project: bool) -> _Banded:
         nfree = self._dof_particle.size
         H = _Banded(3 * nfree, self._half_band)
         ab = H.ab
-        m = self._mass[self._dof_particle] / self.dt**2
+        m = self._mass[self._dof_particle] / self._dt**2
         ab[:3 * nfree, 0] += np.repeat(m, 3)
         active = (self._sense == 0) | (c != 0)
         geometric = c / self._alpha / length
@@ -251,7 +260,7 @@ class BackwardEulerStepper:
         return H
 
     def _step(self, x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        h = self.dt
+        h = self._dt
         free = self._free
         x_tilde = x + (h * v + h * h * self.gravity) * free[:, None]
         y = x_tilde.copy()
@@ -302,8 +311,9 @@ class BackwardEulerStepper:
         y[~free] = x[~free]
         return y, v_new
 
-    def step(self, model: _core.Model, state: _core.State, steps: int = 1) -> None:
-        """Advances ``state`` by ``steps`` backward Euler steps of dt (s)."""
+    def step(self, model: _core.Model, state: _core.State, steps: int = 1, interrupt=None) -> None:
+        """Advances ``state`` by ``steps`` backward Euler steps of dt (s); ``interrupt``, if given,
+        is asked between steps whether to stop (csb.Error then, the state at the end of a step)."""
         if int(steps) != steps or steps < 0:
             raise _core.ParameterError(f"steps must be an integer >= 0, got {steps!r}")
         if state.num_particles != model.num_particles:
@@ -314,9 +324,14 @@ class BackwardEulerStepper:
         v = np.array(state.v, dtype=float)
         if not (np.all(np.isfinite(x)) and np.all(np.isfinite(v))):
             raise _core.ParameterError("state.x and state.v must be finite")
-        for _ in range(int(steps)):
-            x, v = self._step(x, v)
-            state.t += self.dt
-            state.step += 1
-        state.x = x
-        state.v = v
+        try:
+            for k in range(int(steps)):
+                if k > 0 and interrupt is not None and interrupt():
+                    raise _core.Error(f"interrupted after {k} of {int(steps)} steps (t = {state.t:g} s): the state is "
+                                      "left at the end of that step")
+                x, v = self._step(x, v)
+                state.t += self._dt
+                state.step += 1
+        finally:
+            state.x = x
+            state.v = v

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import os
 import sys
 import time
@@ -34,6 +36,8 @@ class RunResult:
     (PbdStepper.workspace_bytes), ``state`` (positions and velocities) and ``peak_resident``, the
     process's peak resident memory so far (what sizes a run: it includes building the model,
     about 5 times the model's own arrays for a cloth; absent where the platform does not say)."""
+    stepper_given: bool = False
+    """The scene was stepped by a method given to the run (``stepper=``) instead of its solver's."""
 
     @property
     def final(self) -> dict[str, float]:
@@ -62,17 +66,26 @@ class RunResult:
         - Energy: the scene has no driver (no grabs, only static colliders), so its kinetic +
           gravitational energy can only fall from the first frame, which starts at rest shape
           (no elastic energy to release); flagged when it rises by more than 1 % of m |g| D,
-          D the body's rest bounding-box diagonal."""
+          D the body's rest bounding-box diagonal.
+
+        A method given to the run is held to the strain of the built-in method of its name (what
+        csb.methods() says it reads); one csb does not know is held to the energy alone."""
         sim = self.simulation
         model = sim.model
         out = []
-        allowed = strain_allowed(model, sim.scene.solver)
+        solver, method = sim.scene.solver, sim.scene.solver.method.upper()
+        if self.stepper_given:
+            method = sim.stepper.name()
+            reads = {m.name: m.reads for m in _core.methods()}.get(method)
+            solver = None if reads is None else dataclasses.replace(
+                solver, method="xpbd" if reads == "compliance" else "pbd")
+        allowed = strain_allowed(model, solver) if solver is not None else math.inf
         if sim.scene.tearing is not None:
             allowed = max(allowed, sim.scene.tearing.max_strain)
         limit = allowed + 0.10
         if self.largest_strain > limit:
             out.append(f"the largest strain, {100 * self.largest_strain:.3g} %, exceeds the {100 * limit:.3g} % its "
-                       f"materials allow under {sim.scene.solver.method.upper()} (converge further: more sub-steps "
+                       f"materials allow under {method} (converge further: more sub-steps "
                        f"or iterations)")
         mass = float(np.sum(np.asarray(model.mass)))
         rest = np.asarray(model.rest_positions)
@@ -88,9 +101,10 @@ class RunResult:
         sim = self.simulation
         s = sim.scene.solver
         f = self.final
+        how = (f"{1e3 * sim.stepper.dt():.3g} ms ({sim.stepper.name()})" if self.stepper_given
+               else f"{1e3 * s.dt:.3g} ms ({s.substeps} substeps x {s.iterations} iterations)")
         return (
-            f"{sim.scene.name}: {self.steps} steps of {1e3 * s.dt:.3g} ms ({s.substeps} substeps x "
-            f"{s.iterations} iterations), {sim.model.num_particles} particles, {sim.model.num_constraints} "
+            f"{sim.scene.name}: {self.steps} steps of {how}, {sim.model.num_particles} particles, {sim.model.num_constraints} "
             f"constraints, {self.wall_time:.3f} s wall ({self.steps / max(self.wall_time, 1e-12):.0f} steps/s); "
             f"t = {f['t']:.3f} s, kinetic + gravitational energy {f['mechanical_energy']:.6g} J, "
             f"max strain {100 * f['max_strain']:.3g} %"
@@ -136,7 +150,7 @@ def peak_resident_bytes() -> int | None:
 
 def memory_used(sim: "Simulation") -> dict[str, int]:
     """The run's memory, as in RunResult.memory."""
-    out = dict(model=int(sim.model.memory["total"]), stepper=int(sim.stepper.workspace_bytes),
+    out = dict(model=int(sim.model.memory["total"]), stepper=int(getattr(sim.stepper, "workspace_bytes", 0)),
                state=int(2 * 3 * 8 * sim.model.num_particles))
     peak = peak_resident_bytes()
     if peak is not None:
@@ -144,30 +158,41 @@ def memory_used(sim: "Simulation") -> dict[str, int]:
     return out
 
 
-def summary_title(scene: "Scene", num_particles: int) -> str:
+def summary_title(scene: "Scene", num_particles: int, stepper: "_core.Integrator | None" = None) -> str:
     """The title of a run's ``summary.png``: the scene, its size and how it was stepped (the
-    method, the sweep, dt in ms, sub-steps x iterations)."""
+    method, the sweep, dt in ms, sub-steps x iterations; a given stepper's name and dt)."""
+    if stepper is not None:
+        return f"{scene.name}: {num_particles} particles, {stepper.name()}, dt = {1e3 * stepper.dt():.3g} ms"
     s = scene.solver
     return (f"{scene.name}: {num_particles} particles, {_METHODS.get(s.method, s.method)} "
             f"{_SOLVERS.get(s.solver, s.solver)}, dt = {1e3 * s.dt:.3g} ms, "
             f"{s.substeps} substeps x {s.iterations} iterations")
 
 
-def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progress: bool = False) -> RunResult:
-    sim = scene.build()
-    steps = scene.steps
+def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progress: bool = False,
+              stepper: "_core.Integrator | None" = None) -> RunResult:
+    """Steps `scene` for its duration with its solver, or with `stepper` (any csb.Integrator: a
+    built-in, csb.make_integrator's, or a user's own) in steps of the stepper's dt()."""
+    sim = scene.build(stepper)
+    dt = scene.solver.dt
+    if stepper is not None:
+        dt = sim.stepper.dt()
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise _core.ParameterError(f"stepper {sim.stepper.name()!r}: dt() must be a time step > 0 s, got {dt!r}")
+    steps = scene.steps if stepper is None else max(1, math.ceil(scene.duration / dt - 1e-9))
     try:  # a duration beyond the machine is refused before the first step (each call is a frame's steps)
-        _core._require_time_for(f"duration {scene.duration:g} s = {steps} steps of {scene.solver.dt:g} s",
-                                float(steps) * sim.stepper.operations(sim.model, 1))
+        if hasattr(sim.stepper, "operations"):
+            _core._require_time_for(f"duration {scene.duration:g} s = {steps} steps of {dt:g} s",
+                                    float(steps) * sim.stepper.operations(sim.model, 1))
     except _core.ParameterError as e:
         raise SceneError(f"{scene.path}: {e}") from None
-    steps_per_frame = max(1, round(1.0 / (scene.output.fps * scene.solver.dt)))
+    steps_per_frame = max(1, round(1.0 / (scene.output.fps * dt)))
     writer = None
     out = Path(out_dir) if out_dir is not None else None
     if out is not None and (scene.output.xdmf or scene.output.vtu):
         writer = FrameWriter(out, scene.name, sim.model, xdmf=scene.output.xdmf, vtu=scene.output.vtu)
 
-    result = RunResult(sim, steps, 0.0)
+    result = RunResult(sim, steps, 0.0, stepper_given=stepper is not None)
 
     def record() -> None:
         result.rows.append(metrics_row(sim.measure(), sim.state.step, volume_errors(sim.model, sim.state)))
@@ -213,7 +238,7 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         if scene.output.csv:
             result.files.append(write_csv(out / "metrics.csv", result.rows))
         if scene.output.plot:
-            title = summary_title(scene, sim.model.num_particles)
+            title = summary_title(scene, sim.model.num_particles, stepper)
             result.files.append(plot_summary(out / "summary.png", result.rows, title))
             result.files.append(plot_snapshot(out / "snapshot.png", sim.model, sim.state,
                                               f"{scene.name} at t = {sim.state.t:.2f} s"))

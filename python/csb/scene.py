@@ -185,7 +185,7 @@ class Simulation:
     scene: "Scene"
     model: _core.Model
     state: _core.State
-    stepper: _core.PbdStepper
+    stepper: _core.Integrator      # the scene's solver (a PbdStepper), or the method given to build()
     meshes: dict[str, MeshInstance]
 
     @property
@@ -223,8 +223,13 @@ class Scene:
     def load(cls, path: str | os.PathLike[str]) -> "Scene":
         return load_scene(path)
 
-    def build(self) -> Simulation:
-        """Read the meshes and build the model, the initial state and the stepper."""
+    def build(self, stepper: _core.Integrator | None = None) -> Simulation:
+        """Read the meshes and build the model, the initial state and the stepper: the solver's,
+        or `stepper`, any csb.Integrator (a built-in, or a user's own method)."""
+        if stepper is not None and not isinstance(stepper, _core.Integrator):
+            raise _core.ParameterError(
+                f"stepper must be a csb.Integrator (a built-in stepper, csb.make_integrator's, or a subclass "
+                f"implementing name(), dt() and step()), got {type(stepper).__name__}")
         builder = ModelBuilder()
         groups: dict[str, int] = {}
         instances: dict[str, MeshInstance] = {}
@@ -282,13 +287,16 @@ class Scene:
             model = builder.build()
         except _core.ParameterError as e:  # e.g. a particle that starts inside a collider
             raise SceneError(f"{self.path}: {e}") from None
-        return Simulation(self, model, model.initial_state(), self.solver.stepper(), instances)
+        return Simulation(self, model, model.initial_state(),
+                          stepper if stepper is not None else self.solver.stepper(), instances)
 
-    def run(self, out_dir: str | os.PathLike[str] | None = None, *, progress: bool = False) -> "RunResult":
-        """Step the scene for its duration, recording metrics (and writing outputs if out_dir)."""
+    def run(self, out_dir: str | os.PathLike[str] | None = None, *, progress: bool = False,
+            stepper: _core.Integrator | None = None) -> "RunResult":
+        """Step the scene for its duration, recording metrics (and writing outputs if out_dir);
+        with `stepper` (any csb.Integrator) instead of the scene's solver."""
         from .runner import run_scene
 
-        return run_scene(self, out_dir, progress=progress)
+        return run_scene(self, out_dir, progress=progress, stepper=stepper)
 
 
 def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> None:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import csv
 import dataclasses
+import inspect
 import math
 import time
 import warnings
@@ -257,15 +258,37 @@ def observed_order(h: np.ndarray, error: np.ndarray) -> float:
 # --------------------------------------------------------------------------------- methods
 
 
-def make_stepper(method: str, *, dt: float, iterations: int = 10, substeps: int = 1, gravity=(0.0, -9.81, 0.0)):
-    """A stepper by name: "pbd", "xpbd", "jakobsen" (position-based, `iterations` per sub-step),
-    "small-steps" (XPBD, `substeps` of one iteration), or a force-based integrator
-    ("explicit-euler", "symplectic-euler", "velocity-verlet")."""
-    if method in ("explicit-euler", "symplectic-euler", "velocity-verlet"):
-        return _core.ForceStepper(method=method, dt=dt, substeps=substeps, gravity=gravity)
-    if method == "small-steps":
-        return _core.PbdStepper(method="xpbd", dt=dt, substeps=substeps, iterations=1, gravity=gravity)
-    return _core.PbdStepper(method=method, dt=dt, substeps=substeps, iterations=iterations, gravity=gravity)
+def make_stepper(method, *, dt: float, iterations: int = 10, substeps: int = 1,
+                 gravity=(0.0, -9.81, 0.0)) -> _core.Integrator:
+    """The stepper a study runs, an Integrator. `method` is one of:
+
+    - a built-in method's name (csb.methods(): "pbd", "xpbd", "jakobsen" with `iterations` per
+      sub-step, "small-steps" (XPBD, `substeps` of one iteration), "explicit-euler",
+      "symplectic-euler", "velocity-verlet"), made by csb.make_integrator;
+    - a csb.Integrator (a user's own method), used as it is: its dt() must be `dt` (s);
+    - a callable (a user's Integrator subclass, say) that makes one from those of the keyword
+      arguments dt, iterations, substeps and gravity it takes, for a study that sweeps them."""
+    if isinstance(method, str):
+        return _core.make_integrator(method, dt, substeps=substeps, iterations=iterations, gravity=gravity)
+    if isinstance(method, _core.Integrator):
+        if method.dt() != dt:
+            raise _core.ParameterError(f"the study steps with dt = {dt:g} s, but the method {method.name()!r} has "
+                                       f"dt() = {method.dt():g} s: pass a callable that makes it for a dt")
+        return method
+    if callable(method):
+        given = dict(dt=dt, iterations=iterations, substeps=substeps, gravity=gravity)
+        try:
+            params = inspect.signature(method).parameters
+        except (TypeError, ValueError):  # no signature to read: all of them
+            params = None
+        if params is not None and not any(p.kind is p.VAR_KEYWORD for p in params.values()):
+            given = {k: v for k, v in given.items() if k in params}
+        stepper = method(**given)
+        if not isinstance(stepper, _core.Integrator):
+            raise _core.ParameterError(f"method {method!r} made a {type(stepper).__name__}, not a csb.Integrator")
+        return stepper
+    raise _core.ParameterError(f"method must be a method's name, a csb.Integrator or a callable making one, "
+                               f"got {method!r}")
 
 
 def omega_max(model: _core.Model, state: _core.State, gravity=(0.0, -9.81, 0.0)) -> float:
@@ -285,12 +308,18 @@ def omega_max(model: _core.Model, state: _core.State, gravity=(0.0, -9.81, 0.0))
     return float(math.sqrt(max(np.linalg.eigvals(-A).real.max(), 0.0)))
 
 
-def run_method(model: _core.Model, start: _core.State, times: np.ndarray, stepper, *, dt: float,
-               reference_x: np.ndarray | None = None, blow_up: float = 100.0) -> dict:
-    """Steps `start` with `stepper` (step dt) through `times` (multiples of dt). Returns the
-    wall time and the process's CPU time of stepping (s), whether it blew up (non-finite, or a particle farther than
-    `blow_up` times the model's size from where it started) and, with `reference_x` (T, N, 3),
-    the largest distance to it (m)."""
+def run_method(model: _core.Model, start: _core.State, times: np.ndarray, stepper: _core.Integrator, *,
+               dt: float | None = None, reference_x: np.ndarray | None = None, blow_up: float = 100.0) -> dict:
+    """Steps `start` with `stepper`, any csb.Integrator (a built-in or a user's own), through
+    `times` (multiples of its dt, s; `dt` defaults to stepper.dt()). Returns the wall time and the
+    process's CPU time of stepping (s), whether it blew up (csb.SimulationError, non-finite, or a
+    particle farther than `blow_up` times the model's size from where it started) and, with
+    `reference_x` (T, N, 3), the largest distance to it (m). Any other exception the method
+    raises passes through."""
+    if not isinstance(stepper, _core.Integrator):
+        raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
+    if dt is None:
+        dt = stepper.dt()
     state = start.copy()
     x0 = np.asarray(start.x).copy()
     size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0)))
@@ -305,7 +334,7 @@ def run_method(model: _core.Model, start: _core.State, times: np.ndarray, steppe
                 blew = True
             wall += time.perf_counter() - t0
             cpu += time.process_time() - c0
-            if blew or np.abs(np.asarray(state.x) - x0).max() > blow_up * size:
+            if blew or not np.all(np.isfinite(state.x)) or np.abs(np.asarray(state.x) - x0).max() > blow_up * size:
                 blew = True
                 break
             if reference_x is not None:
