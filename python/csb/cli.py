@@ -187,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def view_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene")
-        p.add_argument("--method", choices=["pbd", "xpbd", "jakobsen", "verlet"], help="override the scene's method")
+        p.add_argument("--method", choices=_core.pbd_variant_names(aliases=True), help="override the scene's method")
         p.add_argument("--wireframe", action="store_true", help="draw the distance constraints")
         p.add_argument("--particles", action="store_true", help="draw every particle")
         p.add_argument("--yaw", type=float, help="camera yaw, rad (0 looks along -z)")

@@ -121,7 +121,6 @@ class RunResult:
         )
 
 
-_METHODS = {"pbd": "PBD", "xpbd": "XPBD", "jakobsen": "Jakobsen (Verlet)"}
 _SOLVERS = {"gauss-seidel": "Gauss-Seidel", "jacobi": "Jacobi", "jacobi-summed": "Jacobi (summed)"}
 
 
@@ -164,7 +163,8 @@ def summary_title(scene: "Scene", num_particles: int, stepper: "_core.Integrator
     if stepper is not None:
         return f"{scene.name}: {num_particles} particles, {stepper.name()}, dt = {1e3 * stepper.dt():.3g} ms"
     s = scene.solver
-    return (f"{scene.name}: {num_particles} particles, {_METHODS.get(s.method, s.method)} "
+    verlet = " (Verlet)" if s.stepper().settings.front_end == "verlet" else ""  # the front end in effect
+    return (f"{scene.name}: {num_particles} particles, {_core.method_info(s.method).label}{verlet} "
             f"{_SOLVERS.get(s.solver, s.solver)}, dt = {1e3 * s.dt:.3g} ms, "
             f"{s.substeps} substeps x {s.iterations} iterations")
 

@@ -54,7 +54,7 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SolverSpec:
-    method: str = "pbd"             # "pbd" (Müller 2007), "xpbd" (Macklin 2016), "jakobsen" (2001)
+    method: str = "pbd"             # a position-based variant: "pbd", "xpbd", "jakobsen" (csb.methods())
     dt: float = 1.0 / 60.0          # s
     substeps: int = 1
     iterations: int = 10            # small steps (Macklin 2019): "xpbd" with many substeps, iterations = 1
@@ -584,7 +584,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if so is None:
         raise top.error(None, "missing [solver] table (method, dt, substeps, iterations, ...)")
     solver = SolverSpec(
-        method=so.string("method", "pbd", choices=("pbd", "xpbd", "jakobsen")),
+        method=so.string("method", "pbd", choices=_core.pbd_variant_names()),
         dt=so.number("dt", check=lambda x: x > 0, expect="a time step > 0 s"),
         substeps=so.integer("substeps", 1, minimum=1, maximum=_core.MAX_SUBSTEPS),
         iterations=so.integer("iterations", 10, minimum=1, maximum=_core.MAX_ITERATIONS),

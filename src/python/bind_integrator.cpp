@@ -127,11 +127,27 @@ void bind_integrator(py::module_& m) {
       .def_readonly("source", &MethodInfo::source, "where it comes from")
       .def_readonly("reads", &MethodInfo::reads, "what it reads of a constraint's material: 'stiffness' or 'compliance'")
       .def_readonly("iterates", &MethodInfo::iterates, "whether `iterations` means anything to it")
+      .def_readonly("aliases", &MethodInfo::aliases, "other names it answers to")
+      .def_property_readonly("pbd_variant", [](const MethodInfo& i) { return i.pbd && method_info(*i.pbd).name == i.name; },
+          "whether PbdStepper(method=name) and a scene's solver.method take this name (small steps is a set-up of "
+          "XPBD, not a variant of its own)")
       .def("__repr__", [](const MethodInfo& i) {
         return "MethodInfo(name='" + i.name + "', label='" + i.label + "', source='" + i.source + "', reads='" +
                i.reads + "', iterates=" + (i.iterates ? "True" : "False") + ")";
       });
 
+  m.def("method_info", [](const std::string& name) { return method_info(name); }, py::arg("name"),
+        "The built-in method of that name or alias; a csb.ParameterError listing the known ones otherwise.");
+  m.def("pbd_variant_names", [](bool aliases) {
+          std::vector<std::string> names;
+          for (const Method v : pbd_variants()) {
+            const MethodInfo& i = method_info(v);
+            names.push_back(i.name);
+            if (aliases) names.insert(names.end(), i.aliases.begin(), i.aliases.end());
+          }
+          return names;
+        }, py::kw_only(), py::arg("aliases") = false,
+        "The names PbdStepper(method=...) and a scene's solver.method take, in csb's order (with their aliases).");
   m.def("methods", [] { return methods(); }, "The built-in methods, in csb's order: name, label, source, reads, iterates.");
   m.def("make_integrator", [](const std::string& name, double dt, IntArg substeps, IntArg iterations, py::handle gravity) {
     const MethodInfo& info = method_info(name);  // InvalidArgument naming the known methods

@@ -40,7 +40,7 @@ void on_glfw_error(int code, const char* description) {
 
 std::string method_name(Method m) {
   const MethodInfo& info = method_info(m);
-  return info.label + " (" + info.source + ")";
+  return info.label + ": " + info.source;
 }
 
 // What `method` cannot read of the model's material (material.hpp), a line per constraint family

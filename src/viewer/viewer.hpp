@@ -6,7 +6,7 @@
 // (PbdStepper::grab / move_grab / release); the left button elsewhere orbits, the right or middle
 // button (or shift + left) pans, the wheel zooms. Keys:
 //   space pause/run      . or → one step      r reset       w wireframe      p particles
-//   m next method (PBD → XPBD → Verlet)   1 PBD   2 XPBD   3 Verlet (Jakobsen)
+//   m next method (the registry's position-based variants: PBD → XPBD → Jakobsen)   1 2 3 ... the n-th
 //   o overlay      g grid      c save a screenshot      f frame the scene      q/escape quit
 // The overlay (Dear ImGui) shows fps, ms per step, substeps × iterations, the method, energies
 // and the simulated time.

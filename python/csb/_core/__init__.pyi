@@ -14,7 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'methods', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -363,6 +363,11 @@ class MethodInfo:
     def __repr__(self) -> str:
         ...
     @property
+    def aliases(self) -> list[str]:
+        """
+        other names it answers to
+        """
+    @property
     def iterates(self) -> bool:
         """
         whether `iterations` means anything to it
@@ -376,6 +381,11 @@ class MethodInfo:
     def name(self) -> str:
         """
         how to ask for it: make_integrator(name, dt)
+        """
+    @property
+    def pbd_variant(self) -> bool:
+        """
+        whether PbdStepper(method=name) and a scene's solver.method take this name (small steps is a set-up of XPBD, not a variant of its own)
         """
     @property
     def reads(self) -> str:
@@ -842,9 +852,17 @@ def make_integrator(name: str, dt: typing.SupportsFloat | typing.SupportsIndex, 
     """
 def measure(model: Model, state: State, gravity: typing.Any) -> dict:
     ...
+def method_info(name: str) -> MethodInfo:
+    """
+    The built-in method of that name or alias; a csb.ParameterError listing the known ones otherwise.
+    """
 def methods() -> list[MethodInfo]:
     """
     The built-in methods, in csb's order: name, label, source, reads, iterates.
+    """
+def pbd_variant_names(*, aliases: bool = False) -> list[str]:
+    """
+    The names PbdStepper(method=...) and a scene's solver.method take, in csb's order (with their aliases).
     """
 def pendulum(length: typing.SupportsFloat | typing.SupportsIndex, angle: typing.SupportsFloat | typing.SupportsIndex, anchor: typing.Any = [0.0, 0.0, 0.0]) -> Mesh:
     """
