@@ -196,7 +196,7 @@ std::uint64_t next_model_id();
 // attachments; balloons are one constraint each and stay serial). The parts are runs of equal
 // particle count: of consecutive indices, or slabs along x, y or z of the rest positions (ties
 // by index), whichever leaves the fewest constraints outside the parts' interiors.
-// ModelBuilder::build and tear call it.
+// ModelBuilder::build and tear call it (solver/colouring.cpp, with colour_constraints).
 void colour_batches(Model& model);
 
 // Bytes the model's arrays hold (from their capacities), split into what belongs to the
