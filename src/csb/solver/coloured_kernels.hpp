@@ -207,6 +207,17 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
 
 // Dihedral bending: csb/solver/coloured_bending.hpp (SIMD blocks, polynomial atan2).
 
+// A scalar kernel of constraints/ called as one out-of-line function with every call in it
+// inlined. Left to itself GCC inlines the tet volume and dihedral bending kernels into the sweeps
+// below and then, past its growth limits, keeps their geometry and Eigen 3-vector updates out of
+// line (a call per particle): XPBD on a soft cube stepped 7 % slower, XPBD's averaged Jacobi on a
+// cloth 3-4 % (scripts/compare_builds.py, against the build before the stepper was split into
+// files, whose one larger file led GCC to other choices). The same operations, so the same bits.
+template <auto Kernel, class... Args>
+[[gnu::noinline, gnu::flatten]] Real flat(Args&&... args) {
+  return Kernel(std::forward<Args>(args)...);
+}
+
 // Tet volume: the kernels of constraints/volume.hpp, on local copies for Jacobi.
 // relax (XPBD with averaged Jacobi, else null): Δλ and the corrections scaled by the
 // constraint's relaxation (PbdStepper::set_relaxation).
@@ -227,28 +238,18 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
   Real om = 1;
   if constexpr (M == Method::Xpbd) {
     const Real before = b.lambda[k];
-    project_volume_xpbd(at[0], at[1], at[2], at[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3], w[0], w[1],
-                        w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
+    flat<project_volume_xpbd>(at[0], at[1], at[2], at[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3], w[0],
+                              w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
     if (Jacobi && relax) {
       om = relaxation(relax, q);
       relax_multiplier(b.lambda[k], before, om);
     }
   } else {
-    project_volume(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
+    flat<project_volume>(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
   }
   if constexpr (Jacobi)
     for (int s = 0; s < 4; ++s)
       for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
-}
-
-// The scalar XPBD bending kernel, one function with every call in it inlined: left to itself GCC
-// inlines it into the sweep below and then keeps the kernel's Eigen 3-vector updates out of line
-// (a call per particle), and XPBD's averaged Jacobi on a cloth steps 3-4 % slower (measured with
-// scripts/compare_builds.py against the build before the stepper was split into files, where the
-// larger file led GCC to other choices). The same operations, so the same bits, either way.
-template <class... Args>
-[[gnu::noinline, gnu::flatten]] Real project_bending_xpbd_call(Args&&... args) {
-  return project_bending_xpbd(std::forward<Args>(args)...);
 }
 
 // Dihedral bending with XPBD and averaged Jacobi: the scalar kernel of constraints/bending.hpp
@@ -262,7 +263,7 @@ CSB_INLINE void bending_xpbd_relaxed(ColouredFour& b, Index k, const Real* r, Re
   for (int s = 0; s < 4; ++s)
     for (int e = 0; e < 3; ++e) local[s][e] = r[3 * q[s] + e];
   const Real before = b.lambda[k];
-  project_bending_xpbd_call(local[0], local[1], local[2], local[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2],
+  flat<project_bending_xpbd>(local[0], local[1], local[2], local[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2],
                             x + 3 * q[3], w[0], w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
   const Real om = relaxation(relax, q);
   relax_multiplier(b.lambda[k], before, om);
