@@ -208,11 +208,12 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
 // Dihedral bending: csb/solver/coloured_bending.hpp (SIMD blocks, polynomial atan2).
 
 // A scalar kernel of constraints/ called as one out-of-line function with every call in it
-// inlined. Left to itself GCC inlines the tet volume and dihedral bending kernels into the sweeps
-// below and then, past its growth limits, keeps their geometry and Eigen 3-vector updates out of
-// line (a call per particle): XPBD on a soft cube stepped 7 % slower, XPBD's averaged Jacobi on a
-// cloth 3-4 % (scripts/compare_builds.py, against the build before the stepper was split into
-// files, whose one larger file led GCC to other choices). The same operations, so the same bits.
+// inlined. Left to itself GCC inlines the XPBD tet volume and dihedral bending kernels into the
+// sweeps below and then, past its growth limits, keeps their geometry and Eigen 3-vector updates
+// out of line (a call per particle): XPBD on a soft cube stepped 7 % slower, XPBD's averaged
+// Jacobi on a cloth 3-4 % (scripts/compare_builds.py, against the build before the stepper was
+// split into files, whose one larger file led GCC to other choices). PBD's volume kernel is left
+// to GCC: through flat it made XPBD on a cloth 3.5 % slower. The same operations, the same bits.
 template <auto Kernel, class... Args>
 [[gnu::noinline, gnu::flatten]] Real flat(Args&&... args) {
   return Kernel(std::forward<Args>(args)...);
@@ -245,7 +246,7 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
       relax_multiplier(b.lambda[k], before, om);
     }
   } else {
-    flat<project_volume>(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
+    project_volume(at[0], at[1], at[2], at[3], w[0], w[1], w[2], w[3], b.rest[k], b.k[k]);
   }
   if constexpr (Jacobi)
     for (int s = 0; s < 4; ++s)
