@@ -39,6 +39,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_study(args: argparse.Namespace) -> int:
+    from .studies.study import run_study
+
+    result = run_study(args.study, out=args.out, workers=args.workers, scheduler=args.scheduler,
+                       retry_failed=args.retry_failed, progress=not args.quiet)
+    print(result.summary())
+    for f in result.files:
+        print(f"  wrote {f}")
+    return 0
+
+
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
@@ -212,6 +223,20 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-video", action="store_true", help="no MP4 even if ffmpeg is installed")
     p.add_argument("--prefix", default="frame", help="file names: <prefix>_NNNNN.png, <prefix>.mp4 (default frame)")
     p.set_defaults(func=_cmd_render)
+
+    p = sub.add_parser("study", help="run a study file: scenes x methods x parameter grids, on Dask, resumable")
+    study = p.add_subparsers(dest="study_command", required=True)
+    p = study.add_parser("run", help="compute the study's missing cells and write its table and chart")
+    p.add_argument("study", help="a study file (.toml)")
+    p.add_argument("--out", help="output directory (default: out/studies/<study name>); cells are stored in "
+                                 "<out>/cells/<key>.json")
+    p.add_argument("--workers", type=_at_least(0), default=None,
+                   help="Dask worker processes of a local cluster (default: one per core, up to the cells); "
+                        "0: in this process, without Dask")
+    p.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:port) instead of a local cluster")
+    p.add_argument("--retry-failed", action="store_true", help="run the cells stored as failed again")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_study)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)
     sub.add_parser("info", help="versions and readable mesh formats").set_defaults(func=_cmd_info)
