@@ -137,7 +137,7 @@ def test_the_interface_and_the_registry():
     assert issubclass(BackwardEulerStepper, csb.Integrator)
     names = [m.name for m in csb.methods()]
     assert names == ["pbd", "xpbd", "small-steps", "jakobsen", "explicit-euler", "symplectic-euler",
-                     "velocity-verlet"]
+                     "velocity-verlet", "backward-euler"]
     info = {m.name: m for m in csb.methods()}
     assert info["xpbd"].reads == "compliance" and info["pbd"].reads == "stiffness" and info["pbd"].iterates
     assert not info["small-steps"].iterates and "Macklin" in info["xpbd"].source and info["xpbd"].label == "XPBD"

@@ -10,6 +10,7 @@
 #include "csb/material.hpp"
 #include "csb/pbd.hpp"
 #include "csb/reference.hpp"
+#include "csb/implicit_euler.hpp"
 #include "csb/force.hpp"
 #include "csb/interaction/pick.hpp"
 #include "csb/methods/registry.hpp"

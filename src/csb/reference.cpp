@@ -15,6 +15,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <sstream>
 
@@ -320,12 +321,21 @@ void SpringNetwork::rhs(const Real* y, Real* ydot) const {
   Real* a = ydot + 3 * n;
   std::copy(v, v + 3 * n, ydot);  // ẋ = v
   std::fill(a, a + 3 * n, 0.0);   // forces first, divided by the masses at the end
-  const Real c = settings_.damping;
+  add_forces(y, v, settings_.damping, a);
+  for (Index s = 0; s < n; ++s)
+    for (int k = 0; k < 3; ++k)
+      a[3 * s + k] = a[3 * s + k] / mass_[s] + settings_.gravity[k] - settings_.drag * v[3 * s + k];
+}
+
+void SpringNetwork::add_forces(const Real* y, const Real* v, Real c, Real* a) const {
+  const Index n = num_dynamic();
   const auto add = [a](Index slot, const Vec3& f) {
     if (slot >= 0)
       for (int k = 0; k < 3; ++k) a[3 * slot + k] += f[k];
   };
-  const auto vel = [v](Index slot) { return slot >= 0 ? Vec3(v[3 * slot], v[3 * slot + 1], v[3 * slot + 2]) : Vec3::Zero(); };
+  const auto vel = [v](Index slot) {
+    return slot >= 0 && v ? Vec3(v[3 * slot], v[3 * slot + 1], v[3 * slot + 2]) : Vec3::Zero();
+  };
   for (const auto& s : springs_) {
     const Vec3 d = position(y, s.a, s.fixed_a) - position(y, s.b, s.fixed_b);
     const Real len = d.norm();
@@ -377,9 +387,6 @@ void SpringNetwork::rhs(const Real* y, Real* ydot) const {
     for (Index s = 0; s < n; ++s)
       for (int k = 0; k < 3; ++k) a[3 * s + k] += f[3 * static_cast<std::size_t>(dynamic_[s]) + k];
   }
-  for (Index s = 0; s < n; ++s)
-    for (int k = 0; k < 3; ++k)
-      a[3 * s + k] = a[3 * s + k] / mass_[s] + settings_.gravity[k] - settings_.drag * v[3 * s + k];
 }
 
 void SpringNetwork::jacobian(const Real* y, Real* values) const {
@@ -469,6 +476,271 @@ void SpringNetwork::jacobian(const Real* y, Real* values) const {
             for (int e = 0; e < 9; ++e) values[t.blocks[b + e]] += im * K[b + e];
           }
         }
+    }
+  }
+}
+
+// ------------------------------------------------------------------------- position-level network
+
+Real SpringNetwork::potential(const Real* x) const {
+  Real u = 0;
+  for (const auto& s : springs_) {
+    const Real len = (position(x, s.a, s.fixed_a) - position(x, s.b, s.fixed_b)).norm();
+    const Real viol = distance_violation(len - s.rest, s.sense);
+    u += s.k * viol * viol / 2;
+  }
+  for (const auto& e : bending_) {
+    Vec3 p[4], grad[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(x, e.slot[k], e.fixed[k]);
+    Real theta = 0;
+    if (!dihedral_angle_and_gradient(p[0], p[1], p[2], p[3], theta, grad)) continue;
+    const Real C = wrap_angle(theta - e.rest);
+    u += e.k * C * C / 2;
+  }
+  for (const auto& e : volumes_) {
+    Vec3 p[4], g[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(x, e.slot[k], e.fixed[k]);
+    const Real C = tet_volume_gradient(p[0], p[1], p[2], p[3], g) - e.rest;  // the forces' V, bit for bit
+    u += e.k * C * C / 2;
+  }
+  for (const auto& b : balloons_) {
+    const Index m = static_cast<Index>(b.slot.size());
+    Positions p(3, m);
+    std::vector<Index> local(m);
+    for (Index k = 0; k < m; ++k) {
+      p.col(k) = position(x, b.slot[k], b.fixed[k]);
+      local[k] = k;
+    }
+    std::vector<Vec3> grad(m);
+    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
+                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    u += b.k * C * C / 2;
+  }
+  for (const auto& q : anchors_) u += q.k * (position(x, q.slot, q.target) - q.target).squaredNorm() / 2;
+  if (!families_.empty()) {
+    std::vector<Real> all;
+    full_positions(x, all);
+    for (const FamilyTerm& t : families_) u += t.batch->energy(all.data());
+  }
+  return u;
+}
+
+void SpringNetwork::stiffness(const Real* x, bool definite, Stiffness& out) const {
+  out.entries.clear();
+  out.rank_one_weight.clear();
+  out.rank_one_vector.clear();
+  const Mat3r I = Mat3r::Identity();
+  const auto put = [&out](Index si, Index sj, const Mat3r& K) {
+    if (si < 0 || sj < 0) return;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 3; ++c)
+        if (K(r, c) != 0) out.entries.emplace_back(3 * si + r, 3 * sj + c, K(r, c));
+  };
+  for (const auto& s : springs_) {
+    const Vec3 d = position(x, s.a, s.fixed_a) - position(x, s.b, s.fixed_b);
+    const Real len = d.norm();
+    if (!(len > 0)) continue;
+    const Vec3 nrm = d / len;
+    const Real viol = distance_violation(len - s.rest, s.sense);
+    if (!(s.sense == 0 || viol != 0)) continue;
+    const Mat3r nn = nrm * nrm.transpose();
+    Real geometric = viol / len;  // k (n nᵀ + C/|d| (I - n nᵀ)), the compressed one's second term < 0
+    if (definite) geometric = std::max<Real>(geometric, 0);
+    const Mat3r K = s.k * (nn + geometric * (I - nn));
+    put(s.a, s.a, K);
+    put(s.b, s.b, K);
+    put(s.a, s.b, -K);
+    put(s.b, s.a, -K);
+  }
+  for (const auto& e : bending_) {
+    // k (∇θ ∇θᵀ + C ∇²θ); ∇²θ by central differences of the analytic gradient.
+    Vec3 p[4], g[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(x, e.slot[k], e.fixed[k]);
+    Real theta = 0;
+    if (!dihedral_angle_and_gradient(p[0], p[1], p[2], p[3], theta, g)) continue;
+    const Real C = wrap_angle(theta - e.rest);
+    Mat3r H[4][4];
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) H[i][j] = g[i] * g[j].transpose();
+    if (!definite && C != 0) {
+      const Real scale = std::max({(p[1] - p[0]).norm(), (p[2] - p[0]).norm(), (p[3] - p[0]).norm()});
+      const Real delta = 1e-5 * scale;
+      Mat3r D[4][4];
+      bool ok = true;
+      for (int j = 0; j < 4 && ok; ++j)
+        for (int c = 0; c < 3 && ok; ++c) {
+          Vec3 q[4] = {p[0], p[1], p[2], p[3]}, gp[4], gm[4];
+          Real t = 0;
+          q[j][c] = p[j][c] + delta;
+          ok = dihedral_angle_and_gradient(q[0], q[1], q[2], q[3], t, gp);
+          q[j][c] = p[j][c] - delta;
+          ok = ok && dihedral_angle_and_gradient(q[0], q[1], q[2], q[3], t, gm);
+          for (int i = 0; i < 4; ++i) D[i][j].col(c) = (gp[i] - gm[i]) / (2 * delta);
+        }
+      if (ok)
+        for (int i = 0; i < 4; ++i)
+          for (int j = 0; j < 4; ++j) H[i][j] += C * (D[i][j] + D[j][i].transpose()) / 2;
+    }
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) put(e.slot[i], e.slot[j], e.k * H[i][j]);
+  }
+  for (const auto& e : volumes_) {
+    Vec3 p[4], g[4];
+    for (int q = 0; q < 4; ++q) p[q] = position(x, e.slot[q], e.fixed[q]);
+    const Real C = tet_volume_gradient(p[0], p[1], p[2], p[3], g) - e.rest;
+    Mat3r H[4][4];
+    tet_volume_hessian(p[0], p[1], p[2], p[3], H);
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j)
+        put(e.slot[i], e.slot[j], e.k * (g[i] * g[j].transpose() + (definite ? 0 : C) * H[i][j]));
+  }
+  for (const auto& b : balloons_) {
+    // k ∇V ∇Vᵀ (dense over the surface: returned apart) + k C ∇²V, with V = Σ a·(b×c)/6 over the
+    // triangles: ∂²V/∂a∂b = -[c]x/6 and its cyclic shifts.
+    const Index m = static_cast<Index>(b.slot.size());
+    Positions p(3, m);
+    std::vector<Index> local(m);
+    for (Index k = 0; k < m; ++k) {
+      p.col(k) = position(x, b.slot[k], b.fixed[k]);
+      local[k] = k;
+    }
+    std::vector<Vec3> grad(m);
+    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
+                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    std::vector<Real> u(3 * dynamic_.size(), 0.0);
+    for (Index k = 0; k < m; ++k)
+      if (b.slot[k] >= 0)
+        for (int c = 0; c < 3; ++c) u[3 * b.slot[k] + c] += grad[k][c];
+    out.rank_one_weight.push_back(b.k);
+    out.rank_one_vector.push_back(std::move(u));
+    if (definite || C == 0) continue;
+    for (const Triangle& t : b.triangles)
+      for (int i = 0; i < 3; ++i) {
+        const int j = (i + 1) % 3, k = (i + 2) % 3;
+        const Mat3r H = -skew(p.col(t[k])) / 6 * (b.k * C);  // ∂²V/∂p_i∂p_j
+        put(b.slot[t[i]], b.slot[t[j]], H);
+        put(b.slot[t[j]], b.slot[t[i]], H.transpose());
+      }
+  }
+  for (const auto& q : anchors_) put(q.slot, q.slot, q.k * I);
+  if (!families_.empty()) {
+    std::vector<Real> all, blocks, c, grad, v;
+    full_positions(x, all);
+    for (const FamilyTerm& t : families_) {
+      const int arity = t.batch->info().arity;
+      const Index* q = t.batch->particle_data();
+      const Index count = t.batch->size();
+      const std::size_t per = static_cast<std::size_t>(arity) * arity * 9;
+      blocks.assign(per * static_cast<std::size_t>(count), 0.0);
+      if (!definite) {
+        t.batch->stiffness_blocks(all.data(), blocks.data());  // ∂f/∂x = -∇²U
+      } else {  // Gauss-Newton: ∇C ∇Cᵀ/α where active
+        c.resize(count);
+        v.resize(count);
+        grad.resize(static_cast<std::size_t>(count) * arity * 3);
+        t.batch->evaluate(all.data(), c.data(), grad.data());
+        t.batch->violations(all.data(), v.data());
+        for (Index k = 0; k < count; ++k) {
+          const Real alpha = t.batch->compliance[k];
+          if (!(alpha > 0) || (t.batch->info().unilateral && v[k] == 0)) continue;
+          for (int i = 0; i < arity; ++i)
+            for (int j = 0; j < arity; ++j)
+              for (int r = 0; r < 3; ++r)
+                for (int s = 0; s < 3; ++s)
+                  blocks[per * k + (i * arity + j) * 9 + 3 * r + s] =
+                      -grad[(static_cast<std::size_t>(k) * arity + i) * 3 + r] * grad[(static_cast<std::size_t>(k) * arity + j) * 3 + s] / alpha;
+        }
+      }
+      for (Index k = 0; k < count; ++k)
+        for (int i = 0; i < arity; ++i)
+          for (int j = 0; j < arity; ++j) {
+            const Index si = slot_of_[q[k * arity + i]], sj = slot_of_[q[k * arity + j]];
+            Mat3r K;
+            for (int e = 0; e < 9; ++e) K.data()[e] = -blocks[per * k + (i * arity + j) * 9 + e];
+            put(si, sj, K);
+          }
+    }
+  }
+}
+
+void SpringNetwork::force_scale(const Real* x, Real& largest, Real& rounding) const {
+  constexpr Real eps = std::numeric_limits<Real>::epsilon();
+  largest = 0;
+  rounding = 0;
+  const auto inf = [](const Vec3& p) { return p.cwiseAbs().maxCoeff(); };
+  // A constraint of value C, gradient blocks g_j over positions p_j and stiffness k = 1/α.
+  const auto account = [&](Real C, const Vec3* g, const Vec3* p, int arity, Real k) {
+    Real size = 0, sum = 0, top = 0;
+    for (int j = 0; j < arity; ++j) {
+      size = std::max(size, inf(p[j]));
+      sum += g[j].norm();
+      top = std::max(top, g[j].norm());
+    }
+    largest = std::max(largest, std::abs(C) * k * top);
+    rounding = std::max(rounding, 4 * eps * size * sum * k * top);
+  };
+  for (const auto& s : springs_) {
+    const Vec3 pa = position(x, s.a, s.fixed_a), pb = position(x, s.b, s.fixed_b);
+    const Real viol = distance_violation((pa - pb).norm() - s.rest, s.sense);
+    largest = std::max(largest, std::abs(viol) * s.k);
+    rounding = std::max(rounding, 4 * eps * (inf(pa) + inf(pb)) * s.k);
+  }
+  for (const auto& e : bending_) {
+    Vec3 p[4], g[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(x, e.slot[k], e.fixed[k]);
+    Real theta = 0;
+    if (dihedral_angle_and_gradient(p[0], p[1], p[2], p[3], theta, g)) account(wrap_angle(theta - e.rest), g, p, 4, e.k);
+  }
+  for (const auto& e : volumes_) {
+    Vec3 p[4], g[4];
+    for (int k = 0; k < 4; ++k) p[k] = position(x, e.slot[k], e.fixed[k]);
+    account(tet_volume_gradient(p[0], p[1], p[2], p[3], g) - e.rest, g, p, 4, e.k);
+  }
+  for (const auto& b : balloons_) {
+    const Index m = static_cast<Index>(b.slot.size());
+    Positions p(3, m);
+    std::vector<Index> local(m);
+    for (Index k = 0; k < m; ++k) {
+      p.col(k) = position(x, b.slot[k], b.fixed[k]);
+      local[k] = k;
+    }
+    std::vector<Vec3> grad(m);
+    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
+                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    Real terms = 0, top = 0;  // V's rounding: eps times the sum of its terms' sizes
+    for (const Triangle& t : b.triangles)
+      terms += p.col(t[0]).norm() * p.col(t[1]).norm() * p.col(t[2]).norm() / 6;
+    for (const Vec3& g : grad) top = std::max(top, g.norm());
+    largest = std::max(largest, std::abs(C) * b.k * top);
+    rounding = std::max(rounding, 4 * eps * terms * b.k * top);
+  }
+  for (const auto& q : anchors_) {
+    const Vec3 p = position(x, q.slot, q.target);
+    largest = std::max(largest, (p - q.target).norm() * q.k);
+    rounding = std::max(rounding, 4 * eps * (inf(p) + inf(q.target)) * q.k);
+  }
+  if (!families_.empty()) {
+    std::vector<Real> all, c, grad, v;
+    full_positions(x, all);
+    for (const FamilyTerm& t : families_) {
+      const int arity = t.batch->info().arity;
+      const Index* q = t.batch->particle_data();
+      const Index count = t.batch->size();
+      c.resize(count);
+      v.resize(count);
+      grad.resize(static_cast<std::size_t>(count) * arity * 3);
+      t.batch->evaluate(all.data(), c.data(), grad.data());
+      t.batch->violations(all.data(), v.data());
+      std::vector<Vec3> g(arity), p(arity);
+      for (Index k = 0; k < count; ++k) {
+        for (int j = 0; j < arity; ++j) {
+          const std::size_t o = (static_cast<std::size_t>(k) * arity + j) * 3;
+          g[j] = Vec3(grad[o], grad[o + 1], grad[o + 2]);
+          const std::size_t i = 3 * static_cast<std::size_t>(q[k * arity + j]);
+          p[j] = Vec3(all[i], all[i + 1], all[i + 2]);
+        }
+        account(v[k], g.data(), p.data(), arity, 1 / t.batch->compliance[k]);
+      }
     }
   }
 }

@@ -24,6 +24,8 @@
 
 #include "csb/model.hpp"
 
+#include <Eigen/SparseCore>
+
 #include <string>
 #include <vector>
 
@@ -105,6 +107,28 @@ class SpringNetwork {
   const std::vector<std::int64_t>& jacobian_row_indices() const { return row_index_; }
   void jacobian(const Real* y, Real* values) const;
 
+  // The position-level network, for implicit steps (csb/implicit_euler.hpp). x holds the dynamic
+  // particles' positions (3 num_dynamic(), m: the first half of y); pinned ones stay where the
+  // start state has them. The potential U(x) = Σ C²/(2α) (J; inequalities and unilateral families
+  // only while violated); the forces -∇U (N, added to f: no gravity, no damping).
+  Real potential(const Real* x) const;
+  void add_potential_forces(const Real* x, Real* f) const { add_forces(x, nullptr, 0, f); }
+  // ∇²U (N/m) over 3 num_dynamic() rows: sparse entries (duplicates to be summed) and, for each
+  // balloon, the dense rank-one part k ∇V ∇Vᵀ as (k, ∇V). Bending's curvature is the central
+  // difference of its analytic gradient (relative error ~1e-9). With `definite`, the terms that can
+  // make it indefinite are dropped (a compressed spring's geometric term, the volumes', bending's,
+  // balloons' and the families' curvature): what remains is Gauss-Newton, positive semi-definite.
+  struct Stiffness {
+    std::vector<Eigen::Triplet<Real>> entries;
+    std::vector<Real> rank_one_weight;               // J/m⁶
+    std::vector<std::vector<Real>> rank_one_vector;  // m², 3 num_dynamic() each
+  };
+  void stiffness(const Real* x, bool definite, Stiffness& out) const;
+  // The largest constraint force |C/α| |∇C| (N) and the forces' rounding floor (N): the error of
+  // C (~ 4 eps |x| Σ|∇C|, from coordinates of size |x|) times |∇C|/α, largest over constraints.
+  void force_scale(const Real* x, Real& largest, Real& rounding) const;
+  Real mass(Index slot) const { return mass_[static_cast<std::size_t>(slot)]; }  // kg
+
  private:
   struct Spring {
     Index a, b;        // slots, or -1 for a fixed end
@@ -134,6 +158,8 @@ class SpringNetwork {
     Real k;
   };
   void build_structure();
+  // Adds the forces at positions y (and, with a dashpot c > 0, velocities v) to a (3 num_dynamic()).
+  void add_forces(const Real* y, const Real* v, Real c, Real* a) const;
   Vec3 position(const Real* y, Index slot, const Vec3& fixed) const {
     return slot >= 0 ? Vec3(y[3 * slot], y[3 * slot + 1], y[3 * slot + 2]) : fixed;
   }

@@ -76,6 +76,7 @@ PYBIND11_MODULE(_core, m) {
   bind_integrator(m);
   bind_methods(m, Warnings{material_warning, accuracy_warning});
   bind_reference(m);
+  bind_implicit(m);
   bind_metrics(m);
   bind_kernels(m);
 #ifdef CSB_HAS_VIEWER

@@ -14,7 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['AccuracyWarning', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['AccuracyWarning', 'BackwardEuler', 'BackwardEulerResidual', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'IncrementalPotential', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'backward_euler_residual', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -580,6 +580,124 @@ class SpringNetwork:
     @property
     def size(self) -> int:
         ...
+class BackwardEulerResidual:
+    """
+    The backward-Euler residual ∇E of a step (N): its 2-norm, its largest component and the step's force scale (the largest of m|g|, the constraint forces and the inertia m|x - x̃|/h²).
+    """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def max(self) -> float:
+        """
+        N, largest component
+        """
+    @property
+    def norm(self) -> float:
+        """
+        N, 2-norm over the dynamic particles' coordinates
+        """
+    @property
+    def scale(self) -> float:
+        """
+        N, the step's force scale
+        """
+class IncrementalPotential:
+    """
+    The incremental potential of one backward Euler step, E(x) = Σ m|x - x̃|²/(2h²) + U(x), from the state before the step: for tests and studies. Positions are (N, 3) arrays of all particles; the pinned ones stay where `pinned_at` (default: `previous`) has them and carry no gradient.
+    """
+    def __init__(self, model: Model, previous: State, dt: typing.SupportsFloat | typing.SupportsIndex, *, gravity: typing.Any = [0.0, -9.81, 0.0], pinned_at: typing.Any = None) -> None:
+        ...
+    def energy(self, x: typing.Any) -> float:
+        """
+        E(x), J
+        """
+    def gradient(self, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        ∇E(x), N, (N, 3), zero on the pinned particles
+        """
+    def hessian(self, x: typing.Any, *, definite: bool = False) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
+        """
+        ∇²E(x), N/m, dense (3n, 3n) over the dynamic particles (rows in dynamic_particles' order); with definite=True the Gauss-Newton form Newton's method falls back to
+        """
+    @property
+    def dynamic_particles(self) -> numpy.typing.NDArray[numpy.int32]:
+        """
+        the particles that move, in the order of the Hessian's rows (3 each)
+        """
+    @property
+    def inertial_positions(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        x̃ = x + h v + h² g of the dynamic particles, m, (n, 3)
+        """
+class BackwardEuler(Integrator):
+    """
+    Backward Euler over every compliant constraint (distance, bending, volume, balloons, attachments, tethers and the other families), each step's incremental potential minimised by Newton's method (sparse LDLᵀ, Armijo line search, Gauss-Newton where the Hessian is indefinite) to convergence: the same-step reference.
+    """
+    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, gravity: typing.Any = [0.0, -9.81, 0.0], rtol: typing.SupportsFloat | typing.SupportsIndex = 1e-09, max_iterations: int = 100) -> None:
+        """
+        dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: the largest residual component at which a step stops, relative to the step's force scale, on top of the rounding floor. max_iterations: Newton iterations per step.
+        """
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
+        """
+        Advances state by `steps` steps of dt (the GIL released meanwhile; `interrupt`, a callable asked between steps, returning True stops it, the state left at the end of the last completed step).
+        """
+    @property
+    def definiteness_fixes(self) -> int:
+        """
+        Newton steps of the last step that took the Gauss-Newton form or a shift
+        """
+    @property
+    def gravity(self) -> numpy.ndarray:
+        """
+        m/s²
+        """
+    @property
+    def history(self) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        N, the last step's largest residual component before each Newton step and at the end
+        """
+    @property
+    def line_search_halvings(self) -> int:
+        ...
+    @property
+    def max_iterations(self) -> int:
+        ...
+    @property
+    def max_residual(self) -> float:
+        """
+        N, over all steps so far
+        """
+    @property
+    def newton_iterations(self) -> int:
+        """
+        Newton iterations of the last step
+        """
+    @property
+    def residual(self) -> float:
+        """
+        N, the last step's largest residual component at the end
+        """
+    @property
+    def residual_norm(self) -> float:
+        """
+        N, its 2-norm
+        """
+    @property
+    def rtol(self) -> float:
+        ...
+    @property
+    def substeps(self) -> int:
+        ...
+    @property
+    def tolerance(self) -> float:
+        """
+        N, the bound the last step's residual met
+        """
+    @property
+    def total_iterations(self) -> int:
+        """
+        Newton iterations, all steps
+        """
 class Camera:
     """
     The viewer's orbit camera (m, rad; pixels from the top-left corner).
@@ -790,6 +908,10 @@ def _load_mesh(path: str, weld: bool = True, weld_tolerance: typing.SupportsFloa
     ...
 def _require_time_for(what: str, operations: typing.SupportsFloat | typing.SupportsIndex) -> None:
     ...
+def backward_euler_residual(model: Model, previous: State, next: State, dt: typing.SupportsFloat | typing.SupportsIndex, gravity: typing.Any = [0.0, -9.81, 0.0]) -> BackwardEulerResidual:
+    """
+    The backward-Euler residual |∇E(x_next)| (N) of a step of dt (s) from `previous` to `next` taken by any method: E(x) = Σ m|x - x̃|²/(2h²) + Σ C²/(2α), x̃ = x_prev + h v_prev + h² g (gravity, m/s²), the pinned particles where `next` has them. Zero for a converged backward Euler step; the solver error of an iterative method's step. A hard constraint (α = 0) is a csb.ParameterError naming it.
+    """
 def balloon_volumes(model: Model, state: State) -> numpy.typing.NDArray[numpy.float64]:
     """
     Volume enclosed by every balloon's surface, m³.

@@ -15,6 +15,7 @@ const std::vector<MethodInfo>& methods() {
       explicit_euler_method(),
       symplectic_euler_method(),
       velocity_verlet_method(),
+      backward_euler_method(),
   };
   return list;
 }

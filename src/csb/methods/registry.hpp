@@ -59,5 +59,6 @@ MethodInfo xpbd_method();         // xpbd.cpp
 MethodInfo small_steps_method();  // small_steps.cpp
 MethodInfo jakobsen_method();     // jakobsen.cpp
 MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
+MethodInfo backward_euler_method();  // backward_euler.cpp
 
 }  // namespace csb

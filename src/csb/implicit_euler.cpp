@@ -1,0 +1,266 @@
+#include "csb/implicit_euler.hpp"
+#include "csb/format.hpp"
+
+#include <Eigen/SparseCholesky>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace csb {
+
+using detail::str;
+
+namespace {
+
+ReferenceSettings network_settings(const Vec3& gravity) {
+  ReferenceSettings s;
+  s.gravity = gravity;  // unused by the position-level network; checked finite
+  return s;
+}
+
+Real max_abs(const std::vector<Real>& r) {
+  Real m = 0;
+  for (Real v : r) m = std::max(m, std::abs(v));
+  return m;
+}
+
+Real norm2(const std::vector<Real>& r) {
+  Real s = 0;
+  for (Real v : r) s += v * v;
+  return std::sqrt(s);
+}
+
+void check_dt(Real dt) {
+  if (!(dt > 0) || !std::isfinite(dt)) throw InvalidArgument("dt must be a finite time step > 0 s, got " + str(dt));
+}
+
+}  // namespace
+
+// ------------------------------------------------------------------------------ the potential
+
+IncrementalPotential::IncrementalPotential(const Model& model, const State& previous, const State& pinned_at, Real dt,
+                                           const Vec3& gravity)
+    : net_((check_dt(dt), model), pinned_at, network_settings(gravity), /*with_jacobian=*/false),
+      dt_(dt),
+      gravity_(gravity) {
+  const Index n = model.num_particles();
+  if (previous.x.cols() != n || previous.v.cols() != n)
+    throw InvalidArgument("the previous state has " + std::to_string(previous.x.cols()) + " particles, the model " +
+                          std::to_string(n));
+  if (!previous.x.allFinite() || !previous.v.allFinite())
+    throw InvalidArgument("the previous state has non-finite positions or velocities");
+  const auto& dyn = net_.dynamic_particles();
+  x_tilde_.resize(3 * dyn.size());
+  for (std::size_t s = 0; s < dyn.size(); ++s)
+    for (int k = 0; k < 3; ++k)
+      x_tilde_[3 * s + k] = previous.x(k, dyn[s]) + dt * previous.v(k, dyn[s]) + dt * dt * gravity[k];
+}
+
+Real IncrementalPotential::energy(const Real* x) const {
+  const std::size_t n = x_tilde_.size() / 3;
+  Real inertia = 0;
+  for (std::size_t s = 0; s < n; ++s) {
+    Real d2 = 0;
+    for (int k = 0; k < 3; ++k) d2 += (x[3 * s + k] - x_tilde_[3 * s + k]) * (x[3 * s + k] - x_tilde_[3 * s + k]);
+    inertia += net_.mass(static_cast<Index>(s)) * d2;
+  }
+  return inertia / (2 * dt_ * dt_) + net_.potential(x);
+}
+
+void IncrementalPotential::gradient(const Real* x, Real* r) const {
+  const std::size_t n3 = x_tilde_.size();
+  std::vector<Real> f(n3, 0.0);
+  net_.add_potential_forces(x, f.data());
+  const Real ih2 = 1 / (dt_ * dt_);
+  for (std::size_t i = 0; i < n3; ++i) r[i] = net_.mass(static_cast<Index>(i / 3)) * (x[i] - x_tilde_[i]) * ih2 - f[i];
+}
+
+void IncrementalPotential::hessian(const Real* x, bool definite, Eigen::SparseMatrix<Real>& H,
+                                   SpringNetwork::Stiffness& work) const {
+  const auto n3 = static_cast<Eigen::Index>(x_tilde_.size());
+  net_.stiffness(x, definite, work);
+  const Real ih2 = 1 / (dt_ * dt_);
+  for (Eigen::Index i = 0; i < n3; ++i) work.entries.emplace_back(i, i, net_.mass(static_cast<Index>(i / 3)) * ih2);
+  H.resize(n3, n3);
+  H.setFromTriplets(work.entries.begin(), work.entries.end());
+}
+
+void IncrementalPotential::scales(const Real* x, Real& force_scale, Real& rounding) const {
+  constexpr Real eps = std::numeric_limits<Real>::epsilon();
+  net_.force_scale(x, force_scale, rounding);
+  const Real g = gravity_.norm(), ih2 = 1 / (dt_ * dt_);
+  const std::size_t n = x_tilde_.size() / 3;
+  for (std::size_t s = 0; s < n; ++s) {
+    const Real m = net_.mass(static_cast<Index>(s));
+    Real d2 = 0, size = 0;
+    for (int k = 0; k < 3; ++k) {
+      d2 += (x[3 * s + k] - x_tilde_[3 * s + k]) * (x[3 * s + k] - x_tilde_[3 * s + k]);
+      size = std::max({size, std::abs(x[3 * s + k]), std::abs(x_tilde_[3 * s + k])});
+    }
+    force_scale = std::max({force_scale, m * g, m * std::sqrt(d2) * ih2});
+    rounding = std::max(rounding, 4 * eps * m * size * ih2);
+  }
+}
+
+Residual backward_euler_residual(const Model& model, const State& previous, const State& next, Real dt,
+                                 const Vec3& gravity) {
+  const Index n = model.num_particles();
+  if (next.x.cols() != n || next.v.cols() != n)
+    throw InvalidArgument("the next state has " + std::to_string(next.x.cols()) + " particles, the model " +
+                          std::to_string(n));
+  if (!next.x.allFinite()) throw InvalidArgument("the next state has non-finite positions");
+  const IncrementalPotential P(model, previous, next, dt, gravity);
+  const auto& dyn = P.network().dynamic_particles();
+  std::vector<Real> x(3 * dyn.size()), r(x.size());
+  for (std::size_t s = 0; s < dyn.size(); ++s)
+    for (int k = 0; k < 3; ++k) x[3 * s + k] = next.x(k, dyn[s]);
+  P.gradient(x.data(), r.data());
+  Residual out;
+  out.norm = norm2(r);
+  out.max = max_abs(r);
+  Real rounding = 0;
+  P.scales(x.data(), out.scale, rounding);
+  return out;
+}
+
+// ------------------------------------------------------------------------------ the stepper
+
+BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings) : settings_(settings) {
+  check_dt(settings_.dt);
+  if (!settings_.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + str(settings_.gravity));
+  if (!(settings_.rtol > 0) || !std::isfinite(settings_.rtol))
+    throw InvalidArgument("rtol must be a finite tolerance > 0, got " + str(settings_.rtol));
+  if (settings_.substeps < 1) throw InvalidArgument("substeps must be >= 1, got " + std::to_string(settings_.substeps));
+  if (settings_.max_iterations < 1)
+    throw InvalidArgument("max_iterations must be >= 1, got " + std::to_string(settings_.max_iterations));
+}
+
+void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t steps,
+                                const std::function<bool()>& interrupt) {
+  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  const Index np = model.num_particles();
+  if (state.x.cols() != np || state.v.cols() != np)
+    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " particles, the model " +
+                          std::to_string(np));
+  if (!state.x.allFinite() || !state.v.allFinite())
+    throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
+  const Real h = settings_.dt / settings_.substeps;
+  for (std::int64_t step = 0; step < steps; ++step) {
+    if (step > 0 && interrupt && interrupt())
+      throw Interrupted("interrupted after " + std::to_string(step) + " of " + std::to_string(steps) +
+                        " steps (t = " + str(state.t) + " s): the state is left at the end of that step");
+    State start = state;
+    try {
+      for (int sub = 0; sub < settings_.substeps; ++sub) solve_one(model, state, h);
+    } catch (...) {
+      state = std::move(start);
+      throw;
+    }
+    state.t = start.t + settings_.dt;
+    state.step = start.step + 1;
+  }
+}
+
+void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
+  const Index np = model.num_particles();
+  {
+    const IncrementalPotential P(model, state, state, h, settings_.gravity);
+    const auto& dyn = P.network().dynamic_particles();
+    const std::size_t n3 = 3 * dyn.size();
+    std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
+    BackwardEulerStats st;
+    Eigen::SparseMatrix<Real> H;
+    SpringNetwork::Stiffness work;
+    Eigen::SimplicialLDLT<Eigen::SparseMatrix<Real>> ldlt;
+    for (int it = 0;; ++it) {
+      P.gradient(x.data(), r.data());
+      Real scale = 0, rounding = 0;
+      P.scales(x.data(), scale, rounding);
+      const Real res = max_abs(r), tol = settings_.rtol * scale + rounding;
+      st.history.push_back(res);
+      st.newton_iterations = it;
+      st.residual = res;
+      st.residual_norm = norm2(r);
+      st.tolerance = tol;
+      if (!std::isfinite(res))
+        throw SimulationError("backward Euler: step " + std::to_string(state.step) + " reached a non-finite residual at "
+                              "Newton iteration " + std::to_string(it) + "; the state is left at the end of the last step");
+      if (res <= tol) break;
+      if (it == settings_.max_iterations) {
+        std::ostringstream msg;
+        msg << "backward Euler: step " << state.step << ": Newton's residual " << res << " N after " << it
+            << " iterations, above the tolerance " << tol << " N (rtol " << settings_.rtol
+            << "); the state is left at the end of the last step";
+        throw SimulationError(msg.str());
+      }
+      // Newton direction: the exact Hessian, else Gauss-Newton, else Gauss-Newton with a growing shift.
+      bool found = false;
+      Real slope = 0;
+      for (int level = 0; level < 8 && !found; ++level) {
+        P.hessian(x.data(), level > 0, H, work);
+        if (level > 1) {
+          const Real shift = std::pow(Real(100), level - 2) * 1e-6;
+          for (Eigen::Index i = 0; i < H.rows(); ++i) H.coeffRef(i, i) *= 1 + shift;
+        }
+        ldlt.compute(H);
+        if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) continue;
+        Eigen::Map<const Eigen::VectorXd> rv(r.data(), static_cast<Eigen::Index>(n3));
+        Eigen::VectorXd z = -(ldlt.solve(rv));
+        const std::size_t m = work.rank_one_weight.size();
+        if (m > 0) {  // Woodbury: (A + U D Uᵀ)⁻¹ = A⁻¹ - A⁻¹U (D⁻¹ + UᵀA⁻¹U)⁻¹ UᵀA⁻¹
+          Eigen::MatrixXd U(static_cast<Eigen::Index>(n3), static_cast<Eigen::Index>(m));
+          Eigen::MatrixXd S = Eigen::MatrixXd::Zero(static_cast<Eigen::Index>(m), static_cast<Eigen::Index>(m));
+          for (std::size_t b = 0; b < m; ++b) {
+            U.col(static_cast<Eigen::Index>(b)) = Eigen::Map<const Eigen::VectorXd>(work.rank_one_vector[b].data(), static_cast<Eigen::Index>(n3));
+            S(static_cast<Eigen::Index>(b), static_cast<Eigen::Index>(b)) = 1 / work.rank_one_weight[b];
+          }
+          const Eigen::MatrixXd W = ldlt.solve(U);
+          S += U.transpose() * W;
+          z -= W * S.ldlt().solve(U.transpose() * z);
+        }
+        if (!z.allFinite()) continue;
+        slope = rv.dot(z);
+        if (!(slope < 0)) continue;
+        std::copy(z.data(), z.data() + n3, dx.begin());
+        found = true;
+        if (level > 0) ++st.definiteness_fixes;
+      }
+      if (!found)
+        throw SimulationError("backward Euler: step " + std::to_string(state.step) +
+                              ": no descent direction (the Newton matrix stays singular after shifts)");
+      const Real e0 = P.energy(x.data());
+      Real t = 1;
+      for (;;) {
+        for (std::size_t i = 0; i < n3; ++i) trial[i] = x[i] + t * dx[i];
+        const Real e = P.energy(trial.data());
+        if (e <= e0 + 1e-4 * t * slope) break;
+        P.gradient(trial.data(), rt.data());
+        if (max_abs(rt) < (1 - 1e-4 * t) * res) break;
+        t /= 2;
+        ++st.line_search_halvings;
+        if (t < 1e-12) {
+          std::ostringstream msg;
+          msg << "backward Euler: step " << state.step << ": the line search stalled at residual " << res
+              << " N (tolerance " << tol << " N); the state is left at the end of the last step";
+          throw SimulationError(msg.str());
+        }
+      }
+      x.swap(trial);
+    }
+    for (std::size_t s = 0; s < dyn.size(); ++s)
+      for (int k = 0; k < 3; ++k) {
+        const Real xn = x[3 * s + k];
+        state.v(k, dyn[s]) = (xn - state.x(k, dyn[s])) / h;
+        state.x(k, dyn[s]) = xn;
+      }
+    for (Index i = 0; i < np; ++i)
+      if (!(model.inv_mass[i] > 0)) state.v.col(i).setZero();
+    total_iterations_ += st.newton_iterations;
+    max_residual_ = std::max(max_residual_, st.residual);
+    last_ = std::move(st);
+  }
+}
+
+}  // namespace csb

@@ -1,0 +1,123 @@
+// csb — the same-step reference: backward (implicit) Euler at the study's time step, each step
+// solved to convergence by Newton's method, over the spring network of every compliant constraint
+// (csb/reference.hpp: distance springs and inequalities, bending, tet volumes, balloons,
+// attachments and the constraint families such as tethers).
+//
+// With the inertial positions x̃ = xⁿ + h vⁿ + h² g, a step's positions minimise the incremental
+// potential (Macklin, Müller and Chentanez 2016, Eq. 4-9; Martin et al. 2011)
+//
+//   E(x) = Σ_i m_i |x_i - x̃_i|² / (2h²) + U(x),   U = Σ_j C_j(x)² / (2α_j),
+//
+// and vⁿ⁺¹ = (x - xⁿ)/h. Its gradient, the backward-Euler residual (N),
+//
+//   r_i = m_i (x_i - x̃_i)/h² - f_i(x),   f = -∇U,
+//
+// vanishes at the solution. XPBD, PBD and the other methods approximate this step; the residual of
+// the positions they reach (backward_euler_residual) is their solver error at that step, the
+// convergence measure of Macklin et al. 2016 and its successors.
+//
+// Newton's method: H = M/h² + ∇²U (the network's analytic stiffness, bending's curvature by central
+// differences of its gradient, balloons' dense rank-one term through the Woodbury identity),
+// factored by a sparse LDLᵀ (Eigen's SimplicialLDLT, AMD order); where H is not positive definite
+// (a compressed spring, a volume's or a bending's curvature) the step is retried with those terms
+// dropped (Gauss-Newton, always positive definite), and then with a shift of the mass term.
+// A backtracking line search on E (Armijo, c = 1e-4) accepts the first step that decreases E
+// enough or, where E's decrease is below its rounding, shrinks the largest residual component.
+// A step stops when the largest residual component is below rtol times the step's force scale
+// (the largest of max m|g|, the constraint forces |C/α||∇C| and the inertia m|x - x̃|/h²) plus the
+// rounding floor of the forces and of the inertia term: the rule of python/csb/backward_euler.py.
+#pragma once
+
+#include "csb/integrator.hpp"
+#include "csb/reference.hpp"
+
+#include <memory>
+#include <vector>
+
+namespace csb {
+
+struct BackwardEulerSettings {
+  Real dt = 1.0 / 60.0;              // s, > 0
+  int substeps = 1;                  // backward Euler steps of dt/substeps per step, >= 1
+  Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
+  Real rtol = 1e-9;                  // residual relative to the step's force scale, > 0
+  int max_iterations = 100;          // Newton iterations per step before SimulationError, >= 1
+};
+
+// What the last step's Newton solve did.
+struct BackwardEulerStats {
+  int newton_iterations = 0;     // Newton steps taken (0: x̃ already solved it)
+  Real residual = 0;             // N, the largest residual component at the end
+  Real residual_norm = 0;        // N, its 2-norm
+  Real tolerance = 0;            // N, the bound the largest component met
+  int definiteness_fixes = 0;    // Newton steps whose Hessian needed the Gauss-Newton form or a shift
+  int line_search_halvings = 0;  // halvings of the step length, in all
+  std::vector<Real> history;     // N, the largest residual component before each Newton step and at the end
+};
+
+// The incremental potential of one step: from the state before it (positions, velocities; the
+// pinned particles fixed where `pinned_at` has them), the time step and gravity.
+class IncrementalPotential {
+ public:
+  // Throws InvalidArgument for a hard constraint (naming it), non-finite states, dt <= 0, a model
+  // with nothing that moves, or states of another size than the model.
+  IncrementalPotential(const Model& model, const State& previous, const State& pinned_at, Real dt, const Vec3& gravity);
+
+  const SpringNetwork& network() const { return net_; }
+  Index num_dynamic() const { return net_.num_dynamic(); }
+  Real dt() const { return dt_; }
+  const std::vector<Real>& inertial_positions() const { return x_tilde_; }  // x̃, m, 3 num_dynamic()
+
+  Real energy(const Real* x) const;                  // J
+  void gradient(const Real* x, Real* r) const;       // N, 3 num_dynamic()
+  // The Newton matrix H = M/h² + ∇²U (N/m), `definite` as SpringNetwork::stiffness.
+  void hessian(const Real* x, bool definite, Eigen::SparseMatrix<Real>& H, SpringNetwork::Stiffness& work) const;
+  // The step's force scale (N) and the residual's rounding floor (N).
+  void scales(const Real* x, Real& force_scale, Real& rounding) const;
+
+ private:
+  SpringNetwork net_;
+  Real dt_;
+  Vec3 gravity_;
+  std::vector<Real> x_tilde_;
+};
+
+struct Residual {
+  Real norm = 0;     // N, 2-norm of the residual over the dynamic particles
+  Real max = 0;      // N, its largest component
+  Real scale = 0;    // N, the step's force scale (as the backward Euler stepper's stopping rule)
+};
+
+// The backward-Euler residual of a step from `previous` to `next` taken by any method at time step
+// dt (s) under gravity (m/s²): |∇E(x_next)| with x̃ from `previous`. The pinned particles are
+// fixed where `next` has them.
+Residual backward_euler_residual(const Model& model, const State& previous, const State& next, Real dt,
+                                 const Vec3& gravity);
+
+class BackwardEulerStepper final : public Integrator {
+ public:
+  // Throws InvalidArgument naming a setting out of range.
+  explicit BackwardEulerStepper(const BackwardEulerSettings& settings);
+
+  std::string name() const override { return "backward-euler"; }
+  Real dt() const override { return settings_.dt; }
+  const BackwardEulerSettings& settings() const { return settings_; }
+  // Each step solved to convergence; SimulationError if Newton does not converge in
+  // max_iterations, the state left at the end of the last completed step.
+  void step(const Model& model, State& state, std::int64_t steps = 1,
+            const std::function<bool()>& interrupt = {}) override;
+
+  // The last backward Euler step's (of dt/substeps) Newton solve.
+  const BackwardEulerStats& last() const { return last_; }
+  Real max_residual() const { return max_residual_; }  // N, over all steps so far
+  std::int64_t total_iterations() const { return total_iterations_; }
+
+ private:
+  void solve_one(const Model& model, State& state, Real h);
+  BackwardEulerSettings settings_;
+  BackwardEulerStats last_;
+  Real max_residual_ = 0;
+  std::int64_t total_iterations_ = 0;
+};
+
+}  // namespace csb

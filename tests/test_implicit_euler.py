@@ -1,0 +1,244 @@
+"""csb.BackwardEuler, the same-step reference: backward Euler over every compliant constraint type,
+each step's incremental potential E(x) = Σ m|x - x̃|²/(2h²) + Σ C²/(2α) minimised by Newton's
+method; csb.IncrementalPotential (E, ∇E, ∇²E) and csb.backward_euler_residual, the residual
+|∇E| of a step taken by any method."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import csb
+from csb.backward_euler import BackwardEulerStepper
+
+G = np.array([0.0, -9.81, 0.0])
+
+
+def every_type() -> csb.Model:
+    """A 4 x 4 cloth (stretch springs, compliant bending, two corners pinned, a tether from every
+    free particle to its nearest pin) and, below it, a box of 6 tets (edge springs, tet volumes, a
+    balloon over its surface) held by an attachment: every constraint type csb has."""
+    b = csb.ModelBuilder()
+    cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, 4, 4), mass=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
+                       bending_compliance=0.05)
+    b.pin(cloth.first_particle)
+    b.pin(cloth.first_particle + 3)
+    tm = csb.tet_box([0.4, 0.4, 0.4], [1, 1, 1], center=[0, -1, 0])
+    box = b.add_tet_mesh(tm, mass=1.0, stretch_compliance=1e-3, volume_compliance=1e-2)
+    b.add_balloon(np.asarray(tm.surface()) + box.first_particle, pressure=1.2, compliance=1e-2)
+    b.attach(box.first_particle, [0.0, -0.7, 0.0], compliance=1e-3)
+    b.add_tethers(mode="euclidean", max_stretch=1.0, compliance=1e-4)
+    return b.build()
+
+
+def free_mask(model: csb.Model) -> np.ndarray:
+    return (np.asarray(model.inv_mass) > 0)[:, None]
+
+
+def chain(n: int = 10, *, link: float = 0.1, alpha: float = 1e-6) -> csb.Model:
+    b = csb.ModelBuilder()
+    g = b.add_group("chain")
+    for i in range(n):
+        b.add_particle([link * i, 0, 0], 0.1, g)
+    for i in range(n - 1):
+        b.add_distance(i, i + 1, compliance=alpha)
+    b.pin(0)
+    return b.build()
+
+
+def spring_cloth(n: int = 8, alpha: float = 1e-4) -> csb.Model:
+    b = csb.ModelBuilder()
+    inst = b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.2, stretch_compliance=alpha)
+    b.pin(inst.first_particle)
+    b.pin(inst.first_particle + n - 1)
+    return b.build()
+
+
+def copy_state(model: csb.Model, state) -> object:
+    s = model.initial_state()
+    s.x, s.v, s.t = np.array(state.x), np.array(state.v), state.t
+    return s
+
+
+def test_every_constraint_type_is_present_in_the_test_model():
+    model = every_type()
+    assert len(model.distance["particles"]) and len(model.bending["particles"]) and len(model.volume["particles"])
+    assert len(model.balloons["rest_volume"]) == 1 and len(model.attachments["particle"]) == 1
+    assert len(model.tethers["particles"]) > 0
+
+
+@pytest.mark.parametrize("definite", [False, True])
+def test_gradient_and_hessian_match_finite_differences_on_every_constraint_type(rng, definite):
+    """∇E against central differences of E, ∇²E against central differences of ∇E (the exact
+    Hessian), at a perturbed state where every constraint is violated (bending's curvature is
+    itself a central difference of its analytic gradient). The Gauss-Newton form is symmetric and
+    positive definite; it differs from the exact one only by curvature terms."""
+    model = every_type()
+    st = model.initial_state()
+    st.v = rng.normal(0, 0.5, st.v.shape) * free_mask(model)
+    h = 0.05
+    P = csb.IncrementalPotential(model, st, h, gravity=G)
+    x = np.array(st.x) + rng.normal(0, 0.02, st.x.shape) * free_mask(model)
+    dyn = np.asarray(P.dynamic_particles)
+    assert len(dyn) == model.num_particles - 2
+    g = P.gradient(x)
+    assert np.all(g[~free_mask(model)[:, 0]] == 0)
+    eps = 1e-6
+    gf = np.zeros_like(g)
+    Hf = np.zeros((3 * len(dyn), 3 * len(dyn)))
+    for s, i in enumerate(dyn):
+        for k in range(3):
+            xp, xm = x.copy(), x.copy()
+            xp[i, k] += eps
+            xm[i, k] -= eps
+            gf[i, k] = (P.energy(xp) - P.energy(xm)) / (2 * eps)
+            Hf[:, 3 * s + k] = ((P.gradient(xp) - P.gradient(xm)) / (2 * eps))[dyn].ravel()
+    assert np.abs(gf - g).max() <= 1e-8 * np.abs(g).max()
+    H = P.hessian(x, definite=definite)
+    assert np.abs(H - H.T).max() <= 1e-12 * np.abs(H).max()
+    mass_term = np.diag(np.repeat(np.asarray(model.mass)[dyn], 3)) / h**2
+    if definite:
+        assert np.linalg.eigvalsh(H).min() > 0
+        assert np.abs(H - Hf).max() < 0.5 * np.abs(Hf - mass_term).max()  # curvature only
+    else:
+        assert np.abs(H - Hf).max() <= 1e-7 * np.abs(Hf - mass_term).max()
+
+
+def test_newton_converges_quadratically_on_a_chain():
+    """A stiff chain falling from horizontal: once near the solution, the residual's exponent
+    doubles each Newton step (r_{k+1} ≈ C r_k²) until it meets the rounding floor."""
+    model = chain(12, alpha=1e-7)
+    st = model.initial_state()
+    be = csb.BackwardEuler(dt=0.01, gravity=G, rtol=1e-14)
+    orders = []
+    for _ in range(5):
+        be.step(model, st)
+        hist = np.asarray(be.history) / be.history[0]
+        assert be.residual <= be.tolerance and be.newton_iterations >= 2
+        above = hist[hist > 1e3 * be.tolerance / be.history[0]]
+        orders += [np.log(above[k + 1]) / np.log(above[k]) for k in range(len(above) - 1) if above[k] < 1e-2]
+    assert orders and max(orders) > 1.8, orders
+
+
+def test_agrees_with_the_numpy_stepper_on_a_distance_only_cloth():
+    """The numpy BackwardEulerStepper (banded Cholesky, the same stopping rule) and the C++ one
+    (sparse LDLᵀ) solve the same steps: 50 steps of a cloth agree to round-off."""
+    model = spring_cloth(8)
+    s1, s2 = model.initial_state(), model.initial_state()
+    BackwardEulerStepper(dt=0.01, gravity=G).step(model, s1, 50)
+    cpp = csb.BackwardEuler(dt=0.01, gravity=G)
+    cpp.step(model, s2, 50)
+    assert np.abs(np.asarray(s1.x) - np.asarray(s2.x)).max() < 1e-12
+    assert np.abs(np.asarray(s1.v) - np.asarray(s2.v)).max() < 1e-10
+    assert s1.t == s2.t and s1.step == s2.step == 50
+
+
+def total_energy(model: csb.Model, state, h: float) -> float:
+    """Kinetic + gravitational + elastic (J); the elastic part is E(x) less its inertia term."""
+    P = csb.IncrementalPotential(model, state, h, gravity=G)
+    x = np.asarray(state.x)
+    dyn = np.asarray(P.dynamic_particles)
+    m = np.asarray(model.mass)
+    inertia = np.sum(m[dyn, None] * (x[dyn] - P.inertial_positions) ** 2) / (2 * h * h)
+    kinetic = 0.5 * np.sum(m[dyn, None] * np.asarray(state.v)[dyn] ** 2)
+    return kinetic - np.sum(m[dyn] * (x[dyn] @ G)) + P.energy(x) - inertia
+
+
+def test_backward_euler_dissipates_energy():
+    """On a conservative scene (every constraint type, gravity, no damping) backward Euler's
+    total energy never grows."""
+    model = every_type()
+    st = model.initial_state()
+    h = 0.01
+    be = csb.BackwardEuler(dt=h, gravity=G)
+    energies = [total_energy(model, st, h)]
+    for _ in range(60):
+        be.step(model, st)
+        energies.append(total_energy(model, st, h))
+    e = np.array(energies)
+    assert np.all(np.diff(e) <= 1e-9 * np.abs(e).max()), np.diff(e).max()
+    assert e[-1] < e[0]
+
+
+def test_residual_of_a_converged_step_is_zero_and_of_xpbd_falls_with_iterations():
+    model = spring_cloth(8)
+    h = 0.01
+    be = csb.BackwardEuler(dt=h, gravity=G)
+    st = model.initial_state()
+    be.step(model, st, 20)
+    prev = copy_state(model, st)
+    nxt = copy_state(model, st)
+    be.step(model, nxt)
+    r = csb.backward_euler_residual(model, prev, nxt, h, G)
+    assert r.max <= be.tolerance and r.max == pytest.approx(be.residual, rel=1e-9, abs=1e-12)
+    assert r.norm == pytest.approx(be.residual_norm, rel=1e-9, abs=1e-12)
+    assert r.max < 1e-8 * r.scale
+    previous = np.inf
+    for it in (1, 10, 100, 1000):
+        nxt = copy_state(model, st)
+        csb.PbdStepper(method="xpbd", dt=h, iterations=it).step(model, nxt)
+        res = csb.backward_euler_residual(model, prev, nxt, h, G)
+        assert res.max <= res.norm and res.norm < previous
+        previous = res.norm
+        if it == 1:
+            assert res.max > 0.1 * res.scale  # far from the step: a tenth of the force scale or more
+
+
+def test_the_registered_method():
+    info = csb.method_info("backward-euler")
+    assert info.reads == "compliance" and not info.iterates and "implicit-euler" in info.aliases
+    made = csb.make_integrator("backward-euler", 0.01, gravity=(0, -9.81, 0))
+    assert isinstance(made, csb.BackwardEuler) and made.name() == "backward-euler" and made.dt() == 0.01
+    model = every_type()
+    s1, s2 = model.initial_state(), model.initial_state()
+    csb.make_integrator("backward-euler", 0.02, substeps=2).step(model, s1, 3)
+    csb.BackwardEuler(dt=0.01).step(model, s2, 6)
+    assert np.array_equal(s1.x, s2.x) and np.array_equal(s1.v, s2.v)
+    assert s1.step == 3 and s1.t == pytest.approx(0.06)
+
+
+def test_bad_input_names_the_parameter():
+    hard = csb.ModelBuilder()
+    g = hard.add_group("g")
+    hard.add_particle([0, 0, 0], 1.0, g)
+    hard.add_particle([1, 0, 0], 1.0, g)
+    hard.add_distance(0, 1)
+    hard.pin(0)
+    hard = hard.build()
+    with pytest.raises(csb.ParameterError, match="distance constraint 0 is hard.*compliance"):
+        csb.BackwardEuler(dt=0.01).step(hard, hard.initial_state())
+    with pytest.raises(csb.ParameterError, match="distance constraint 0 is hard"):
+        csb.backward_euler_residual(hard, hard.initial_state(), hard.initial_state(), 0.01)
+    model = spring_cloth(4)
+    st = model.initial_state()
+    bad = model.initial_state()
+    x = np.array(bad.x)
+    x[3, 1] = np.nan
+    bad.x = x
+    with pytest.raises(csb.ParameterError, match="state"):
+        csb.BackwardEuler(dt=0.01).step(model, bad)
+    with pytest.raises(csb.ParameterError, match="previous state"):
+        csb.backward_euler_residual(model, bad, st, 0.01)
+    with pytest.raises(csb.ParameterError, match="next state"):
+        csb.backward_euler_residual(model, st, bad, 0.01)
+    for kwargs, name in [(dict(dt=0.0), "dt"), (dict(dt=np.nan), "dt"), (dict(rtol=-1.0), "rtol"),
+                         (dict(max_iterations=0), "max_iterations"), (dict(substeps=0), "substeps"),
+                         (dict(gravity=(0, 1)), "gravity")]:
+        with pytest.raises(csb.ParameterError, match=name):
+            csb.BackwardEuler(**kwargs)
+    with pytest.raises(csb.ParameterError, match="dt"):
+        csb.backward_euler_residual(model, st, st, -0.01)
+    with pytest.raises(csb.ParameterError, match="x must have shape"):
+        csb.IncrementalPotential(model, st, 0.01).energy(np.zeros((3, 3)))
+    with pytest.raises(csb.SimulationError, match="max_iterations|Newton's residual"):
+        csb.BackwardEuler(dt=0.01, max_iterations=1, rtol=1e-15).step(spring_cloth(6), spring_cloth(6).initial_state())
+
+
+def test_the_state_is_kept_when_a_step_fails():
+    model = spring_cloth(6)
+    st = model.initial_state()
+    csb.BackwardEuler(dt=0.01).step(model, st, 2)
+    x0, v0 = np.array(st.x), np.array(st.v)
+    with pytest.raises(csb.SimulationError):
+        csb.BackwardEuler(dt=0.01, substeps=2, max_iterations=1, rtol=1e-15).step(model, st)
+    assert np.array_equal(st.x, x0) and np.array_equal(st.v, v0) and st.step == 2
