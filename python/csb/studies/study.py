@@ -628,7 +628,8 @@ def _executor(workers: int | None, scheduler: str | None, jobs: int):
         cluster = None
     else:
         n = workers if workers is not None else max(1, min(os.cpu_count() or 1, jobs))
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+        # The dashboard on a free port: two studies (or a study and a notebook) at once do not collide.
+        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                                silence_logs=40)
         client = Client(cluster)
 
@@ -818,8 +819,15 @@ def _write_outputs(result: StudyResult) -> list[Path]:
     w.writeheader()
     for r in rows:
         w.writerow({k: ("" if v is None else repr(v) if isinstance(v, float) else v) for k, v in r.items()})
-    _write_atomic(out / "results.csv", s.getvalue().encode())
+    text = s.getvalue().encode()
+    unchanged = _same_bytes(out / "results.csv", text)
+    if not unchanged:
+        _write_atomic(out / "results.csv", text)
     files.append(out / "results.csv")
+    chart = "position_error" in result.study.metrics
+    wanted = [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
+    if unchanged and all(f.is_file() for f in wanted):  # a re-run of an unchanged study: nothing to draw
+        return files + wanted
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
@@ -831,9 +839,20 @@ def _write_outputs(result: StudyResult) -> list[Path]:
         pq.write_table(table, tmp)
         os.replace(tmp, out / "results.parquet")
         files.append(out / "results.parquet")
-    if "position_error" in result.study.metrics:
+    if chart:
         files.append(_chart(result))
     return files
+
+
+def _same_bytes(path: Path, data: bytes) -> bool:
+    try:
+        return path.read_bytes() == data
+    except OSError:
+        return False
+
+
+def _has_pyarrow() -> bool:
+    return importlib.util.find_spec("pyarrow") is not None
 
 
 def _chart(result: StudyResult) -> Path:
