@@ -23,6 +23,11 @@ constraints (C = |x_b - x_a| - L, ∇_b C = n = (x_b - x_a)/|x_b - x_a| = -∇_a
   largest of m|g|, |C/α| and m|x - x̃|/h²) plus its rounding floor (4 eps (|x_a| + |x_b|)/α, N:
   C is a difference of coordinates, amplified by 1/α); the last step's residual is kept.
 
+csb.BackwardEuler is the same solve in C++ over every constraint type csb has (bending, volumes,
+balloons, attachments, tethers too), and the same-step reference from here on; this numpy stepper
+stays as an independent implementation of the distance-only case, which the C++ one reproduces to
+round-off (tests/test_implicit_euler.py).
+
 The spring force of constraint j is C_j/α_j (N, positive when stretched), the converged value of
 XPBD's -λ_j/h². Inequalities (sense '>=' or '<=') act only while violated, as in the reference.
 Pinned particles (inverse mass 0) stay where the state has them, with zero velocity.
