@@ -230,6 +230,13 @@ def test_bad_input_names_the_parameter():
         csb.backward_euler_residual(model, st, st, -0.01)
     with pytest.raises(csb.ParameterError, match="x must have shape"):
         csb.IncrementalPotential(model, st, 0.01).energy(np.zeros((3, 3)))
+    with_floor = csb.ModelBuilder()
+    inst = with_floor.add_mesh(csb.cloth_grid(1.0, 1.0, 3, 3), mass=0.1, stretch_compliance=1e-4)
+    with_floor.pin(inst.first_particle)
+    with_floor.add_plane(point=[0, -2, 0])
+    with_floor = with_floor.build()
+    with pytest.raises(csb.ParameterError, match="no contact.*1 collider"):
+        csb.BackwardEuler(dt=0.01).step(with_floor, with_floor.initial_state())
     with pytest.raises(csb.SimulationError, match="max_iterations|Newton's residual"):
         csb.BackwardEuler(dt=0.01, max_iterations=1, rtol=1e-15).step(spring_cloth(6), spring_cloth(6).initial_state())
 

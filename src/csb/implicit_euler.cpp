@@ -146,6 +146,14 @@ void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t s
                           std::to_string(np));
   if (!state.x.allFinite() || !state.v.allFinite())
     throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
+  // E has no contact term: a model with colliders or self-collision would pass through them.
+  const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
+                                         [](Real h) { return h > 0; });
+  if (!model.colliders.empty() || self_collides)
+    throw InvalidArgument("backward Euler models no contact, but the model has " +
+                          (model.colliders.empty() ? std::string("self-collision")
+                                                   : std::to_string(model.colliders.size()) + " collider(s)") +
+                          ": the same-step reference is for models without colliders and self-collision");
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t step = 0; step < steps; ++step) {
     if (step > 0 && interrupt && interrupt())

@@ -90,7 +90,8 @@ struct Residual {
 
 // The backward-Euler residual of a step from `previous` to `next` taken by any method at time step
 // dt (s) under gravity (m/s²): |∇E(x_next)| with x̃ from `previous`. The pinned particles are
-// fixed where `next` has them.
+// fixed where `next` has them. Contact forces are not part of E: where a method's step touched a
+// collider, the residual includes the contact force.
 Residual backward_euler_residual(const Model& model, const State& previous, const State& next, Real dt,
                                  const Vec3& gravity);
 
@@ -103,7 +104,8 @@ class BackwardEulerStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const BackwardEulerSettings& settings() const { return settings_; }
   // Each step solved to convergence; SimulationError if Newton does not converge in
-  // max_iterations, the state left at the end of the last completed step.
+  // max_iterations, the state left at the end of the last completed step. E has no contact term:
+  // a model with colliders or self-collision is an InvalidArgument.
   void step(const Model& model, State& state, std::int64_t steps = 1,
             const std::function<bool()>& interrupt = {}) override;
 
