@@ -90,6 +90,7 @@ def test_other_schema_errors_name_the_key(tmp_path):
         (QUICK.replace('setup = "swinging_chain"', 'file = "nowhere.toml"'), r":10: scene\[0\].file: .*nowhere"),
         (QUICK.replace('name = "pbd"', 'python = "no_such_module:Mine"'), r":19: method\[1\].python: cannot import"),
         (QUICK.replace("duration = 0.3", "duration = -1"), r":3: study.duration: must be a duration > 0 s"),
+        (QUICK.replace("links = 5", "links = 5, angle = inf"), r":11: scene\[0\].args: must hold finite numbers"),
     ]
     for text, message in cases:
         with pytest.raises(StudyError, match=message):
@@ -272,10 +273,11 @@ def test_a_users_integrator_class_goes_through_a_study_and_a_failed_cell_does_no
     assert (again.computed, again.reused, again.failed) == (0, 5, 1)
     retried = run_study(p, out=tmp_path / "out", workers=0, retry_failed=True)
     assert (retried.computed, retried.reused, retried.failed) == (1, 4, 1)
-    # The module's source is part of the key: an edit runs its cells again.
-    (tmp_path / "my_methods.py").write_text(USER_MODULE + "\n# edited\n")
+    # The module's source is part of the key: an edit runs its cells again, with the edited code
+    # (in this process too, where the old module is already imported).
+    (tmp_path / "my_methods.py").write_text(USER_MODULE.replace("dt < 0.005", "dt < 0.0005"))
     edited = run_study(p, out=tmp_path / "out", workers=0)
-    assert (edited.computed, edited.reused) == (3, 2)
+    assert (edited.computed, edited.reused, edited.failed) == (3, 2, 0)
 
 
 def test_asking_for_dask_without_it_names_the_extra(tmp_path, monkeypatch):

@@ -275,6 +275,10 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path) -> SceneDef:
         if not isinstance(args, dict):
             raise t.error("args", f"must be a table of the set-up's arguments, got {args!r}")
         try:
+            cell_key(args)
+        except ValueError:
+            raise t.error("args", f"must hold finite numbers, got {args!r}") from None
+        try:
             SETUPS[setup](**args)  # made once here, so that a wrong argument is named now
         except TypeError as e:
             raise t.error("args", f"{setup}: {e}") from None
@@ -328,16 +332,20 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
             found = importlib.util.find_spec(module)
             if found is None:
                 raise ImportError(f"no module named {module!r}")
-            obj = getattr(importlib.import_module(module), cls, None)
         except ImportError as e:
             raise t.error("python", f"cannot import {module!r} (from the study's folder or sys.path): {e}") from None
         finally:
             if added:
                 sys.path.remove(folder)
+        origin = Path(found.origin) if found.origin and found.origin not in ("built-in", "frozen") else None
+        sha256 = _sha256_file(origin) if origin and origin.is_file() else None
+        try:
+            obj = getattr(_import_user_module(module, folder, sha256), cls, None)
+        except ImportError as e:
+            raise t.error("python", f"cannot import {module!r} (from the study's folder or sys.path): {e}") from None
         if not (isinstance(obj, type) and issubclass(obj, _core.Integrator)):
             raise t.error("python", f"{spec}: {cls!r} is not a csb.Integrator subclass in {module!r}")
-        origin = Path(found.origin) if found.origin and found.origin not in ("built-in", "frozen") else None
-        definition = dict(python=spec, sha256=_sha256_file(origin) if origin and origin.is_file() else None)
+        definition = dict(python=spec, sha256=sha256)
         context = dict(folder=folder)
         label = t.string("label", cls)
         grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
@@ -464,13 +472,30 @@ def _make_stepper(definition: dict[str, Any], context: dict[str, Any], params: d
         return s
     from . import make_stepper
 
-    folder = context["method"].get("folder")
-    if folder and folder not in sys.path:
-        sys.path.insert(0, folder)
     module, _, cls = method["python"].partition(":")
-    made = getattr(importlib.import_module(module), cls)
+    made = getattr(_import_user_module(module, context["method"].get("folder"), method.get("sha256")), cls)
     return make_stepper(made, dt=dt, gravity=gravity, **{k: params[k] for k in ("substeps", "iterations")
                                                         if k in params})
+
+
+def _import_user_module(module: str, folder: str | None, sha256: str | None):
+    """A user's module, imported with ``folder`` first on sys.path. The cell's key holds the
+    module's source as the study read it, so a module imported earlier in this process from
+    another source (edited since) is read again."""
+    added = bool(folder) and folder not in sys.path
+    if added:
+        sys.path.insert(0, folder)
+    try:
+        fresh = module not in sys.modules
+        mod = importlib.import_module(module)
+        if sha256 is not None and getattr(mod, "__csb_source_sha256__", None) != sha256:
+            if not fresh:
+                mod = importlib.reload(mod)
+            mod.__csb_source_sha256__ = sha256
+    finally:
+        if added:
+            sys.path.remove(folder)
+    return mod
 
 
 def _machine() -> dict[str, Any]:
