@@ -115,9 +115,10 @@ class SpringNetwork {
   void add_potential_forces(const Real* x, Real* f) const { add_forces(x, nullptr, 0, f); }
   // ∇²U (N/m) over 3 num_dynamic() rows: sparse entries (duplicates to be summed) and, for each
   // balloon, the dense rank-one part k ∇V ∇Vᵀ as (k, ∇V). Bending's curvature is the central
-  // difference of its analytic gradient (relative error ~1e-9). With `definite`, the terms that can
-  // make it indefinite are dropped (a compressed spring's geometric term, the volumes', bending's,
-  // balloons' and the families' curvature): what remains is Gauss-Newton, positive semi-definite.
+  // difference of its analytic gradient (within 2e-10 of the largest entry in the tests). With
+  // `definite`, the terms that can make it indefinite are dropped (a compressed spring's geometric
+  // term, the volumes', bending's, balloons' and the families' curvature): what remains is
+  // Gauss-Newton, positive semi-definite.
   struct Stiffness {
     std::vector<Eigen::Triplet<Real>> entries;
     std::vector<Real> rank_one_weight;               // J/m⁶
