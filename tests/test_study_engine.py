@@ -132,7 +132,7 @@ def test_a_rerun_of_an_unchanged_study_computes_nothing(tmp_path):
     assert all(r["status"] == "ok" for r in first.table)
     cells = sorted((tmp_path / "out" / "cells").glob("*.json"))
     assert len(cells) == 7
-    outputs = [tmp_path / "out" / name for name in ("results.csv", "results.parquet", "accuracy_cost.png")]
+    outputs = [tmp_path / "out" / name for name in ("results.csv", "report.md", "results.parquet", "accuracy_cost.png")]
     stamps = {f: f.stat().st_mtime_ns for f in cells + outputs}
     t0 = time.perf_counter()
     again = run_study(p, out=tmp_path / "out", workers=0)
@@ -141,6 +141,8 @@ def test_a_rerun_of_an_unchanged_study_computes_nothing(tmp_path):
     assert again.table == first.table
     assert {f: f.stat().st_mtime_ns for f in cells + outputs} == stamps  # nothing computed, nothing rewritten
     assert all(f.stat().st_size > 0 for f in outputs) and again.files == outputs
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert report.startswith("## Study: quick") and "7 cells" in report and "| cvode | rtol=1e-06 |" in report
     rows = {(r["method"], r["dt"], r["iterations"], r["rtol"]): r for r in first.table}
     # More iterations bring XPBD closer to the reference, and CVODE at 1e-6 is closer than any.
     assert rows[("xpbd", 0.00833, 20, None)]["position_error"] < rows[("xpbd", 0.00833, 1, None)]["position_error"]

@@ -694,6 +694,48 @@ class StudyResult:
                 lines.append(f"  failed: {r['scene']} / {r['method']} {_param_text(r)}: {r['error_type']}: {r['error']}")
         return "\n".join(lines)
 
+    def report(self) -> str:
+        """The study as a report section (Markdown): what it is, its cells, per scene the cells on
+        the accuracy-against-cost front (when position_error is measured), what blew up or failed."""
+        st = self.study
+        lines = [f"## Study: {st.name}", ""]
+        if st.description:
+            lines += [st.description, ""]
+        lines += [f"`csb study run {st.path}`: {len(self.table)} cells ({len(st.scenes)} scenes, {len(st.methods)} "
+                  f"methods), {st.duration:g} s each, metrics at {st.outputs + 1} times, cost the median CPU time "
+                  f"per simulated second of {st.repeats} run(s) on one thread. Table: `results.csv`.", ""]
+        if "position_error" in st.metrics:
+            lines += ["![accuracy against cost](accuracy_cost.png)", ""]
+            for scene in st.scenes:
+                front = _front([r for r in self.table if r["scene"] == scene.label])
+                lines += [f"{scene.label}: the cells no other cell beats in both error and cost", "",
+                          "| method | parameters | largest distance to the reference (m) | CPU s per simulated s |",
+                          "|---|---|---:|---:|"]
+                lines += [f"| {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
+                          f"{r['cpu_per_simulated_s']:.3g} |" for r in front]
+                lines.append("")
+        blown = [r for r in self.table if r.get("stability") == "blew-up"]
+        if blown:
+            lines += ["Blew up: " + ", ".join(f"{r['scene']} / {r['method']} {_param_text(r)}" for r in blown), ""]
+        failed = [r for r in self.table if r["status"] == "failed"]
+        if failed:
+            lines += ["Failed: " + "; ".join(f"{r['scene']} / {r['method']} {_param_text(r)}: {r['error_type']}: "
+                                             f"{r['error']}" for r in failed), ""]
+        return "\n".join(lines)
+
+
+def _front(rows: list[dict]) -> list[dict]:
+    """The rows no other row beats in both position_error and cost, cheapest first."""
+    good = sorted((r for r in rows if r["status"] == "ok" and r.get("stability") != "blew-up"
+                   and r.get("position_error") is not None and r.get("cpu_per_simulated_s") is not None),
+                  key=lambda r: (r["cpu_per_simulated_s"], r["position_error"]))
+    front, best = [], math.inf
+    for r in good:
+        if r["position_error"] < best:
+            best = r["position_error"]
+            front.append(r)
+    return front
+
 
 def _param_text(row: dict) -> str:
     return " ".join(f"{p}={row[p]:g}" for p in _PARAMS if row.get(p) is not None)
@@ -850,9 +892,11 @@ def _write_outputs(result: StudyResult) -> list[Path]:
         _write_atomic(out / "results.csv", text)
     files.append(out / "results.csv")
     chart = "position_error" in result.study.metrics
-    wanted = [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
+    wanted = [out / "report.md"] + [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
     if unchanged and all(f.is_file() for f in wanted):  # a re-run of an unchanged study: nothing to draw
         return files + wanted
+    _write_atomic(out / "report.md", result.report().encode())
+    files.append(out / "report.md")
     try:
         import pyarrow as pa
         import pyarrow.parquet as pq
