@@ -290,3 +290,28 @@ def test_asking_for_dask_without_it_names_the_extra(tmp_path, monkeypatch):
         run_study(p, out=tmp_path / "a", scheduler="tcp://127.0.0.1:1")
     r = run_study(p, out=tmp_path / "b")  # the default runs in this process when Dask is missing
     assert r.computed == 4 and r.failed == 0
+
+
+def test_a_metric_that_does_not_apply_to_a_scene_is_null_with_a_note(tmp_path):
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.1
+        metrics = ["volume_error", "max_strain", "stability"]
+
+        [[scene]]
+        setup = "hanging_tet_cube"
+        args = { cells = 2 }
+
+        [[scene]]
+        scene = "pendulum"
+
+        [[method]]
+        name = "xpbd"
+        dt = 0.01
+        iterations = 5
+        """)
+    cube, pendulum = run_study(p, out=tmp_path / "out", workers=0).table
+    assert cube["status"] == pendulum["status"] == "ok"
+    assert 0 < cube["volume_error"] < 0.01 and cube["max_strain"] > 0 and cube["notes"] == ""
+    assert pendulum["volume_error"] is None and pendulum["max_strain"] >= 0
+    assert pendulum["notes"] == "volume_error: the scene has no tet volume constraints"

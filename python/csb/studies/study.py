@@ -132,6 +132,7 @@ METRICS = {
     "max_strain": "largest |C| / rest length of the distance constraints at any output time",
     "residual": "largest |C| of the distance constraints at any output time (m)",
     "volume_error": "largest |V - V0| / V0 of the total tet volume at any output time",
+    # (max_strain, residual and volume_error are null, with a note, for a scene without such constraints)
     "stability": "'stable', or 'blew-up' (csb.SimulationError, a non-finite position, or a particle farther "
                  "than 100 model sizes from its start)",
 }
@@ -568,6 +569,7 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
             states = run_states
     assert states is not None
     values: dict[str, Any] = {}
+    notes: list[str] = []  # metrics that do not apply to the scene: null, and said why
     for m in metrics:
         if m == "stability":
             values[m] = "blew-up" if blew else "stable"
@@ -583,16 +585,20 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
         elif m in ("max_strain", "residual"):
             rest = np.asarray(model.distance["rest_length"])
             if len(rest) == 0:
-                raise _core.ParameterError(f"{m} measures distance constraints, and the scene has none")
+                values[m] = None
+                notes.append(f"{m}: the scene has no distance constraints")
+                continue
             c = [np.abs(_core.distance_violations(model, s)) for s in states]
             values[m] = max(float((v / rest).max() if m == "max_strain" else v.max()) for v in c)
         elif m == "volume_error":
             v0 = float(np.sum(np.asarray(model.volume["rest_volume"])))
             if v0 == 0:
-                raise _core.ParameterError("volume_error measures tet volume constraints, and the scene has none")
+                values[m] = None
+                notes.append(f"{m}: the scene has no tet volume constraints")
+                continue
             values[m] = max(abs(total_volume(model, s) - v0) / abs(v0) for s in states)
     per_second = [c / duration for c in costs]
-    return dict(metrics=values, dt_used=dt_used, steps=None if steps_per_interval is None
+    return dict(metrics=values, notes=notes, dt_used=dt_used, steps=None if steps_per_interval is None
                 else steps_per_interval * (len(times) - 1),
                 cost=dict(cpu_per_simulated_s=statistics.median(per_second),
                           spread=max(per_second) - min(per_second), samples=per_second))
@@ -862,7 +868,7 @@ def _row(study: Study, cell: Cell, record: dict) -> dict:
     row["status"] = record["status"]
     row["error_type"] = record.get("error_type")
     row["error"] = record.get("error")
-    row["warnings"] = "; ".join(record.get("warnings", []))
+    row["notes"] = "; ".join(record.get("notes", []) + record.get("warnings", []))
     build = cell.definition["csb"]["build"]
     row["csb_version"] = build["csb"]
     row["build"] = f"{build.get('compiler')}, {build.get('simd')}, SUNDIALS {build.get('sundials')}"
