@@ -90,6 +90,9 @@ def test_other_schema_errors_name_the_key(tmp_path):
         (QUICK.replace('setup = "swinging_chain"', 'file = "nowhere.toml"'), r":10: scene\[0\].file: .*nowhere"),
         (QUICK.replace('name = "pbd"', 'python = "no_such_module:Mine"'), r":19: method\[1\].python: cannot import"),
         (QUICK.replace("duration = 0.3", "duration = -1"), r":3: study.duration: must be a duration > 0 s"),
+        (QUICK + '[[scene]]\nsetup = "swinging_chain"\n', r":26: scene\[1\].name: two scenes are called"),
+        (QUICK.replace(", compliance = 1e-6 }", " }\ngrid = { compliance = [1e-6, -1.0] }"),
+         r":12: scene\[0\].grid: swinging_chain\(compliance=-1.0\): "),
         (QUICK.replace("links = 5", "links = 5, angle = inf"), r":11: scene\[0\].args: must hold finite numbers"),
     ]
     for text, message in cases:
@@ -315,3 +318,30 @@ def test_a_metric_that_does_not_apply_to_a_scene_is_null_with_a_note(tmp_path):
     assert 0 < cube["volume_error"] < 0.01 and cube["max_strain"] > 0 and cube["notes"] == ""
     assert pendulum["volume_error"] is None and pendulum["max_strain"] >= 0
     assert pendulum["notes"] == "volume_error: the scene has no tet volume constraints"
+
+
+def test_a_scene_grid_sweeps_a_set_up_argument(tmp_path):
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.2
+        metrics = ["max_strain", "stability"]
+
+        [[scene]]
+        name = "chain"
+        setup = "swinging_chain"
+        args = { links = 5 }
+        grid = { compliance = [1e-6, 0.1] }
+
+        [[method]]
+        name = "xpbd"
+        dt = 0.01
+        iterations = [5, 20]
+        """)
+    study = load_study(p)
+    assert [s.label for s in study.scenes] == ["chain compliance=1e-06", "chain compliance=0.1"]
+    assert [s.definition["args"] for s in study.scenes] == [dict(links=5, compliance=1e-6), dict(links=5, compliance=0.1)]
+    r = run_study(p, out=tmp_path / "out", workers=0)
+    assert r.computed == 4 and r.failed == 0
+    strain = {(row["scene"], row["iterations"]): row["max_strain"] for row in r.table}
+    for it in (5, 20):  # a chain of links 1e5 times as compliant stretches more under XPBD
+        assert strain[("chain compliance=0.1", it)] > 2 * strain[("chain compliance=1e-06", it)]

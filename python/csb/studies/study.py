@@ -17,7 +17,8 @@ A study file::
 
     [[scene]]                        # one of: scene = a bundled scene's name, file = a scene file,
     setup = "swinging_chain"         # setup = a study set-up (SETUPS) with its args
-    args = { links = 5, compliance = 1e-6 }
+    args = { links = 5 }
+    grid = { compliance = [1e-6, 1e-4] }   # a set-up's arguments swept: one scene per value
 
     [[method]]
     name = "xpbd"                    # a built-in (csb.methods()) or "cvode"; or
@@ -149,6 +150,7 @@ class SceneDef:
     label: str
     definition: dict[str, Any]   # what determines the scene (file bytes' hash, set-up and args, gravity)
     context: dict[str, Any]      # how to find it (the file's path): not part of the key
+    index: int = 0               # its [[scene]] table, for messages
 
 
 @dataclass(frozen=True)
@@ -239,7 +241,7 @@ def _grid(t: _StudyTable, key: str, kind: str) -> tuple[Any, ...] | None:
     return tuple(float(x) if kind != "count" else int(x) for x in values)
 
 
-def _read_scene(source: _Source, data: Any, k: int, base: Path) -> SceneDef:
+def _read_scene(source: _Source, data: Any, k: int, base: Path) -> list[SceneDef]:
     if not isinstance(data, dict):
         raise StudyError(f"{source.path}: scene {k + 1}: declare scenes as [[scene]] tables")
     t = _StudyTable(source, data, ("scene", k), f"scene[{k}]")
@@ -279,20 +281,44 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path) -> SceneDef:
             cell_key(args)
         except ValueError:
             raise t.error("args", f"must hold finite numbers, got {args!r}") from None
+        # A grid of set-up arguments (a material swept, say): one scene per point of it.
+        grid = t.raw("grid", {})
+        if not isinstance(grid, dict):
+            raise t.error("grid", f"must be a table of argument = [values], got {grid!r}")
+        for name, values in grid.items():
+            if not isinstance(values, list) or not values:
+                raise t.error("grid", f"{name} must be a non-empty list of values, got {values!r}")
+            if name in args:
+                raise t.error("grid", f"{name} is given in args too")
         try:
-            SETUPS[setup](**args)  # made once here, so that a wrong argument is named now
-        except TypeError as e:
-            raise t.error("args", f"{setup}: {e}") from None
-        except (_core.Error, ValueError) as e:
-            raise t.error("args", str(e)) from None
-        definition = dict(kind="setup", setup=setup, args=args)
+            cell_key(grid)
+        except ValueError:
+            raise t.error("grid", f"must hold finite numbers, got {grid!r}") from None
         label = t.string("name", setup)
         gravity = t.vector("gravity", (0.0, -9.81, 0.0))
-    definition["gravity"] = list(gravity)
+        variants = []
+        for values in itertools.product(*grid.values()):
+            point = dict(zip(grid, values))
+            full = {**args, **point}
+            key = "grid" if point else "args"
+            try:
+                SETUPS[setup](**full)  # made once here, so that a wrong argument is named now
+            except TypeError as e:
+                raise t.error(key, f"{setup}: {e}") from None
+            except (_core.Error, ValueError) as e:
+                raise t.error(key, f"{setup}({', '.join(f'{n}={v!r}' for n, v in point.items())}): {e}") from None
+            name = " ".join([label] + [f"{n}={v:g}" if isinstance(v, float) else f"{n}={v}" for n, v in point.items()])
+            variants.append((name, dict(kind="setup", setup=setup, args=full)))
+    if given[0] in ("scene", "file"):
+        variants = [(label, definition)]
+    for _, d in variants:
+        d["gravity"] = list(gravity)
     if t.has("duration"):
-        definition["duration"] = t.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
+        duration = t.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
+        for _, d in variants:
+            d["duration"] = duration
     t.finish()
-    return SceneDef(label, definition, context)
+    return [SceneDef(name, d, context, k) for name, d in variants]
 
 
 def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
@@ -413,7 +439,7 @@ def load_study(path: str | os.PathLike[str]) -> Study:
     raw_scenes = top.raw("scene", [])
     if not isinstance(raw_scenes, list) or not raw_scenes:
         raise top.error(None, "declare at least one [[scene]]")
-    scenes = tuple(_read_scene(source, s, k, p.parent) for k, s in enumerate(raw_scenes))
+    scenes = tuple(d for k, s in enumerate(raw_scenes) for d in _read_scene(source, s, k, p.parent))
     raw_methods = top.raw("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise top.error(None, "declare at least one [[method]]")
@@ -422,7 +448,8 @@ def load_study(path: str | os.PathLike[str]) -> Study:
         labels = [x.label for x in items]
         for k, label in enumerate(labels):
             if labels.index(label) != k:
-                raise _StudyTable(source, {}, (what, k), f"{what}[{k}]").error(
+                index = items[k].index if what == "scene" else k
+                raise _StudyTable(source, {}, (what, index), f"{what}[{index}]").error(
                     "name" if what == "scene" else "label", f"two {what}s are called {label!r}: give one a name")
     top.finish()
     return Study(p, name, description, duration, outputs, repeats, tuple(metrics), reference, scenes, methods)
