@@ -1,0 +1,218 @@
+"""The peers as csb methods: a peer's solver wrapped in a :class:`csb.Integrator`, so that the scene
+runner, the viewer and every study step it on a csb Model beside csb's own methods, and a
+conformance check that says whether the peer really simulates the same thing.
+
+An adapter maps a csb Model (particles, masses, pins, constraints, material, gravity) onto the
+peer's model once per Model and says, by name, what it cannot map (a :class:`csb.ParameterError`).
+``conformance`` then checks the mapping before anything is plotted: the same particle and
+constraint counts, the same rest state, the same pins and gravity, and a quiet first step (from
+rest) that agrees with csb's own method of the same family. A peer that fails it is reported,
+not plotted.
+
+The peers are the optional ``bench`` extra (``pip install csb[bench]``); without one, making its
+adapter raises ImportError naming the extra.
+
+* ``PypbdIntegrator``: Bender's PositionBasedDynamics (``pypbd``), PBD Gauss-Seidel. Maps a
+  triangle-mesh model: a DistanceConstraint per csb distance constraint (in csb's order, with
+  csb's per-iteration stiffness 1 - (1 - k)^(1/iterations)), pypbd's own dihedral bending on the
+  same triangles (one stiffness for all), pins as mass 0; gravity -9.81 m/s² along y (pypbd's
+  default, the only one it is given here).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+
+__all__ = ["PypbdIntegrator", "Conformance", "conformance"]
+
+PYPBD_GRAVITY = (0.0, -9.81, 0.0)
+
+
+def _require(module: str, extra: str = "bench") -> None:
+    if importlib.util.find_spec(module) is None:
+        raise ImportError(f"the peer '{module}' is not installed: it is part of csb's optional '{extra}' extra "
+                          f"(pip install 'csb[{extra}]')")
+
+
+def _corrected(k: float, iterations: int) -> float:
+    return 1.0 if k >= 1 else 1.0 - (1.0 - k) ** (1.0 / iterations)
+
+
+class PypbdIntegrator(_core.Integrator):
+    """pypbd's PBD stepping a csb Model: dt (s) a step, `substeps` sub-steps of `iterations`
+    Gauss-Seidel sweeps each. The peer's model is built at the first step of each csb Model;
+    pypbd holds one simulation per process, so stepping another Model rebuilds it."""
+
+    def __init__(self, dt: float, *, substeps: int = 1, iterations: int = 10,
+                 gravity: tuple[float, float, float] = PYPBD_GRAVITY):
+        super().__init__()
+        _require("pypbd")
+        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+            raise _core.ParameterError(f"dt must be a finite time step > 0 s, got {dt!r}")
+        for name, v in (("substeps", substeps), ("iterations", iterations)):
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise _core.ParameterError(f"{name} must be an integer >= 1, got {v!r}")
+        if tuple(float(g) for g in gravity) != PYPBD_GRAVITY:
+            raise _core.ParameterError(f"gravity: pypbd is given {PYPBD_GRAVITY} m/s² only, got {tuple(gravity)!r}")
+        self._dt, self.substeps, self.iterations = float(dt), substeps, iterations
+        self._model: _core.Model | None = None
+        self.counts: dict[str, int] = {}
+
+    def name(self) -> str:
+        return "pypbd"
+
+    def dt(self) -> float:
+        return self._dt
+
+    # -- the mapping
+    def unmappable(self, model: _core.Model) -> list[str]:
+        """What of `model` this adapter cannot give pypbd (empty: all of it)."""
+        why = []
+        n = model.num_particles
+        tris = np.asarray(model.triangles)
+        if len(tris) == 0:
+            why.append("no triangles: pypbd's particles come from a triangle mesh")
+        elif len(np.unique(tris)) != n:
+            why.append(f"{n - len(np.unique(tris))} particles in no triangle")
+        counts = {"volume": len(np.asarray(model.volume["stiffness"])),
+                  "attachment": len(np.asarray(model.attachments["stiffness"])),
+                  "balloon": len(np.asarray(model.balloons["rest_volume"]))}
+        counts.update({name: len(np.asarray(arrays["particles"])) for name, arrays in model.families.items()})
+        why += [f"{count} {kind} constraints" for kind, count in counts.items() if count]
+        if len(model.colliders):
+            why.append("colliders")
+        d = model.distance
+        if np.any(np.asarray(d["sense"]) != 0):
+            why.append("one-sided distance constraints")
+        x = np.asarray(model.rest_positions)
+        pairs = np.asarray(d["particles"])
+        if len(pairs):
+            length = np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1)
+            if np.max(np.abs(length - np.asarray(d["rest_length"]))) > 1e-12 * max(1.0, float(np.max(length))):
+                why.append("distance rest lengths other than the rest positions' (pypbd takes them from the positions)")
+        k_bend = np.unique(np.asarray(model.bending["stiffness"]))
+        if len(k_bend) > 1:
+            why.append("bending stiffnesses that differ (pypbd's bending takes one)")
+        return why
+
+    def _build(self, model: _core.Model) -> None:
+        import pypbd as pbd
+
+        why = self.unmappable(model)
+        if why:
+            raise _core.ParameterError("pypbd cannot simulate this model: " + "; ".join(why))
+        sim = pbd.Simulation.getCurrent()
+        if sim.getModel() is not None and len(sim.getModel().getTriangleModels()):
+            sim.getModel().cleanup()
+        sim.initDefault()
+        pbd.TimeManager.getCurrent().setTime(0.0)
+        pbd.TimeManager.getCurrent().setTimeStepSize(self._dt)
+        pm = sim.getModel()
+        x = np.asarray(model.rest_positions, dtype=float)
+        tri_model = pm.addTriangleModel(list(x), np.asarray(model.triangles).ravel().astype(np.uint32).tolist())
+        pd = pm.getParticles()
+        w, mass = np.asarray(model.inv_mass), np.asarray(model.mass)
+        for i in range(len(x)):
+            pd.setMass(i, 0.0 if w[i] == 0 else float(mass[i]))
+        d = model.distance
+        for (i, j), k in zip(np.asarray(d["particles"]).tolist(), np.asarray(d["stiffness"]).tolist()):
+            pm.addDistanceConstraint(int(i), int(j), _corrected(float(k), self.iterations))
+        k_bend = np.asarray(model.bending["stiffness"])
+        if len(k_bend):
+            pm.addBendingConstraints(tri_model, 1, _corrected(float(k_bend[0]), self.iterations))
+        ts = sim.getTimeStep()
+        c = pbd.TimeStepController
+        ts.setValueUInt(c.NUM_SUB_STEPS, self.substeps)
+        ts.setValueUInt(c.MAX_ITERATIONS, self.iterations)
+        ts.setValueUInt(c.MAX_ITERATIONS_V, 0)  # csb has no velocity pass
+        kinds: dict[str, int] = {}
+        for con in pm.getConstraints():
+            kinds[type(con).__name__] = kinds.get(type(con).__name__, 0) + 1
+        self.counts = dict(particles=int(pd.size()), distance=kinds.pop("DistanceConstraint", 0),
+                           bending=kinds.pop("DihedralConstraint", 0), other=sum(kinds.values()))
+        self._pbd, self._pm, self._pd, self._ts = pbd, pm, pd, ts
+        self._model = model  # held: the peer is built for this one
+        self.pinned = [i for i in range(pd.size()) if pd.getInvMass(i) == 0]
+
+    def step(self, model: _core.Model, state: _core.State, steps: int = 1, interrupt=None) -> None:
+        if self._model is not model:
+            self._build(model)
+        pd = self._pd
+        x, v = np.asarray(state.x, dtype=float), np.asarray(state.v, dtype=float)
+        for i in range(len(x)):
+            pd.setPosition(i, x[i])
+            pd.setVelocity(i, v[i])
+        for s in range(steps):
+            self._ts.step(self._pm)
+            state.t += self._dt
+            state.step += 1
+            if interrupt is not None and s + 1 < steps and interrupt():
+                break
+        n = pd.size()
+        state.x = np.array([pd.getPosition(i) for i in range(n)])
+        state.v = np.array([pd.getVelocity(i) for i in range(n)])
+
+
+@dataclass
+class Conformance:
+    """The outcome of :func:`conformance`: ``ok`` and, when not, the checks that failed."""
+
+    peer: str
+    ok: bool
+    failures: list[str] = field(default_factory=list)
+    figures: dict[str, Any] = field(default_factory=dict)
+
+    def __str__(self) -> str:
+        return f"{self.peer}: conforms" if self.ok else f"{self.peer}: does not conform: " + "; ".join(self.failures)
+
+
+def conformance(peer: Any, model: _core.Model, *, tolerance: float = 0.05) -> Conformance:
+    """Checks that `peer` (an adapter) simulates `model`: it maps all of it; the same particle and
+    constraint counts; the same pins; and one quiet step from rest (dt, sub-steps and iterations
+    as the peer's) that agrees with csb's PBD in the sequential order to within `tolerance`
+    times the step's free fall. The two differ in the order bending is swept in (pypbd's after
+    its distance constraints, csb's each with its edge), by 0.3 to 1.9 % of the fall on the
+    bundled cloth at 8 to 32 squares and (1, 10), (4, 4), (10, 1) sub-steps x iterations; a
+    wrong gravity, mass or pin moves the cloth by a fall or more, hence 5 %."""
+    name = peer.name()
+    why = peer.unmappable(model)
+    if why:
+        return Conformance(name, False, [f"cannot map: {w}" for w in why])
+    start = model.initial_state()
+    state = model.initial_state()
+    try:
+        peer.step(model, state, 1)
+    except Exception as e:  # noqa: BLE001 — a peer's failure is what the check reports
+        return Conformance(name, False, [f"the first step raised {type(e).__name__}: {e}"])
+    failures = []
+    counts = peer.counts
+    expect = dict(particles=model.num_particles, distance=len(np.asarray(model.distance["rest_length"])),
+                  bending=len(np.asarray(model.bending["rest_angle"])), other=0)
+    for key, want in expect.items():
+        if counts.get(key) != want:
+            failures.append(f"{key}: {counts.get(key)} in the peer, {want} in csb")
+    pinned = np.flatnonzero(np.asarray(model.inv_mass) == 0).tolist()
+    if list(peer.pinned) != pinned:
+        failures.append(f"pins: {len(peer.pinned)} in the peer, {len(pinned)} in csb")
+    ref = _core.PbdStepper(method="pbd", dt=peer.dt(), substeps=peer.substeps, iterations=peer.iterations,
+                           ordering="sequential", gravity=PYPBD_GRAVITY)
+    ours = model.initial_state()
+    ref.step(model, ours, 1)
+    h, n = peer.dt() / peer.substeps, peer.substeps
+    fall = 9.81 * h * h * n * (n + 1) / 2  # from rest, n sub-steps of symplectic Euler: g h² (1 + 2 + ... + n)
+    gap = float(np.max(np.abs(np.asarray(state.x) - np.asarray(ours.x))))
+    moved = float(np.max(np.abs(np.asarray(state.x) - np.asarray(start.x))))
+    figures = dict(first_step_gap_m=gap, fall_m=fall, moved_m=moved)
+    if not np.all(np.isfinite(state.x)):
+        failures.append("the first step is not finite")
+    elif gap > tolerance * fall:
+        failures.append(f"the first step differs from csb's by {gap:.3g} m, more than {tolerance:g} of the "
+                        f"step's free fall ({fall:.3g} m)")
+    return Conformance(name, not failures, failures, figures)
