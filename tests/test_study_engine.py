@@ -345,3 +345,71 @@ def test_a_scene_grid_sweeps_a_set_up_argument(tmp_path):
     strain = {(row["scene"], row["iterations"]): row["max_strain"] for row in r.table}
     for it in (5, 20):  # a chain of links 1e5 times as compliant stretches more under XPBD
         assert strain[("chain compliance=0.1", it)] > 2 * strain[("chain compliance=1e-06", it)]
+
+
+PEER_MODULE = '''
+import csb
+
+
+class Peer(csb.Integrator):
+    """A peer's adapter in miniature: steps with the built-in XPBD, and its conformance check
+    fails for the swinging chain (as a peer that cannot map it would)."""
+
+    def __init__(self, dt, iterations=10, gravity=(0.0, -9.81, 0.0)):
+        super().__init__()
+        self.inner = csb.make_integrator("xpbd", dt, iterations=iterations, gravity=gravity)
+
+    def name(self):
+        return "peer"
+
+    def dt(self):
+        return self.inner.dt()
+
+    def step(self, model, state, steps=1, interrupt=None):
+        self.inner.step(model, state, steps)
+
+    def conformance(self, model):
+        return Outcome(model.num_particles != 6)  # the 5-link chain fails
+
+
+class Outcome:
+    def __init__(self, ok):
+        self.ok = ok
+
+    def __str__(self):
+        return "peer: conforms" if self.ok else "peer: does not conform: the first step differs"
+'''
+
+
+def test_a_peer_that_fails_its_conformance_check_is_reported_not_measured(tmp_path):
+    (tmp_path / "peers.py").write_text(PEER_MODULE)
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.3
+        metrics = ["position_error", "stability"]
+
+        [reference]
+        rtol = 1e-10
+
+        [[scene]]
+        name = "five"
+        setup = "swinging_chain"
+        args = { links = 5, compliance = 1e-6 }
+
+        [[scene]]
+        name = "seven"
+        setup = "swinging_chain"
+        args = { links = 7, compliance = 1e-6 }
+
+        [[method]]
+        python = "peers:Peer"
+        dt = 0.01
+        iterations = 5
+        """)
+    r = run_study(p, out=tmp_path / "out", workers=0)
+    rows = {row["scene"]: row for row in r.table}
+    assert set(rows) == {"five", "seven"} and r.failed == 1
+    bad, good = rows["five"], rows["seven"]
+    assert bad["status"] == "failed" and bad["error_type"] == "PeerDoesNotConform"
+    assert "does not conform: the first step differs" in bad["error"] and bad["position_error"] is None
+    assert good["status"] == "ok" and good["position_error"] > 0

@@ -57,7 +57,16 @@ def _corrected(k: float, iterations: int) -> float:
     return 1.0 if k >= 1 else 1.0 - (1.0 - k) ** (1.0 / iterations)
 
 
-class PypbdIntegrator(_core.Integrator):
+class _Peer(_core.Integrator):
+    """What every adapter has beyond csb.Integrator: ``unmappable(model)``, ``counterpart()`` (csb's
+    method of the same family) and ``conformance(model)``, which a study runs before it measures
+    a peer (it finds the method by that name; csb.studies does not import this module)."""
+
+    def conformance(self, model: _core.Model, *, tolerance: float = 0.05) -> "Conformance":
+        return conformance(self, model, tolerance=tolerance)
+
+
+class PypbdIntegrator(_Peer):
     """pypbd's PBD stepping a csb Model: dt (s) a step, `substeps` sub-steps of `iterations`
     Gauss-Seidel sweeps each. The peer's model is built at the first step of each csb Model;
     pypbd holds one simulation per process, so stepping another Model rebuilds it."""
@@ -177,7 +186,7 @@ class PypbdIntegrator(_core.Integrator):
         state.v = np.array([pd.getVelocity(i) for i in range(n)])
 
 
-class MujocoFlexIntegrator(_core.Integrator):
+class MujocoFlexIntegrator(_Peer):
     """MuJoCo's one-dimensional flex stepping a csb Model of distance springs: dt (s) a step in
     `substeps` mj_step calls of dt/substeps. integrator: "Euler" (MuJoCo's semi-implicit Euler, the
     force-based counterpart of csb's symplectic Euler), "implicitfast" or "RK4"."""

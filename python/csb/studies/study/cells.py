@@ -81,6 +81,10 @@ def _machine() -> dict[str, Any]:
                 cpu_count=os.cpu_count(), node=platform.node())
 
 
+class PeerDoesNotConform(Exception):
+    """A peer's adapter failed its conformance check: the cell is reported, not plotted."""
+
+
 def run_cell(definition: dict[str, Any], context: dict[str, Any], reference_x: np.ndarray | None = None) -> dict:
     """Run one cell: a pure function of its definition (with ``context`` to find its files and
     the reference's positions when a metric needs them). Never raises for the cell's own failure:
@@ -126,6 +130,11 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
         dt_used = interval / steps_per_interval
         size = float(np.linalg.norm(np.asarray(start.x).max(axis=0) - np.asarray(start.x).min(axis=0)))
         costs, states, blew = [], None, False
+        check = getattr(_make_stepper(definition, context, params, dt_used, gravity), "conformance", None)
+        if check is not None:  # a peer's adapter (csb.bench.adapters): checked before it is measured
+            outcome = check(model)
+            if not outcome.ok:
+                raise PeerDoesNotConform(str(outcome))
         for _ in range(definition["repeats"]):
             stepper = _make_stepper(definition, context, params, dt_used, gravity)
             state, cpu, run_states, blew = start.copy(), 0.0, [start.copy()], False
