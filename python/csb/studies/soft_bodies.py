@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import _core
-from ..mesh import Mesh, icosphere
+from ..mesh import icosphere
 from ..model import ModelBuilder
 from ..tetmesh import tet_box
 
