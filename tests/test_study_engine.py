@@ -413,3 +413,31 @@ def test_a_peer_that_fails_its_conformance_check_is_reported_not_measured(tmp_pa
     assert bad["status"] == "failed" and bad["error_type"] == "PeerDoesNotConform"
     assert "does not conform: the first step differs" in bad["error"] and bad["position_error"] is None
     assert good["status"] == "ok" and good["position_error"] > 0
+
+
+def test_a_study_with_profile_accuracy_reports_a_performance_profile(tmp_path):
+    text = QUICK.replace('"stability"]\n', '"stability"]\nprofile_accuracy = 0.01\n', 1)
+    r = run_study(write(tmp_path, text), out=tmp_path / "out", workers=0)
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "Performance profile (Dolan and Moré 2002) over 1 scene(s)" in report
+    assert (tmp_path / "out" / "profile.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # The key holds nothing of the profile: the same cells as without it.
+    plain = run_study(write(tmp_path, QUICK, "plain.toml"), out=tmp_path / "out", workers=0)
+    assert plain.computed == 0 and plain.reused == len(r.table)
+
+
+@pytest.mark.parametrize("line, message", [
+    ("profile_accuracy = 0", r"study\.profile_accuracy: must be a largest distance to the reference > 0 m"),
+    ("profile_accuracy = -1e-3", r"study\.profile_accuracy: must be"),
+])
+def test_bad_profile_accuracy_is_named(tmp_path, line, message):
+    text = QUICK.replace('"stability"]\n', f'"stability"]\n{line}\n', 1)
+    with pytest.raises(StudyError, match=message):
+        load_study(write(tmp_path, text))
+
+
+def test_a_profile_needs_the_position_error(tmp_path):
+    text = QUICK.replace('metrics = ["position_error", "energy_drift", "max_strain", "residual", "stability"]',
+                         'metrics = ["stability"]\nprofile_accuracy = 0.01')
+    with pytest.raises(StudyError, match="a performance profile needs the position_error metric"):
+        load_study(write(tmp_path, text))

@@ -91,6 +91,21 @@ class StudyResult:
                 lines.append(f"  failed: {r['scene']} / {r['method']} {_param_text(r)}: {r['error_type']}: {r['error']}")
         return "\n".join(lines)
 
+    def _profile_lines(self) -> list[str]:
+        target = self.study.profile_accuracy
+        prof = _profile(self)
+        if prof is None:
+            return [f"Performance profile at {target:g} m: no scene is solved to that accuracy by any method.", ""]
+        taus = [1.0, 2.0, 4.0, 10.0, 100.0]
+        lines = [f"Performance profile (Dolan and Moré 2002) over {len(prof.problems)} scene(s): the share of "
+                 f"scenes on which each method reaches a largest distance to the reference of {target:g} m "
+                 f"within a factor τ of the cheapest method's cost.", "", "![performance profile](profile.png)", "",
+                 "| method | " + " | ".join(f"τ = {t:g}" for t in taus) + " | solved |",
+                 "|---|" + "---:|" * (len(taus) + 1)]
+        for s in prof.methods:
+            lines.append(f"| {s} | " + " | ".join(f"{prof.at(s, t):.2f}" for t in taus) + f" | {prof.solved(s):.2f} |")
+        return lines + [""]
+
     def report(self) -> str:
         """The study as a report section (Markdown): what it is, its cells, per scene the cells on
         the accuracy-against-cost front (when position_error is measured), what blew up or failed."""
@@ -111,6 +126,8 @@ class StudyResult:
                 lines += [f"| {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
                           f"{r['cpu_per_simulated_s']:.3g} |" for r in front]
                 lines.append("")
+        if st.profile_accuracy is not None:
+            lines += self._profile_lines()
         blown = [r for r in self.table if r.get("stability") == "blew-up"]
         if blown:
             lines += ["Blew up: " + ", ".join(f"{r['scene']} / {r['method']} {_param_text(r)}" for r in blown), ""]
@@ -119,6 +136,19 @@ class StudyResult:
             lines += ["Failed: " + "; ".join(f"{r['scene']} / {r['method']} {_param_text(r)}: {r['error_type']}: "
                                              f"{r['error']}" for r in failed), ""]
         return "\n".join(lines)
+
+
+def _profile(result: "StudyResult"):
+    """The performance profile of the study's methods over its scenes at profile_accuracy (None
+    when no scene is solved by any method at that accuracy)."""
+    from ..profiles import cost_to_accuracy, performance_profile
+
+    rows = [r for r in result.table if r.get("stability") != "blew-up"]
+    costs = cost_to_accuracy(rows, target=result.study.profile_accuracy, cost="cpu_per_simulated_s")
+    try:
+        return performance_profile(costs)
+    except ValueError:
+        return None
 
 
 def _front(rows: list[dict]) -> list[dict]:
@@ -289,7 +319,9 @@ def _write_outputs(result: StudyResult) -> list[Path]:
         _write_atomic(out / "results.csv", text)
     files.append(out / "results.csv")
     chart = "position_error" in result.study.metrics
-    wanted = [out / "report.md"] + [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
+    profile = _profile(result) if result.study.profile_accuracy is not None else None
+    wanted = ([out / "report.md"] + [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
+              + [out / "profile.png"] * (profile is not None))
     if unchanged and all(f.is_file() for f in wanted):  # a re-run of an unchanged study: nothing to draw
         return files + wanted
     _write_atomic(out / "report.md", result.report().encode())
@@ -307,6 +339,12 @@ def _write_outputs(result: StudyResult) -> list[Path]:
         files.append(out / "results.parquet")
     if chart:
         files.append(_chart(result))
+    if profile is not None:
+        from ..profiles import plot_performance_profile
+
+        plot_performance_profile(profile, out / "profile.png", title=f"{result.study.name}: performance profile at "
+                                 f"{result.study.profile_accuracy:g} m", cost_label="CPU time per simulated second")
+        files.append(out / "profile.png")
     return files
 
 

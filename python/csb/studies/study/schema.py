@@ -147,6 +147,9 @@ class Study:
     reference: dict[str, Any] | None
     scenes: tuple[SceneDef, ...]
     methods: tuple[MethodDef, ...]
+    # m: the accuracy of the report's performance profile (None: no profile). It reads the cells'
+    # results and does not change them, so it is no part of their keys.
+    profile_accuracy: float | None = None
 
     def cells(self) -> list[Cell]:
         """The Cartesian product: every scene with every method at every point of its grid."""
@@ -375,6 +378,10 @@ def load_study(path: str | os.PathLike[str]) -> Study:
             raise st.error("metrics", f"unknown metric {m!r}; known: {', '.join(METRICS)}")
     if len(set(metrics)) != len(metrics):
         raise st.error("metrics", f"lists a metric twice: {metrics!r}")
+    profile_accuracy = st.number("profile_accuracy", None, check=lambda x: x > 0,
+                                 expect="a largest distance to the reference > 0 m")
+    if profile_accuracy is not None and "position_error" not in metrics:
+        raise st.error("profile_accuracy", "a performance profile needs the position_error metric")
     st.finish()
 
     reference = None
@@ -410,7 +417,8 @@ def load_study(path: str | os.PathLike[str]) -> Study:
                 raise _StudyTable(source, {}, (what, index), f"{what}[{index}]").error(
                     "name" if what == "scene" else "label", f"two {what}s are called {label!r}: give one a name")
     top.finish()
-    return Study(p, name, description, duration, outputs, repeats, tuple(metrics), reference, scenes, methods)
+    return Study(p, name, description, duration, outputs, repeats, tuple(metrics), reference, scenes, methods,
+                 profile_accuracy)
 
 
 def _import_user_module(module: str, folder: str | None, sha256: str | None):
