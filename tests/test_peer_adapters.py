@@ -53,6 +53,8 @@ def test_pypbd_says_what_it_cannot_map():
         peer.step(soft, soft.initial_state())
     chain = csb.load_scene("chain").build().model
     assert any("no triangles" in w for w in peer.unmappable(chain))
+    draped = csb.load_scene("cloth_sphere").build().model
+    assert "self-collision" in peer.unmappable(draped) and "colliders" in peer.unmappable(draped)
 
 
 @needs_pypbd

@@ -114,6 +114,8 @@ class PypbdIntegrator(_Peer):
         why += [f"{count} {kind} constraints" for kind, count in counts.items() if count]
         if len(model.colliders):
             why.append("colliders")
+        if np.any(np.asarray(model.self_collision_thickness) > 0):
+            why.append("self-collision")
         d = model.distance
         if np.any(np.asarray(d["sense"]) != 0):
             why.append("one-sided distance constraints")
@@ -245,6 +247,8 @@ class MujocoFlexIntegrator(_Peer):
         why += [f"{count} {kind} constraints" for kind, count in counts.items() if count]
         if len(model.colliders):
             why.append("colliders")
+        if np.any(np.asarray(model.self_collision_thickness) > 0):
+            why.append("self-collision")
         d = model.distance
         alpha = np.asarray(d["compliance"])
         if len(alpha) == 0:
