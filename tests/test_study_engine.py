@@ -30,7 +30,7 @@ QUICK = """\
 [study]
 name = "quick"
 duration = 0.3
-metrics = ["position_error", "energy_drift", "max_strain", "residual", "stability"]
+metrics = ["position_error", "energy_drift", "max_strain", "max_violation", "stability"]
 
 [reference]
 rtol = 1e-10
@@ -82,7 +82,7 @@ def test_a_bad_method_key_names_file_line_and_key(tmp_path, bad, key, line):
 
 def test_other_schema_errors_name_the_key(tmp_path):
     cases = [
-        (QUICK.replace('"residual"', '"smoothness"'), r":4: study.metrics: unknown metric 'smoothness'"),
+        (QUICK.replace('"max_violation"', '"smoothness"'), r":4: study.metrics: unknown metric 'smoothness'"),
         (QUICK.replace("links = 5", "linkz = 5"), r":11: scene\[0\].args: swinging_chain: .*linkz"),
         (QUICK.replace('name = "pbd"', 'name = "rk4"'), r":19: method\[1\].name: must be one of"),
         (QUICK.replace("dt = 0.01\n", ""), r":18: method\[1\]: missing key 'dt'"),
@@ -437,7 +437,7 @@ def test_bad_profile_accuracy_is_named(tmp_path, line, message):
 
 
 def test_a_profile_needs_the_position_error(tmp_path):
-    text = QUICK.replace('metrics = ["position_error", "energy_drift", "max_strain", "residual", "stability"]',
+    text = QUICK.replace('metrics = ["position_error", "energy_drift", "max_strain", "max_violation", "stability"]',
                          'metrics = ["stability"]\nprofile_accuracy = 0.01')
     with pytest.raises(StudyError, match="a performance profile needs the position_error metric"):
         load_study(write(tmp_path, text))

@@ -10,7 +10,7 @@ A study file::
     duration = 0.3                   # s of simulated time per cell
     outputs = 10                     # output intervals: metrics are measured at these 11 times
     repeats = 2                      # timed runs per cell: the cost is their median and spread
-    metrics = ["position_error", "energy_drift", "max_strain", "residual", "stability"]
+    metrics = ["position_error", "energy_drift", "max_strain", "max_violation", "stability"]
 
     [reference]                      # the continuous CVODE reference (csb.integrate_reference)
     rtol = 1e-11                     # or "auto" (with energy_tolerance); atol default rtol/100

@@ -168,7 +168,7 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
                             for k, s in enumerate(states))
         elif m == "energy_drift":
             values[m] = float(relative_energy_drift(model, states, gravity))
-        elif m in ("max_strain", "residual"):
+        elif m in ("max_strain", "max_violation"):
             rest = np.asarray(model.distance["rest_length"])
             if len(rest) == 0:
                 values[m] = None

@@ -89,9 +89,9 @@ METRICS = {
     "energy_drift": "|E(end) - E(start)| of kinetic + gravitational + elastic (Σ C²/(2α)) energy, relative to "
                     "the larger of |E(start)| and the largest kinetic energy",
     "max_strain": "largest |C| / rest length of the distance constraints at any output time",
-    "residual": "largest |C| of the distance constraints at any output time (m)",
+    "max_violation": "largest |C| of the distance constraints at any output time (m)",
     "volume_error": "largest |V - V0| / V0 of the total tet volume at any output time",
-    # (max_strain, residual and volume_error are null, with a note, for a scene without such constraints)
+    # (max_strain, max_violation and volume_error are null, with a note, for a scene without such constraints)
     "stability": "'stable', or 'blew-up' (csb.SimulationError, a non-finite position, or a particle farther "
                  "than 100 model sizes from its start)",
 }
