@@ -54,8 +54,38 @@ def _num(x: float) -> str:
     return repr(float(x))
 
 
-def _corrected(k: float, iterations: int) -> float:
-    return 1.0 if k >= 1 else 1.0 - (1.0 - k) ** (1.0 / iterations)
+def _check_steps(dt: Any, substeps: Any) -> None:
+    if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
+        raise _core.ParameterError(f"dt must be a finite time step > 0 s, got {dt!r}")
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        raise _core.ParameterError(f"substeps must be an integer >= 1, got {substeps!r}")
+
+
+def _unmappable(model: _core.Model, peer: str, *, takes: tuple[str, ...]) -> list[str]:
+    """What of `model` no adapter here maps: constraint kinds beyond `takes` (of "distance",
+    "bending"), colliders, self-collision, one-sided distance constraints, and rest lengths other
+    than the rest positions' (a peer takes them from the positions)."""
+    why = []
+    counts = {"bending": len(np.asarray(model.bending["stiffness"])),
+              "volume": len(np.asarray(model.volume["stiffness"])),
+              "attachment": len(np.asarray(model.attachments["stiffness"])),
+              "balloon": len(np.asarray(model.balloons["rest_volume"]))}
+    counts.update({name: len(np.asarray(arrays["particles"])) for name, arrays in model.families.items()})
+    why += [f"{count} {kind} constraints" for kind, count in counts.items() if count and kind not in takes]
+    if len(model.colliders):
+        why.append("colliders")
+    if np.any(np.asarray(model.self_collision_thickness) > 0):
+        why.append("self-collision")
+    d = model.distance
+    if np.any(np.asarray(d["sense"]) != 0):
+        why.append("one-sided distance constraints")
+    x = np.asarray(model.rest_positions)
+    pairs = np.asarray(d["particles"])
+    if len(pairs):
+        length = np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1)
+        if np.max(np.abs(length - np.asarray(d["rest_length"]))) > 1e-12 * max(1.0, float(np.max(length))):
+            why.append(f"distance rest lengths other than the rest positions' ({peer} takes them from the positions)")
+    return why
 
 
 class _Peer(_core.Integrator):
@@ -80,11 +110,9 @@ class PypbdIntegrator(_Peer):
                  gravity: tuple[float, float, float] = PYPBD_GRAVITY):
         super().__init__()
         _require("pypbd")
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise _core.ParameterError(f"dt must be a finite time step > 0 s, got {dt!r}")
-        for name, v in (("substeps", substeps), ("iterations", iterations)):
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise _core.ParameterError(f"{name} must be an integer >= 1, got {v!r}")
+        _check_steps(dt, substeps)
+        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+            raise _core.ParameterError(f"iterations must be an integer >= 1, got {iterations!r}")
         if tuple(float(g) for g in gravity) != PYPBD_GRAVITY:
             raise _core.ParameterError(f"gravity: pypbd is given {PYPBD_GRAVITY} m/s² only, got {tuple(gravity)!r}")
         self._dt, self.substeps, self.iterations = float(dt), substeps, iterations
@@ -107,24 +135,7 @@ class PypbdIntegrator(_Peer):
             why.append("no triangles: pypbd's particles come from a triangle mesh")
         elif len(np.unique(tris)) != n:
             why.append(f"{n - len(np.unique(tris))} particles in no triangle")
-        counts = {"volume": len(np.asarray(model.volume["stiffness"])),
-                  "attachment": len(np.asarray(model.attachments["stiffness"])),
-                  "balloon": len(np.asarray(model.balloons["rest_volume"]))}
-        counts.update({name: len(np.asarray(arrays["particles"])) for name, arrays in model.families.items()})
-        why += [f"{count} {kind} constraints" for kind, count in counts.items() if count]
-        if len(model.colliders):
-            why.append("colliders")
-        if np.any(np.asarray(model.self_collision_thickness) > 0):
-            why.append("self-collision")
-        d = model.distance
-        if np.any(np.asarray(d["sense"]) != 0):
-            why.append("one-sided distance constraints")
-        x = np.asarray(model.rest_positions)
-        pairs = np.asarray(d["particles"])
-        if len(pairs):
-            length = np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1)
-            if np.max(np.abs(length - np.asarray(d["rest_length"]))) > 1e-12 * max(1.0, float(np.max(length))):
-                why.append("distance rest lengths other than the rest positions' (pypbd takes them from the positions)")
+        why += _unmappable(model, "pypbd", takes=("distance", "bending"))
         k_bend = np.unique(np.asarray(model.bending["stiffness"]))
         if len(k_bend) > 1:
             why.append("bending stiffnesses that differ (pypbd's bending takes one)")
@@ -151,10 +162,10 @@ class PypbdIntegrator(_Peer):
             pd.setMass(i, 0.0 if w[i] == 0 else float(mass[i]))
         d = model.distance
         for (i, j), k in zip(np.asarray(d["particles"]).tolist(), np.asarray(d["stiffness"]).tolist()):
-            pm.addDistanceConstraint(int(i), int(j), _corrected(float(k), self.iterations))
+            pm.addDistanceConstraint(int(i), int(j), _core.corrected_stiffness(float(k), self.iterations))
         k_bend = np.asarray(model.bending["stiffness"])
         if len(k_bend):
-            pm.addBendingConstraints(tri_model, 1, _corrected(float(k_bend[0]), self.iterations))
+            pm.addBendingConstraints(tri_model, 1, _core.corrected_stiffness(float(k_bend[0]), self.iterations))
         ts = sim.getTimeStep()
         c = pbd.TimeStepController
         ts.setValueUInt(c.NUM_SUB_STEPS, self.substeps)
@@ -213,10 +224,7 @@ class MujocoFlexIntegrator(_Peer):
                  integrator: str = "Euler"):
         super().__init__()
         _require("mujoco")
-        if not (isinstance(dt, (int, float)) and math.isfinite(dt) and dt > 0):
-            raise _core.ParameterError(f"dt must be a finite time step > 0 s, got {dt!r}")
-        if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
-            raise _core.ParameterError(f"substeps must be an integer >= 1, got {substeps!r}")
+        _check_steps(dt, substeps)
         g = np.asarray(gravity, dtype=float)
         if g.shape != (3,) or not np.all(np.isfinite(g)):
             raise _core.ParameterError(f"gravity must be 3 finite numbers (m/s²), got {gravity!r}")
@@ -239,32 +247,14 @@ class MujocoFlexIntegrator(_Peer):
         if len(np.asarray(model.triangles)):
             why.append("triangles: MuJoCo's 2-D flex is a continuum model, not csb's per-edge springs and "
                        "dihedral bending")
-        counts = {"bending": len(np.asarray(model.bending["stiffness"])),
-                  "volume": len(np.asarray(model.volume["stiffness"])),
-                  "attachment": len(np.asarray(model.attachments["stiffness"])),
-                  "balloon": len(np.asarray(model.balloons["rest_volume"]))}
-        counts.update({name: len(np.asarray(arrays["particles"])) for name, arrays in model.families.items()})
-        why += [f"{count} {kind} constraints" for kind, count in counts.items() if count]
-        if len(model.colliders):
-            why.append("colliders")
-        if np.any(np.asarray(model.self_collision_thickness) > 0):
-            why.append("self-collision")
-        d = model.distance
-        alpha = np.asarray(d["compliance"])
+        why += _unmappable(model, "a flex", takes=("distance",))
+        alpha = np.asarray(model.distance["compliance"])
         if len(alpha) == 0:
             why.append("no distance constraints")
         elif np.any(alpha <= 0):
             why.append("hard distance constraints (compliance 0): a flex edge is a spring of stiffness 1/α")
         elif np.ptp(alpha) > 0:
             why.append("distance compliances that differ (a flex's edges share one stiffness)")
-        if np.any(np.asarray(d["sense"]) != 0):
-            why.append("one-sided distance constraints")
-        x = np.asarray(model.rest_positions)
-        pairs = np.asarray(d["particles"])
-        if len(pairs):
-            length = np.linalg.norm(x[pairs[:, 1]] - x[pairs[:, 0]], axis=1)
-            if np.max(np.abs(length - np.asarray(d["rest_length"]))) > 1e-12 * max(1.0, float(np.max(length))):
-                why.append("distance rest lengths other than the rest positions' (a flex takes them from the positions)")
         if np.any(np.asarray(model.mass)[np.asarray(model.inv_mass) > 0] <= 0):
             why.append("free particles without mass")
         return why
