@@ -367,16 +367,9 @@ void SpringNetwork::add_forces(const Real* y, const Real* v, Real c, Real* a) co
   }
   for (const auto& b : balloons_) {
     const Index m = static_cast<Index>(b.slot.size());
-    Positions x(3, m);
-    std::vector<Index> local(m);
-    for (Index k = 0; k < m; ++k) {
-      x.col(k) = position(y, b.slot[k], b.fixed[k]);
-      local[k] = k;
-    }
-    std::vector<Vec3> grad(m);
-    const Real C = enclosed_volume_gradient(x.data(), local.data(), m, b.triangles.data(),
-                                            static_cast<Index>(b.triangles.size()), grad.data()) -
-                   b.target;
+    Positions x;
+    std::vector<Vec3> grad;
+    const Real C = balloon_constraint(y, b, x, grad);
     for (Index k = 0; k < m; ++k) add(b.slot[k], -b.k * C * grad[k]);
   }
   for (const auto& q : anchors_) add(q.slot, -q.k * (position(y, q.slot, q.target) - q.target) - c * vel(q.slot));
@@ -482,6 +475,20 @@ void SpringNetwork::jacobian(const Real* y, Real* values) const {
 
 // ------------------------------------------------------------------------- position-level network
 
+Real SpringNetwork::balloon_constraint(const Real* y, const Balloon& b, Positions& p, std::vector<Vec3>& grad) const {
+  const Index m = static_cast<Index>(b.slot.size());
+  p.resize(3, m);
+  std::vector<Index> local(m);
+  for (Index k = 0; k < m; ++k) {
+    p.col(k) = position(y, b.slot[k], b.fixed[k]);
+    local[k] = k;
+  }
+  grad.resize(m);
+  return enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(), static_cast<Index>(b.triangles.size()),
+                                  grad.data()) -
+         b.target;
+}
+
 Real SpringNetwork::potential(const Real* x) const {
   Real u = 0;
   for (const auto& s : springs_) {
@@ -504,16 +511,9 @@ Real SpringNetwork::potential(const Real* x) const {
     u += e.k * C * C / 2;
   }
   for (const auto& b : balloons_) {
-    const Index m = static_cast<Index>(b.slot.size());
-    Positions p(3, m);
-    std::vector<Index> local(m);
-    for (Index k = 0; k < m; ++k) {
-      p.col(k) = position(x, b.slot[k], b.fixed[k]);
-      local[k] = k;
-    }
-    std::vector<Vec3> grad(m);
-    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
-                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    Positions p;
+    std::vector<Vec3> grad;
+    const Real C = balloon_constraint(x, b, p, grad);
     u += b.k * C * C / 2;
   }
   for (const auto& q : anchors_) u += q.k * (position(x, q.slot, q.target) - q.target).squaredNorm() / 2;
@@ -598,15 +598,9 @@ void SpringNetwork::stiffness(const Real* x, bool definite, Stiffness& out) cons
     // k ∇V ∇Vᵀ (dense over the surface: returned apart) + k C ∇²V, with V = Σ a·(b×c)/6 over the
     // triangles: ∂²V/∂a∂b = -[c]x/6 and its cyclic shifts.
     const Index m = static_cast<Index>(b.slot.size());
-    Positions p(3, m);
-    std::vector<Index> local(m);
-    for (Index k = 0; k < m; ++k) {
-      p.col(k) = position(x, b.slot[k], b.fixed[k]);
-      local[k] = k;
-    }
-    std::vector<Vec3> grad(m);
-    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
-                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    Positions p;
+    std::vector<Vec3> grad;
+    const Real C = balloon_constraint(x, b, p, grad);
     std::vector<Real> u(3 * dynamic_.size(), 0.0);
     for (Index k = 0; k < m; ++k)
       if (b.slot[k] >= 0)
@@ -697,16 +691,9 @@ void SpringNetwork::force_scale(const Real* x, Real& largest, Real& rounding) co
     account(tet_volume_gradient(p[0], p[1], p[2], p[3], g) - e.rest, g, p, 4, e.k);
   }
   for (const auto& b : balloons_) {
-    const Index m = static_cast<Index>(b.slot.size());
-    Positions p(3, m);
-    std::vector<Index> local(m);
-    for (Index k = 0; k < m; ++k) {
-      p.col(k) = position(x, b.slot[k], b.fixed[k]);
-      local[k] = k;
-    }
-    std::vector<Vec3> grad(m);
-    const Real C = enclosed_volume_gradient(p.data(), local.data(), m, b.triangles.data(),
-                                            static_cast<Index>(b.triangles.size()), grad.data()) - b.target;
+    Positions p;
+    std::vector<Vec3> grad;
+    const Real C = balloon_constraint(x, b, p, grad);
     Real terms = 0, top = 0;  // V's rounding: eps times the sum of its terms' sizes
     for (const Triangle& t : b.triangles)
       terms += p.col(t[0]).norm() * p.col(t[1]).norm() * p.col(t[2]).norm() / 6;

@@ -164,6 +164,9 @@ class SpringNetwork {
   Vec3 position(const Real* y, Index slot, const Vec3& fixed) const {
     return slot >= 0 ? Vec3(y[3 * slot], y[3 * slot + 1], y[3 * slot + 2]) : fixed;
   }
+  // A balloon at positions y: its surface's positions p (3 x its particles, in its own order),
+  // ∇V there, and C = V - target.
+  Real balloon_constraint(const Real* y, const Balloon& b, Positions& p, std::vector<Vec3>& grad) const;
 
   ReferenceSettings settings_;
   std::vector<Index> dynamic_;   // particle of each slot
