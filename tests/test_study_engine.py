@@ -441,3 +441,16 @@ def test_a_profile_needs_the_position_error(tmp_path):
                          'metrics = ["stability"]\nprofile_accuracy = 0.01')
     with pytest.raises(StudyError, match="a performance profile needs the position_error metric"):
         load_study(write(tmp_path, text))
+
+
+@pytest.mark.parametrize("content, message", [
+    (b"[study]\nname = \"x\xff\"\n", r"study\.toml:2: not UTF-8 text \(byte 0xff"),
+    (b"[study\n", r"study\.toml: not valid TOML"),
+    (b"a = " + b"[" * 2000 + b"]" * 2000 + b"\n", r"study\.toml: arrays or inline tables nested too deeply to read"),
+])
+def test_a_study_file_that_is_not_toml_is_named(tmp_path, content, message):
+    # Read by the same code as a scene file: a nesting tomllib cannot parse is a StudyError too.
+    p = tmp_path / "study.toml"
+    p.write_bytes(content)
+    with pytest.raises(StudyError, match=message):
+        load_study(p)

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
-import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -30,7 +28,7 @@ import numpy as np
 from . import _core
 from .mesh import Mesh, _rotation, icosphere, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
-from .scene_file import SceneError, Vec3, _Source, _Table
+from .scene_file import SceneError, Vec3, _Source, _Table, read_toml
 from .tetmesh import load_tet_mesh
 
 if TYPE_CHECKING:
@@ -552,24 +550,7 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
 def load_scene(path: str | os.PathLike[str]) -> Scene:
     """Read and check a scene file (or the name of a bundled scene, see :func:`bundled_scenes`)."""
     p = find_scene(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as e:
-        raise SceneError(f"{p}: cannot read the scene file: {e.strerror}") from None
-    try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as e:  # TOML is UTF-8 by definition
-        line = raw[: e.start].count(b"\n") + 1
-        raise SceneError(f"{p}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); "
-                         "TOML files are UTF-8") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{p}: not valid TOML: {e}") from None
-    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
-        raise SceneError(f"{p}: arrays or inline tables nested too deeply to read (deeper than Python's recursion "
-                         f"limit of {sys.getrecursionlimit()}); no scene needs more than a few levels") from None
-    source = _Source(p, text)
+    data, source = read_toml(p, "scene file")
     top = _Table(source, data, (), "scene file")
 
     sc = top.table("scene", "scene")

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import math
 import re
+import sys
+import tomllib
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from . import _core
 
-__all__ = ["SceneError"]
+__all__ = ["SceneError", "read_toml"]
 
 Vec3 = tuple[float, float, float]
 
@@ -196,3 +198,27 @@ class _Table:
             if key not in self.used:
                 allowed = ", ".join(sorted(self.used))
                 raise self.error(key, f"unknown key; expected one of: {allowed}")
+
+
+def read_toml(p: Path, what: str, error: type[SceneError] = SceneError) -> tuple[dict[str, Any], _Source]:
+    """A TOML file's tables and its text (``what``: "scene file", "study file"); a file that cannot
+    be read, is not UTF-8, is not TOML or nests deeper than tomllib can read is an `error` naming
+    the file (and the line where it knows it)."""
+    try:
+        raw = p.read_bytes()
+    except OSError as e:
+        raise error(f"{p}: cannot read the {what}: {e.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as e:  # TOML is UTF-8 by definition
+        line = raw[: e.start].count(b"\n") + 1
+        raise error(f"{p}:{line}: not UTF-8 text (byte 0x{raw[e.start]:02x} at offset {e.start}); "
+                    "TOML files are UTF-8") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise error(f"{p}: not valid TOML: {e}") from None
+    except RecursionError:  # tomllib parses nested arrays and inline tables recursively
+        raise error(f"{p}: arrays or inline tables nested too deeply to read (deeper than Python's recursion "
+                    f"limit of {sys.getrecursionlimit()}); no {what} needs more than a few levels") from None
+    return data, _Source(p, text)

@@ -12,7 +12,6 @@ import json
 import math
 import os
 import sys
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -20,7 +19,7 @@ from typing import Any, Callable
 from ... import _core
 from ...model import ModelBuilder
 from ...scene import find_scene, load_scene
-from ...scene_file import SceneError, _Source, _Table
+from ...scene_file import SceneError, _Source, _Table, read_toml
 from .. import hanging_chain, pendulum_model, spinning_cloth, swinging_chain
 from ..soft_bodies import hanging_tet_cube
 
@@ -348,17 +347,7 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
 def load_study(path: str | os.PathLike[str]) -> Study:
     """Read and check a study file; every error is a StudyError naming the file, line and key."""
     p = Path(path)
-    try:
-        text = p.read_bytes().decode("utf-8")
-    except OSError as e:
-        raise StudyError(f"{p}: cannot read the study file: {e.strerror}") from None
-    except UnicodeDecodeError:
-        raise StudyError(f"{p}: not UTF-8 text; TOML files are UTF-8") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise StudyError(f"{p}: not valid TOML: {e}") from None
-    source = _Source(p, text)
+    data, source = read_toml(p, "study file", StudyError)
     top = _StudyTable(source, data, (), "study file")
     st = top.table("study", "study")
     if st is None:
