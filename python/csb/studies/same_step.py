@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import _core
 from ..model import ModelBuilder
+from .literature import xpbd_chain
 
 G = (0.0, -9.81, 0.0)
 
@@ -19,15 +20,9 @@ G = (0.0, -9.81, 0.0)
 def falling_chain(link: float = 1.0, *, particles: int = 20, mass: float = 1.0,
                   compliance: float = 1e-8) -> _core.Model:
     """XPBD's §6.2 chain: ``particles`` of ``mass`` kg, straight and horizontal at rest length
-    ``link`` (m), links of compliance α (m/N), the first particle pinned."""
-    b = ModelBuilder()
-    g = b.add_group("chain")
-    for i in range(particles):
-        b.add_particle([link * i, 0, 0], mass, g)
-    for i in range(particles - 1):
-        b.add_distance(i, i + 1, compliance=compliance)
-    b.pin(0)
-    return b.build()
+    ``link`` (m), links of compliance α (m/N), the first particle pinned
+    (csb.studies.literature.xpbd_chain, start "horizontal")."""
+    return xpbd_chain(particles=particles, mass=mass, link=link, compliance=compliance, start="horizontal")
 
 
 def hanging_cloth(n: int = 16, *, compliance: float = 1e-4, bending_compliance: float = 0.1) -> _core.Model:
