@@ -36,6 +36,8 @@ from ._core import (
     PbdSettings,
     PbdStepper,
     Pick,
+    Plugin,
+    PluginIntegrator,
     SimulationError,
     State,
     backward_euler_residual,
@@ -48,6 +50,7 @@ from ._core import (
     distance_violations,
     elastic_energy,
     kernels,
+    load_plugin,
     lumped_measure,
     make_integrator,
     method_info,
@@ -71,13 +74,26 @@ from .view import CameraPose, RenderResult, open_viewer, render, view, viewer_av
 
 __version__ = build_info()["csb"]
 
+
+def plugin_include_dir() -> str:
+    """The folder holding csb_plugin.h, the C interface of a method brought as a plug-in
+    (csb.load_plugin), as installed with this package: compile a plug-in with ``-I`` this folder,
+    e.g. ``cmake -DCSB_PLUGIN_INCLUDE_DIR=$(python -c 'import csb; print(csb.plugin_include_dir())')``."""
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parent / "include"
+    if not (folder / "csb_plugin.h").is_file():
+        raise FileNotFoundError(f"csb_plugin.h is not installed in {folder}: reinstall csb")
+    return str(folder)
+
+
 __all__ = [
     "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "MaterialWarning", "AccuracyWarning",
     "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum", "icosphere",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
     "Model", "ModelBuilder", "MeshInstance", "State",
-    "Integrator", "methods", "method_info", "make_integrator", "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick", "tear",
+    "Integrator", "methods", "method_info", "make_integrator", "load_plugin", "Plugin", "PluginIntegrator", "plugin_include_dir", "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick", "tear",
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
     "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",
     "BackwardEuler", "IncrementalPotential", "backward_euler_residual", "BackwardEulerResidual",

@@ -14,6 +14,7 @@
 #include "csb/force.hpp"
 #include "csb/interaction/pick.hpp"
 #include "csb/methods/registry.hpp"
+#include "csb/plugin/plugin.hpp"
 #include "csb/tearing.hpp"
 #include "csb/shapes.hpp"
 #include "csb/tetmesh.hpp"

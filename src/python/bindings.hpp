@@ -278,6 +278,7 @@ void bind_mesh(py::module_& m);
 void bind_model(py::module_& m);
 void bind_integrator(py::module_& m);  // before bind_methods: the steppers derive from Integrator
 void bind_methods(py::module_& m, const Warnings& warnings);
+void bind_plugin(py::module_& m);  // after bind_integrator
 void bind_reference(py::module_& m);
 void bind_implicit(py::module_& m);  // after bind_integrator and bind_reference
 void bind_metrics(py::module_& m);

@@ -75,6 +75,7 @@ PYBIND11_MODULE(_core, m) {
   bind_model(m);
   bind_integrator(m);
   bind_methods(m, Warnings{material_warning, accuracy_warning});
+  bind_plugin(m);
   bind_reference(m);
   bind_implicit(m);
   bind_metrics(m);
