@@ -203,3 +203,19 @@ def test_twisting_cloth_turns_its_held_edge_by_the_angle(angle):
     fixed = held[rest[held, 0] < 0]
     assert np.array_equal(x[fixed], rest[fixed])
     assert np.all(np.asarray(state.v) == 0)
+
+
+# ------------------------------------------------------------------------------------ the printed figures
+
+
+def test_the_module_prints_the_figures_of_the_papers_note():
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "csb.studies.literature"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-3000:]
+    out = r.stdout
+    assert "period at dt = 1e-4 s, no gravity 0.198692 s; 2π sqrt(m α) = 0.198692 s" in out
+    assert "tension at the top after 10 steps of 200 iterations 186.48 N" in out
+    for name in SETUPS:
+        assert name in out
