@@ -24,7 +24,7 @@ HAS_DASK = importlib.util.find_spec("dask") is not None and importlib.util.find_
 needs_dask = pytest.mark.skipif(not HAS_DASK, reason="dask.distributed is not installed (pip install 'csb[study]')")
 
 # Columns that depend on the run (timing, load, machine), not on the cell's definition.
-RUN_COLUMNS = {"cpu_per_simulated_s", "cpu_spread", "load_average", "platform", "cpu_count"}
+RUN_COLUMNS = {"cpu_per_simulated_s", "cpu_spread", "cpu_low", "cpu_high", "load_average", "platform", "cpu_count"}
 
 QUICK = """\
 [study]

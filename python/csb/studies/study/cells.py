@@ -5,6 +5,7 @@ atomically)."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import os
 import platform
@@ -40,12 +41,17 @@ def _output_times(definition: dict[str, Any]) -> np.ndarray:
 
 
 def compute_reference(scene: dict[str, Any], context: dict[str, Any], reference: dict[str, Any],
-                      duration: float, outputs: int) -> np.ndarray:
-    """The reference's positions (T, N, 3) at the output times of a scene (m)."""
+                      duration: float, outputs: int) -> tuple[np.ndarray, dict[str, Any]]:
+    """The reference's positions (T, N, 3) at the output times of a scene (m), and what it used and
+    kept: its rtol and atol, its relative energy drift (the study's energy_drift measure of its
+    own trajectory), its CPU time (s)."""
     model, start = _build_scene(scene, context)
     times = np.linspace(0.0, duration, outputs + 1)
+    c0 = time.process_time()
     r = _core_reference(model, start, times, scene["gravity"], reference)
-    return r.x
+    cpu = time.process_time() - c0
+    drift = float(relative_energy_drift(model, list(r.states(model)), tuple(scene["gravity"])))
+    return r.x, dict(rtol=float(r.stats["rtol"]), atol=float(r.stats["atol"]), energy_drift=drift, cpu_s=cpu)
 
 
 def _core_reference(model, start, times, gravity, reference):
@@ -70,8 +76,15 @@ def _make_stepper(definition: dict[str, Any], context: dict[str, Any], params: d
         return s
     from .. import make_stepper
 
-    module, _, cls = method["python"].partition(":")
-    made = getattr(_import_user_module(module, context["method"].get("folder"), method.get("sha256")), cls)
+    if "plugin" in method:
+        from ...plugin import load_plugin
+
+        made = load_plugin(context["method"]["path"])
+    else:
+        module, _, cls = method["python"].partition(":")
+        made = getattr(_import_user_module(module, context["method"].get("folder"), method.get("sha256")), cls)
+        if method.get("args"):
+            made = functools.partial(made, **method["args"])
     return make_stepper(made, dt=dt, gravity=gravity, **{k: params[k] for k in ("substeps", "iterations")
                                                         if k in params})
 
@@ -85,10 +98,11 @@ class PeerDoesNotConform(Exception):
     """A peer's adapter failed its conformance check: the cell is reported, not plotted."""
 
 
-def run_cell(definition: dict[str, Any], context: dict[str, Any], reference_x: np.ndarray | None = None) -> dict:
-    """Run one cell: a pure function of its definition (with ``context`` to find its files and
-    the reference's positions when a metric needs them). Never raises for the cell's own failure:
-    an exception becomes status "failed" with its type and message."""
+def run_cell(definition: dict[str, Any], context: dict[str, Any]) -> dict:
+    """Run one cell: a pure function of its definition (with ``context`` to find its files).
+    Returns its record, with the positions at the output times under "positions" (T, N, 3), from
+    which the metrics against the reference are measured when the table is made. Never raises for
+    the cell's own failure: an exception becomes status "failed" with its type and message."""
     caught: list[str] = []
     record: dict[str, Any] = dict(key=cell_key(definition), machine=_machine())
     try:
@@ -97,7 +111,7 @@ def run_cell(definition: dict[str, Any], context: dict[str, Any], reference_x: n
             warnings.simplefilter("always")
             warnings.filterwarnings("ignore", message=r"(PBD|Jakobsen) reads stiffness, not compliance",
                                     category=_core.MaterialWarning)
-            record.update(_measure(definition, context, reference_x))
+            record.update(_measure(definition, context))
             caught = sorted({f"{w.category.__name__}: {w.message}" for w in seen})
         record.update(status="ok", error_type=None, error=None)
         record["load_average"] = [max(a, b) for a, b in zip(load0, os.getloadavg())]
@@ -108,22 +122,45 @@ def run_cell(definition: dict[str, Any], context: dict[str, Any], reference_x: n
     return record
 
 
-def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: np.ndarray | None) -> dict:
+# Repeats = "auto": timed runs until the spread (largest - smallest) of the cost is within
+# AUTO_SPREAD of the median, at least AUTO_MIN and at most AUTO_MAX of them, and no more once
+# the runs have taken AUTO_BUDGET s of CPU time (the spread is then reported as it is).
+AUTO_MIN, AUTO_MAX, AUTO_SPREAD, AUTO_BUDGET = 3, 15, 0.1, 10.0
+
+
+def _enough(costs: list[float], repeats: int | str) -> bool:
+    if repeats != "auto":
+        return len(costs) >= int(repeats)
+    if len(costs) < AUTO_MIN:
+        return False
+    median = statistics.median(costs)
+    return (len(costs) >= AUTO_MAX or sum(costs) >= AUTO_BUDGET
+            or max(costs) - min(costs) <= AUTO_SPREAD * median)
+
+
+def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
     scene, params, metrics = definition["scene"], definition["params"], definition["metrics"]
     gravity = tuple(scene["gravity"])
     times = _output_times(definition)
     interval = float(times[1] - times[0])
     duration = float(times[-1])
     model, start = _build_scene(scene, context["scene"])
+    # The step ending at each output time, with the state it started from: for the metrics
+    # measured on one step (the backward-Euler residual, the same-step error).
+    per_step = [m for m in metrics if m in ("residual", "same_step_error")]
+    last_steps: list[tuple[_core.State, _core.State]] = []
     if "name" in definition["method"] and definition["method"]["name"] == REFERENCE_METHOD:
         costs, states = [], None
-        for _ in range(definition["repeats"]):
+        while not _enough(costs, definition["repeats"]):
             c0 = time.process_time()
             r = _core_reference(model, start, times, gravity,
                                 dict(rtol=params["rtol"], atol=params["rtol"] / 100, energy_tolerance=1e-6))
             costs.append(time.process_time() - c0)
             states = list(r.states(model))
         blew, steps_per_interval, dt_used = False, None, None
+        if per_step:
+            raise _core.ParameterError(f"{per_step[0]} is measured on one step of a time-stepping method; "
+                                       "the continuous reference takes no steps of its own")
     else:
         # Whole steps between output times: the dt asked for, rounded to divide the interval.
         steps_per_interval = max(1, round(interval / params["dt"]))
@@ -135,37 +172,53 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
             outcome = check(model)
             if not outcome.ok:
                 raise PeerDoesNotConform(str(outcome))
-        for _ in range(definition["repeats"]):
+        # A warm-up: one step of another stepper on a copy, untimed (first-call costs: caches,
+        # allocations, a peer's kernels), so that the timed runs measure the steady cost.
+        with contextlib.suppress(_core.SimulationError):
+            _make_stepper(definition, context, params, dt_used, gravity).step(model, start.copy(), 1)
+        while not _enough(costs, definition["repeats"]):
             stepper = _make_stepper(definition, context, params, dt_used, gravity)
             state, cpu, run_states, blew = start.copy(), 0.0, [start.copy()], False
             x0 = np.asarray(start.x).copy()
+            keep = per_step and not costs  # the first run keeps the last step of each interval
+            steps_list: list[tuple[_core.State, _core.State]] = []
             for _k in range(1, len(times)):
-                c0 = time.process_time()
                 try:
-                    stepper.step(model, state, steps_per_interval)
+                    if keep:
+                        c0 = time.process_time()
+                        stepper.step(model, state, steps_per_interval - 1)
+                        cpu += time.process_time() - c0
+                        before = state.copy()
+                        c0 = time.process_time()
+                        stepper.step(model, state, 1)
+                        cpu += time.process_time() - c0
+                        steps_list.append((before, state.copy()))
+                    else:
+                        c0 = time.process_time()
+                        stepper.step(model, state, steps_per_interval)
+                        cpu += time.process_time() - c0
                 except _core.SimulationError:
                     blew = True
-                cpu += time.process_time() - c0
                 x = np.asarray(state.x)
                 if blew or not np.all(np.isfinite(x)) or np.abs(x - x0).max() > 100 * max(size, 1e-12):
                     blew = True
                     break
                 run_states.append(state.copy())
             costs.append(cpu)
+            if keep:
+                last_steps = steps_list
             states = run_states
+            if blew:
+                break  # a blow-up is not timed again
     assert states is not None
     values: dict[str, Any] = {}
     notes: list[str] = []  # metrics that do not apply to the scene: null, and said why
     for m in metrics:
         if m == "stability":
             values[m] = "blew-up" if blew else "stable"
-        elif blew:
-            values[m] = None  # not measured past a blow-up; the stability says why
-        elif m == "position_error":
-            if reference_x is None:
-                raise _core.ParameterError("position_error needs the reference's positions")
-            values[m] = max(float(np.linalg.norm(np.asarray(s.x) - reference_x[k], axis=1).max())
-                            for k, s in enumerate(states))
+        elif blew or m == "position_error":
+            values[m] = None  # not measured past a blow-up (the stability says why); position_error: from
+            #                   the positions, against the reference, when the table is made
         elif m == "energy_drift":
             values[m] = float(relative_energy_drift(model, states, gravity))
         elif m in ("max_strain", "max_violation"):
@@ -183,11 +236,31 @@ def _measure(definition: dict[str, Any], context: dict[str, Any], reference_x: n
                 notes.append(f"{m}: the scene has no tet volume constraints")
                 continue
             values[m] = max(abs(total_volume(model, s) - v0) / abs(v0) for s in states)
+        elif m in ("residual", "same_step_error"):
+            try:
+                values[m] = max(_one_step_metric(m, model, before, after, dt_used, gravity)
+                                for before, after in last_steps)
+            except _core.ParameterError as e:  # a hard constraint: no incremental potential
+                values[m] = None
+                notes.append(f"{m}: {e}")
     per_second = [c / duration for c in costs]
-    return dict(metrics=values, notes=notes, dt_used=dt_used, steps=None if steps_per_interval is None
-                else steps_per_interval * (len(times) - 1),
+    positions = np.stack([np.asarray(s.x, dtype=np.float64) for s in states]) if not blew else None
+    return dict(metrics=values, notes=notes, dt_used=dt_used, positions=positions,
+                steps=None if steps_per_interval is None else steps_per_interval * (len(times) - 1),
                 cost=dict(cpu_per_simulated_s=statistics.median(per_second),
-                          spread=max(per_second) - min(per_second), samples=per_second))
+                          spread=max(per_second) - min(per_second), low=min(per_second), high=max(per_second),
+                          samples=per_second, repeats=len(costs)))
+
+
+def _one_step_metric(metric: str, model: _core.Model, before: _core.State, after: _core.State, dt: float,
+                     gravity) -> float:
+    """The backward-Euler residual |∇E| (N, 2-norm) of the step from ``before`` to ``after``, or the
+    largest distance (m) of ``after`` from the converged backward-Euler step from ``before``."""
+    if metric == "residual":
+        return float(_core.backward_euler_residual(model, before, after, dt, gravity).norm)
+    exact = before.copy()
+    _core.BackwardEuler(dt=dt, gravity=gravity).step(model, exact, 1)
+    return float(np.linalg.norm(np.asarray(after.x) - np.asarray(exact.x), axis=1).max())
 
 
 # ------------------------------------------------------------------------------------ storage

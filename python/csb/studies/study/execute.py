@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ... import _core
+from . import charts as charts_module
 from .cells import _machine, _read_record, _write_atomic, compute_reference, run_cell
 from .schema import _NEEDS_REFERENCE, _PARAMS, Cell, Study, cell_key, load_study
 
@@ -82,6 +83,7 @@ class StudyResult:
     reused: int = 0
     failed: int = 0
     files: list[Path] = field(default_factory=list)
+    references: dict[str, "Reference"] = field(default_factory=dict)  # by scene
 
     def summary(self) -> str:
         lines = [f"{self.study.name}: {len(self.table)} cells, {self.computed} computed, {self.reused} reused, "
@@ -106,6 +108,40 @@ class StudyResult:
             lines.append(f"| {s} | " + " | ".join(f"{prof.at(s, t):.2f}" for t in taus) + f" | {prof.solved(s):.2f} |")
         return lines + [""]
 
+    def _budget_lines(self) -> list[str]:
+        """The tuning budget: how many parameter settings each method had per scene."""
+        counts = {m.label: math.prod(len(v) for v in m.grid.values()) for m in self.study.methods}
+        same = len(set(counts.values())) == 1
+        text = ", ".join(f"{m} {n}" for m, n in counts.items())
+        if same:
+            return [f"Tuning budget: every method had the same {next(iter(counts.values()))} parameter settings "
+                    "per scene" + (" (the study's budget)." if self.study.budget else "."), ""]
+        return [f"Tuning budget: not equal ({text} settings per scene): a method with more settings had more "
+                "chances to reach a point of the front. Give the study a budget to hold every method to one.", ""]
+
+    def _reference_lines(self) -> list[str]:
+        lines = ["The continuous reference (CVODE) of each scene: its tolerance, its own error (its largest "
+                 "distance from a run 100 times looser, an upper estimate of it) against the smallest error a "
+                 "cell of the scene shows, and its energy drift.", "",
+                 "| scene | rtol | atol | own error (m) | smallest cell error (m) | ratio | bound | energy drift |",
+                 "|---|---:|---:|---:|---:|---:|---:|---:|"]
+
+        def g(v: Any, fmt: str = ".3g") -> str:
+            return "" if v is None else format(v, fmt)
+
+        for scene, ref in self.references.items():
+            if ref.x is None:
+                lines.append(f"| {scene} | failed: {ref.error} | | | | | | |")
+                continue
+            ratio = None if ref.self_error is None or not ref.smallest_error else ref.self_error / ref.smallest_error
+            bound = "" if ref.fraction is None else (f"≤ {ref.fraction:g}" + ("" if ref.met else ": not met"))
+            lines.append(f"| {scene} | {g(ref.rtol, '.0e')} | {g(ref.atol, '.0e')} | {g(ref.self_error)} | "
+                         f"{g(ref.smallest_error)} | {g(ratio)} | {bound} | {g(ref.energy_drift)} |")
+        if any(r.met is False for r in self.references.values()):
+            lines += ["", "Where the bound is not met, the reference could not be made accurate enough (rtol "
+                      "reached its floor): errors near its own are not resolved."]
+        return lines + [""]
+
     def report(self) -> str:
         """The study as a report section (Markdown): what it is, its cells, per scene the cells on
         the accuracy-against-cost front (when position_error is measured), what blew up or failed."""
@@ -113,19 +149,28 @@ class StudyResult:
         lines = [f"## Study: {st.name}", ""]
         if st.description:
             lines += [st.description, ""]
+        repeats = (f"{cells_auto_text()}" if st.repeats == "auto" else f"{st.repeats} run(s)")
         lines += [f"`csb study run {st.path}`: {len(self.table)} cells ({len(st.scenes)} scenes, {len(st.methods)} "
-                  f"methods), {st.duration:g} s each, metrics at {st.outputs + 1} times, cost the median CPU time "
-                  f"per simulated second of {st.repeats} run(s) on one thread. Table: `results.csv`.", ""]
+                  f"methods), {st.duration:g} s each, metrics at {st.outputs + 1} times. Cost: the median CPU time "
+                  f"per simulated second, on one thread, after an untimed warm-up step, of {repeats}; the "
+                  "machine's load average is in the table. Table: `results.csv`.", ""]
+        lines += self._budget_lines()
+        if self.references:
+            lines += self._reference_lines()
         if "position_error" in st.metrics:
             lines += ["![accuracy against cost](accuracy_cost.png)", ""]
             for scene in st.scenes:
                 front = _front([r for r in self.table if r["scene"] == scene.label])
-                lines += [f"{scene.label}: the cells no other cell beats in both error and cost", "",
-                          "| method | parameters | largest distance to the reference (m) | CPU s per simulated s |",
-                          "|---|---|---:|---:|"]
-                lines += [f"| {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
-                          f"{r['cpu_per_simulated_s']:.3g} |" for r in front]
+                ranks = _cost_ranks(front)
+                lines += [f"{scene.label}: the cells no other cell beats in both error and cost. Cost rank: cells "
+                          "whose cost ranges (fastest to slowest repeat) overlap share a rank: a tie, not a ranking.",
+                          "", "| cost rank | method | parameters | largest distance to the reference (m) | "
+                          "CPU s per simulated s (median, range) |", "|---:|---|---|---:|---:|"]
+                lines += [f"| {rank} | {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
+                          f"{r['cpu_per_simulated_s']:.3g} ({_range_text(r)}) |" for r, rank in zip(front, ranks)]
                 lines.append("")
+        for k, chart in enumerate(st.charts):
+            lines += [f"![{_chart_title(chart)}](chart_{k + 1}.png)", ""]
         if st.profile_accuracy is not None:
             lines += self._profile_lines()
         blown = [r for r in self.table if r.get("stability") == "blew-up"]
@@ -151,6 +196,45 @@ def _profile(result: "StudyResult"):
         return None
 
 
+def cells_auto_text() -> str:
+    from .cells import AUTO_BUDGET, AUTO_MAX, AUTO_MIN, AUTO_SPREAD
+
+    return (f"as many runs as the spread asks (at least {AUTO_MIN}, until the range of the costs is within "
+            f"{AUTO_SPREAD:.0%} of their median, at most {AUTO_MAX} or {AUTO_BUDGET:g} s of CPU time)")
+
+
+def _cost_ranks(rows: list[dict]) -> list[int]:
+    """Ranks by median cost, cheapest first, where a row whose cost range (cpu_low..cpu_high)
+    overlaps the range of the row ranked before it shares its rank."""
+    ranks: list[int] = []
+    high = -math.inf
+    for k, r in enumerate(rows):
+        low = r.get("cpu_low", r["cpu_per_simulated_s"])
+        low = r["cpu_per_simulated_s"] if low is None else low
+        if k and low <= high:
+            ranks.append(ranks[-1])
+        else:
+            ranks.append(k + 1)
+        top = r.get("cpu_high")
+        high = max(high, r["cpu_per_simulated_s"] if top is None else top)
+    return ranks
+
+
+def _range_text(row: dict) -> str:
+    lo, hi = row.get("cpu_low"), row.get("cpu_high")
+    if lo is None or hi is None:
+        return "one run"
+    return f"{lo:.3g}-{hi:.3g}, {row.get('repeats')} runs"
+
+
+def _chart_title(chart: dict) -> str:
+    if chart["title"]:
+        return chart["title"]
+    if chart["kind"] == "line":
+        return f"{chart['y']} against {chart['x']}"
+    return f"stability over {chart['x']} and {chart['y']}"
+
+
 def _front(rows: list[dict]) -> list[dict]:
     """The rows no other row beats in both position_error and cost, cheapest first."""
     good = sorted((r for r in rows if r["status"] == "ok" and r.get("stability") != "blew-up"
@@ -172,10 +256,12 @@ def run_study(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | Non
               scheduler: str | None = None, retry_failed: bool = False, progress: bool = False) -> StudyResult:
     """Run the study file at ``path``: the cells without a stored result are computed (on Dask:
     ``scheduler`` an address, else a LocalCluster of ``workers`` processes, default one per core
-    up to the cells; ``workers=0`` in this process), each stored as ``<out>/cells/<key>.json`` as
-    it ends; the table (``results.csv``, ``results.parquet`` with pyarrow) and the chart are written
-    to ``out`` (default ``out/studies/<name>``). A stored failed cell is run again only with
-    ``retry_failed``."""
+    up to the cells; ``workers=0`` in this process), each stored as ``<out>/cells/<key>.json``
+    (with its positions at the output times, ``<key>.npy``) as it ends; then the references the
+    metrics need (their tolerance chosen, with ``rtol = "auto"``, from the smallest error the
+    cells show against them), the table (``results.csv``, ``results.parquet`` with pyarrow), the
+    charts and the report section are written to ``out`` (default ``out/studies/<name>``). A
+    stored failed cell is run again only with ``retry_failed``."""
     study = load_study(path)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise _core.ParameterError(f"workers must be an integer >= 0 (0: in this process), got {workers!r}")
@@ -190,106 +276,238 @@ def run_study(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | Non
             continue
         seen.add(c.key)
         r = _read_record(cells_dir / f"{c.key}.json")
+        if r is not None and r.get("has_positions") and not (cells_dir / f"{c.key}.npy").is_file():
+            r = None  # its positions were lost: computed again
         if r is not None and (r["status"] == "ok" or not retry_failed):
             records[c.key] = r
         else:
             missing.append(c)
     reused = len(records)
-    if missing:
-        _compute(study, missing, out_dir, records, workers, scheduler, progress)
-    table = [_row(study, c, records[c.key]) for c in cells]
+    need_ref = any(m in _NEEDS_REFERENCE for m in study.metrics)
+    run, close = None, None
+    try:
+        if missing or need_ref:
+            run, close = _executor(workers, scheduler, max(len(missing), len(study.scenes) if need_ref else 0))
+        if missing:
+            _compute(study, missing, out_dir, records, run, progress)
+        positions = _Positions(cells_dir)
+        references = _references(study, cells, records, positions, out_dir, run) if need_ref else {}
+    finally:
+        if close is not None:
+            close()
+    table = [_row(study, c, records[c.key], positions, references.get(c.scene)) for c in cells]
     result = StudyResult(study, out_dir, table, computed=len(missing), reused=reused,
-                         failed=sum(r["status"] == "failed" for r in table))
+                         failed=sum(r["status"] == "failed" for r in table), references=references)
     result.files = _write_outputs(result)
     return result
 
 
-def _compute(study: Study, missing: list[Cell], out_dir: Path, records: dict[str, dict], workers, scheduler,
-             progress: bool) -> None:
+class _Positions:
+    """The cells' stored positions (T, N, 3), read once each."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+        self.cache: dict[str, np.ndarray | None] = {}
+
+    def __call__(self, key: str) -> np.ndarray | None:
+        if key not in self.cache:
+            try:
+                self.cache[key] = np.load(self.folder / f"{key}.npy")
+            except (OSError, ValueError):
+                self.cache[key] = None
+        return self.cache[key]
+
+
+def _compute(study: Study, missing: list[Cell], out_dir: Path, records: dict[str, dict], run, progress: bool) -> None:
     from tqdm import tqdm
 
-    need_ref = any(m in _NEEDS_REFERENCE for m in study.metrics)
-    # The references the missing cells need, each stored as its own file by its key.
-    refs: dict[str, np.ndarray] = {}
-    ref_tasks: list[tuple[str, Any]] = []
-    ref_key = {}
-    if need_ref:
-        for c in missing:
-            d = c.definition
-            rdef = dict(scene=d["scene"], reference=d["reference"], duration=d["duration"], outputs=d["outputs"],
-                        csb=d["csb"])
-            k = cell_key(rdef)
-            ref_key[c.key] = k
-            if k in refs or any(k == t[0] for t in ref_tasks):
+    bar = tqdm(total=len(missing), desc=study.name, unit="cell", disable=not progress)
+    for i, value in run([(run_cell, (c.definition, c.context)) for c in missing]):
+        c = missing[i]
+        if isinstance(value, BaseException):  # the worker died, or the task could not run
+            value = dict(key=c.key, machine={}, status="failed", error_type=type(value).__name__,
+                         error=str(value), warnings=[])
+        _store(out_dir, c, value, records)
+        bar.update()
+    bar.close()
+
+
+@dataclass
+class Reference:
+    """The continuous reference of one scene, as the study chose it."""
+
+    x: np.ndarray | None                  # (T, N, 3) m, None when it failed
+    rtol: float | None = None
+    atol: float | None = None
+    energy_drift: float | None = None     # its own, relative (the energy_drift measure)
+    self_error: float | None = None       # m: the largest distance of the run 100 times looser from it
+    smallest_error: float | None = None   # m: the smallest position_error a cell of the scene shows
+    fraction: float | None = None         # the study's bound on self_error / smallest_error
+    met: bool | None = None               # whether the bound holds
+    error: str | None = None              # why it failed
+    cpu_s: float = 0.0                    # CPU time of the runs it took to choose it
+
+
+def _reference_setting(study: Study, rtol: Any) -> dict[str, Any]:
+    ref = study.reference
+    assert ref is not None
+    return dict(rtol=rtol, atol=ref["atol"] if rtol == ref["rtol"] else "auto", energy_tolerance=ref["energy_tolerance"])
+
+
+def _reference_key(study: Study, scene, rtol: Any) -> str:
+    return cell_key(dict(scene=scene.definition, duration=scene.definition.get("duration", study.duration),
+                         outputs=study.outputs, reference=_reference_setting(study, rtol), csb=_core.build_info()))
+
+
+def _references(study: Study, cells: list[Cell], records: dict[str, dict], positions: _Positions, out_dir: Path,
+                run) -> dict[str, Reference]:
+    """Each scene's reference. A fixed rtol is used as given. With rtol = "auto", the energy
+    rule's tolerance (csb.energy_rtol) is the start; a run 100 times tighter measures its error,
+    and the tolerance is tightened a hundredfold until that error is within ``fraction`` of the
+    smallest error any cell of the scene shows against the tighter run (and, with the
+    energy_drift metric, the tighter run's energy drift within ``fraction`` of the smallest drift
+    a cell shows), or until RTOL_FLOOR; the tighter run is then the reference."""
+    from ...reference import RTOL_FLOOR
+
+    ref = study.reference
+    assert ref is not None
+    folder = out_dir / "references"
+    stored: dict[str, tuple[np.ndarray | None, dict]] = {}
+
+    def get(pending: list[tuple[Any, Any]]) -> None:
+        """Compute (or read) the references [(scene, rtol)] not stored yet."""
+        tasks, keys = [], []
+        for scene, rtol in pending:
+            k = _reference_key(study, scene, rtol)
+            if k in stored or k in keys:
                 continue
-            f = out_dir / "references" / f"{k}.npy"
             try:
-                refs[k] = np.load(f)
-            except (OSError, ValueError):
-                ref_tasks.append((k, (compute_reference, (d["scene"], c.context["scene"], d["reference"],
-                                                          d["duration"], d["outputs"]))))
-    run, close = _executor(workers, scheduler, len(missing))
-    try:
-        ref_errors: dict[str, BaseException] = {}
-        if ref_tasks:
-            for i, value in run([t[1] for t in ref_tasks]):
-                k = ref_tasks[i][0]
-                if isinstance(value, BaseException):
-                    ref_errors[k] = value
-                    continue
-                buf = io.BytesIO()
-                np.save(buf, value)
-                _write_atomic(out_dir / "references" / f"{k}.npy", buf.getvalue())
-                refs[k] = value
-        tasks, todo = [], []
-        for c in missing:
-            k = ref_key.get(c.key)
-            if k in ref_errors:
-                e = ref_errors[k]
-                record = dict(key=c.key, machine=_machine(), status="failed", error_type=type(e).__name__,
-                              error=f"the reference failed: {e}", warnings=[])
-                _store(out_dir, c, record, records)
+                stored[k] = (np.load(folder / f"{k}.npy"), json.loads((folder / f"{k}.json").read_text()))
                 continue
-            tasks.append((run_cell, (c.definition, c.context, refs.get(k) if k else None)))
-            todo.append(c)
-        bar = tqdm(total=len(todo), desc=study.name, unit="cell", disable=not progress)
-        for i, value in run(tasks):
-            c = todo[i]
-            if isinstance(value, BaseException):  # the worker died, or the task could not run
-                value = dict(key=c.key, machine={}, status="failed", error_type=type(value).__name__,
-                             error=str(value), warnings=[])
-            _store(out_dir, c, value, records)
-            bar.update()
-        bar.close()
-    finally:
-        if close is not None:
-            close()
+            except (OSError, ValueError):
+                pass
+            tasks.append((compute_reference, (scene.definition, scene.context, _reference_setting(study, rtol),
+                                              scene.definition.get("duration", study.duration), study.outputs)))
+            keys.append(k)
+        for i, value in (run(tasks) if tasks else ()):
+            k = keys[i]
+            if isinstance(value, BaseException):
+                stored[k] = (None, dict(error=f"{type(value).__name__}: {value}"))
+                continue
+            x, info = value
+            buf = io.BytesIO()
+            np.save(buf, x)
+            _write_atomic(folder / f"{k}.npy", buf.getvalue())
+            _write_atomic(folder / f"{k}.json", json.dumps(info, sort_keys=True).encode())
+            stored[k] = (x, info)
+
+    def made(scene, rtol) -> tuple[np.ndarray | None, dict]:
+        return stored[_reference_key(study, scene, rtol)]
+
+    def smallest(scene, x: np.ndarray, metric: str) -> float | None:
+        values = []
+        for c in cells:
+            r = records[c.key]
+            if c.scene != scene.label or r["status"] != "ok" or r.get("metrics", {}).get("stability") == "blew-up":
+                continue
+            if metric == "position_error":
+                p = positions(c.key)
+                if p is not None and p.shape == x.shape:
+                    values.append(float(np.linalg.norm(p - x, axis=2).max()))
+            elif r.get("metrics", {}).get(metric) is not None:
+                values.append(float(r["metrics"][metric]))
+        values = [v for v in values if v > 0]
+        return min(values) if values else None
+
+    out: dict[str, Reference] = {}
+    if ref["rtol"] != "auto":
+        get([(s, ref["rtol"]) for s in study.scenes])
+        for s in study.scenes:
+            x, info = made(s, ref["rtol"])
+            out[s.label] = Reference(x, info.get("rtol"), info.get("atol"), info.get("energy_drift"),
+                                     error=info.get("error"), cpu_s=info.get("cpu_s", 0.0))
+        return out
+    # rtol = "auto": level[scene] is the tolerance under test, its run 100 times tighter the check.
+    get([(s, "auto") for s in study.scenes])
+    level: dict[str, Any] = {}
+    for s in study.scenes:
+        x, info = made(s, "auto")
+        if x is None:
+            out[s.label] = Reference(None, error=info["error"])
+        else:
+            level[s.label] = "auto"
+    fraction = ref["fraction"]
+    while level:
+        tighter = {label: (made(s, "auto")[1]["rtol"] if r == "auto" else r) / 100
+                   for s in study.scenes if (r := level.get(label := s.label)) is not None}
+        get([(s, tighter[s.label]) for s in study.scenes if s.label in level])
+        for s in study.scenes:
+            if s.label not in level:
+                continue
+            x0, _ = made(s, level[s.label])
+            x1, info1 = made(s, tighter[s.label])
+            if x1 is None:
+                out[s.label] = Reference(None, error=info1["error"])
+                del level[s.label]
+                continue
+            self_error = float(np.linalg.norm(x0 - x1, axis=2).max())
+            e_min = smallest(s, x1, "position_error")
+            met = e_min is None or self_error <= fraction * e_min
+            if met and "energy_drift" in study.metrics:
+                d_min = smallest(s, x1, "energy_drift")
+                met = d_min is None or info1["energy_drift"] <= fraction * d_min
+            if met or tighter[s.label] / 100 < RTOL_FLOOR * (1 - 1e-9):
+                out[s.label] = Reference(x1, info1["rtol"], info1["atol"], info1["energy_drift"], self_error, e_min,
+                                         fraction, met)
+                del level[s.label]
+            else:
+                level[s.label] = tighter[s.label]
+    return out
 
 
 def _store(out_dir: Path, cell: Cell, record: dict, records: dict[str, dict]) -> None:
     record = dict(record, definition=cell.definition)
+    x = record.pop("positions", None)
+    record["has_positions"] = x is not None
+    if x is not None:  # the positions first: the JSON file marks the cell done
+        buf = io.BytesIO()
+        np.save(buf, np.asarray(x, dtype=np.float64))
+        _write_atomic(out_dir / "cells" / f"{cell.key}.npy", buf.getvalue())
     text = json.dumps(record, sort_keys=True, indent=1, allow_nan=True)
     _write_atomic(out_dir / "cells" / f"{cell.key}.json", text.encode())
     records[cell.key] = record
 
 
-def _row(study: Study, cell: Cell, record: dict) -> dict:
+def _row(study: Study, cell: Cell, record: dict, positions: _Positions, reference: Reference | None) -> dict:
     row: dict[str, Any] = dict(study=study.name, scene=cell.scene, method=cell.method)
+    for name in study.scene_parameters():  # the scene grids' arguments (a material swept, say)
+        row[name] = cell.scene_params.get(name)
     for p in _PARAMS:
         row[p] = cell.params.get(p)
     row["dt_used"] = record.get("dt_used")
     row["steps"] = record.get("steps")
     values = record.get("metrics", {})
+    notes = list(record.get("notes", []))
     for m in study.metrics:
         row[m] = values.get(m)
+    if "position_error" in study.metrics and record["status"] == "ok" and values.get("stability") != "blew-up":
+        x = positions(cell.key)
+        if reference is None or reference.x is None:
+            notes.append("position_error: the reference failed" + (f" ({reference.error})" if reference else ""))
+        elif x is None or x.shape != reference.x.shape:
+            notes.append("position_error: the cell's positions are not stored, or not the reference's shape")
+        else:
+            row["position_error"] = float(np.linalg.norm(x - reference.x, axis=2).max())
     cost = record.get("cost", {})
     row["cpu_per_simulated_s"] = cost.get("cpu_per_simulated_s")
     row["cpu_spread"] = cost.get("spread")
-    row["repeats"] = study.repeats
+    row["cpu_low"] = cost.get("low")
+    row["cpu_high"] = cost.get("high")
+    row["repeats"] = cost.get("repeats", len(cost.get("samples", [])) or None)
     row["status"] = record["status"]
     row["error_type"] = record.get("error_type")
     row["error"] = record.get("error")
-    row["notes"] = "; ".join(record.get("notes", []) + record.get("warnings", []))
+    row["notes"] = "; ".join(notes + record.get("warnings", []))
     build = cell.definition["csb"]["build"]
     row["csb_version"] = build["csb"]
     row["build"] = f"{build.get('compiler')}, {build.get('simd')}, SUNDIALS {build.get('sundials')}"
@@ -320,8 +538,9 @@ def _write_outputs(result: StudyResult) -> list[Path]:
     files.append(out / "results.csv")
     chart = "position_error" in result.study.metrics
     profile = _profile(result) if result.study.profile_accuracy is not None else None
+    charts = [out / f"chart_{k + 1}.png" for k in range(len(result.study.charts))]
     wanted = ([out / "report.md"] + [out / "results.parquet"] * _has_pyarrow() + [out / "accuracy_cost.png"] * chart
-              + [out / "profile.png"] * (profile is not None))
+              + [out / "profile.png"] * (profile is not None) + charts)
     if unchanged and all(f.is_file() for f in wanted):  # a re-run of an unchanged study: nothing to draw
         return files + wanted
     _write_atomic(out / "report.md", result.report().encode())
@@ -337,8 +556,14 @@ def _write_outputs(result: StudyResult) -> list[Path]:
         pq.write_table(table, tmp)
         os.replace(tmp, out / "results.parquet")
         files.append(out / "results.parquet")
+    scenes = [s.label for s in result.study.scenes]
+    methods = [m.label for m in result.study.methods]
     if chart:
-        files.append(_chart(result))
+        files.append(charts_module.accuracy_cost(rows, scenes, methods, out / "accuracy_cost.png",
+                                                 f"{result.study.name}: accuracy against cost"))
+    for spec, path in zip(result.study.charts, charts):
+        draw = charts_module.line_chart if spec["kind"] == "line" else charts_module.stability_map
+        files.append(draw(rows, spec, scenes, methods, path, f"{result.study.name}: {_chart_title(spec)}"))
     if profile is not None:
         from ..profiles import plot_performance_profile
 
@@ -357,32 +582,3 @@ def _same_bytes(path: Path, data: bytes) -> bool:
 
 def _has_pyarrow() -> bool:
     return importlib.util.find_spec("pyarrow") is not None
-
-
-def _chart(result: StudyResult) -> Path:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    scenes = [s.label for s in result.study.scenes]
-    fig, axes = plt.subplots(1, len(scenes), figsize=(6.5 * len(scenes), 5.5), constrained_layout=True, squeeze=False)
-    for ax, scene in zip(axes[0], scenes):
-        for m in result.study.methods:
-            pts = [r for r in result.table if r["scene"] == scene and r["method"] == m.label and r["status"] == "ok"
-                   and r.get("position_error") and r["cpu_per_simulated_s"]]
-            if pts:
-                pts.sort(key=lambda r: r["cpu_per_simulated_s"])
-                ax.loglog([r["cpu_per_simulated_s"] for r in pts], [r["position_error"] for r in pts], "o",
-                          label=m.label, ms=6, alpha=0.85)
-        ax.set_title(f"{scene}: error against cost", fontsize="medium")
-        ax.set_xlabel("CPU time per simulated second (s), median of the repeats")
-        ax.set_ylabel("largest distance to the reference (m)")
-        ax.grid(alpha=0.3, which="both")
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="x-small", ncol=2)
-    path = result.out / "accuracy_cost.png"
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-

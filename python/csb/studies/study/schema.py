@@ -12,7 +12,7 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
@@ -90,11 +90,22 @@ METRICS = {
     "max_strain": "largest |C| / rest length of the distance constraints at any output time",
     "max_violation": "largest |C| of the distance constraints at any output time (m)",
     "volume_error": "largest |V - V0| / V0 of the total tet volume at any output time",
-    # (max_strain, max_violation and volume_error are null, with a note, for a scene without such constraints)
+    "residual": "largest backward-Euler residual |∇E| (N, 2-norm; csb.backward_euler_residual) of the step of dt "
+                "ending at each output time: zero for a converged backward Euler step, an iterative method's "
+                "solver error (a method's sub-steps are measured as one step of dt)",
+    "same_step_error": "largest distance (m) of the step of dt ending at each output time from the backward Euler "
+                       "step from the same state solved to convergence (csb.BackwardEuler): the solver error alone, "
+                       "where position_error is the total error",
+    # (max_strain, max_violation, volume_error, residual and same_step_error are null, with a note, for a scene
+    # without such constraints or with hard ones)
     "stability": "'stable', or 'blew-up' (csb.SimulationError, a non-finite position, or a particle farther "
                  "than 100 model sizes from its start)",
 }
 _NEEDS_REFERENCE = {"position_error"}
+# A study's table has these columns besides the metrics: a scene grid may not name one.
+_RESERVED = {"study", "scene", "method", "dt", "substeps", "iterations", "rtol", "dt_used", "steps", "status",
+             "error", "error_type", "notes", "key", "repeats", "cpu_per_simulated_s", "cpu_spread", "cpu_low",
+             "cpu_high", "csb_version", "build", "platform", "cpu_count", "load_average"}
 _PARAMS = ("dt", "substeps", "iterations", "rtol")
 REFERENCE_METHOD = "cvode"  # the reference's own integrator as a method, swept over rtol
 
@@ -108,6 +119,7 @@ class SceneDef:
     definition: dict[str, Any]   # what determines the scene (file bytes' hash, set-up and args, gravity)
     context: dict[str, Any]      # how to find it (the file's path): not part of the key
     index: int = 0               # its [[scene]] table, for messages
+    point: dict[str, Any] = field(default_factory=dict)  # its point of the scene's grid
 
 
 @dataclass(frozen=True)
@@ -128,6 +140,7 @@ class Cell:
     params: dict[str, Any]
     definition: dict[str, Any]
     context: dict[str, Any]
+    scene_params: dict[str, Any] = field(default_factory=dict)  # the scene's grid point
 
     @property
     def key(self) -> str:
@@ -141,7 +154,7 @@ class Study:
     description: str
     duration: float
     outputs: int
-    repeats: int
+    repeats: int | str          # timed runs per cell, or "auto" (from the spread: cells.AUTO_*)
     metrics: tuple[str, ...]
     reference: dict[str, Any] | None
     scenes: tuple[SceneDef, ...]
@@ -149,6 +162,16 @@ class Study:
     # m: the accuracy of the report's performance profile (None: no profile). It reads the cells'
     # results and does not change them, so it is no part of their keys.
     profile_accuracy: float | None = None
+    tier: str = "full"                      # "quick" or "full": which run of the main job includes it
+    charts: tuple[dict[str, Any], ...] = ()  # [[chart]] tables, checked
+    budget: int | None = None               # cells per method and scene every method gets, when given
+
+    def scene_parameters(self) -> list[str]:
+        """The names of the scene grids' arguments, in the order first declared."""
+        names: list[str] = []
+        for s in self.scenes:
+            names += [n for n in s.point if n not in names]
+        return names
 
     def cells(self) -> list[Cell]:
         """The Cartesian product: every scene with every method at every point of its grid."""
@@ -159,11 +182,14 @@ class Study:
                 names = list(m.grid)
                 for values in itertools.product(*(m.grid[n] for n in names)):
                     params = dict(zip(names, values))
+                    # The reference is no part of a cell: the cell keeps its positions, and the
+                    # errors against the reference are measured when the table is made.
                     definition = dict(
                         scene=s.definition, method=m.definition, params=params, metrics=list(self.metrics),
-                        reference=self.reference, duration=s.definition.get("duration", self.duration),
+                        duration=s.definition.get("duration", self.duration),
                         outputs=self.outputs, repeats=self.repeats, csb=dict(version=build["csb"], build=build))
-                    out.append(Cell(s.label, m.label, params, definition, dict(scene=s.context, method=m.context)))
+                    out.append(Cell(s.label, m.label, params, definition, dict(scene=s.context, method=m.context),
+                                    dict(s.point)))
         return out
 
 
@@ -250,6 +276,8 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path) -> list[SceneDef
                 raise t.error("grid", f"{name} must be a non-empty list of values, got {values!r}")
             if name in args:
                 raise t.error("grid", f"{name} is given in args too")
+            if name in _RESERVED or name in METRICS:
+                raise t.error("grid", f"{name} is a column of the study's table already: the set-up cannot sweep it")
         try:
             cell_key(grid)
         except ValueError:
@@ -268,27 +296,29 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path) -> list[SceneDef
             except (_core.Error, ValueError) as e:
                 raise t.error(key, f"{setup}({', '.join(f'{n}={v!r}' for n, v in point.items())}): {e}") from None
             name = " ".join([label] + [f"{n}={v:g}" if isinstance(v, float) else f"{n}={v}" for n, v in point.items()])
-            variants.append((name, dict(kind="setup", setup=setup, args=full)))
+            variants.append((name, dict(kind="setup", setup=setup, args=full), point))
     if given[0] in ("scene", "file"):
-        variants = [(label, definition)]
-    for _, d in variants:
+        variants = [(label, definition, {})]
+    for _, d, _ in variants:
         d["gravity"] = list(gravity)
     if t.has("duration"):
         duration = t.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
-        for _, d in variants:
+        for _, d, _ in variants:
             d["duration"] = duration
     t.finish()
-    return [SceneDef(name, d, context, k) for name, d in variants]
+    return [SceneDef(name, d, context, k, point) for name, d, point in variants]
 
 
 def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
     if not isinstance(data, dict):
         raise StudyError(f"{source.path}: method {k + 1}: declare methods as [[method]] tables")
     t = _StudyTable(source, data, ("method", k), f"method[{k}]")
-    if t.has("name") == t.has("python"):
-        raise t.error("python" if t.has("name") else None,
-                      "give exactly one of name (a built-in method, csb.methods(), or 'cvode') or "
-                      "python ('module:Class', a csb.Integrator subclass)")
+    given = [key for key in ("name", "python", "plugin") if t.has(key)]
+    if len(given) != 1:
+        raise t.error(given[1] if len(given) > 1 else None,
+                      "give exactly one of name (a built-in method, csb.methods(), or 'cvode'), "
+                      "python ('module:Class', a csb.Integrator subclass) or plugin (a C/C++ plug-in's shared "
+                      "library, csb.load_plugin)")
     grid: dict[str, tuple[Any, ...]] = {}
     context: dict[str, Any] = {}
     if t.has("name"):
@@ -306,6 +336,23 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
                 raise t.error("iterations", f"{name} does not iterate: give substeps (or dt) instead")
             if infos[name].iterates:
                 grid["iterations"] = its or (10,)
+    elif t.has("plugin"):
+        lib = Path(t.string("plugin"))
+        path = lib if lib.is_absolute() else base / lib
+        try:
+            from ...plugin import load_plugin
+
+            made = load_plugin(path)
+        except (OSError, ImportError, _core.Error, ValueError) as e:
+            raise t.error("plugin", str(e)) from None
+        definition = dict(plugin=str(lib), sha256=_sha256_file(path))
+        context = dict(path=str(path.resolve()))
+        label = t.string("label", getattr(made, "plugin_name", lib.stem))
+        grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
+        for key in ("substeps", "iterations"):
+            g = _grid(t, key, "count")
+            if g is not None:
+                grid[key] = g
     else:
         spec = t.string("python")
         module, _, cls = spec.partition(":")
@@ -332,7 +379,14 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
             raise t.error("python", f"cannot import {module!r} (from the study's folder or sys.path): {e}") from None
         if not (isinstance(obj, type) and issubclass(obj, _core.Integrator)):
             raise t.error("python", f"{spec}: {cls!r} is not a csb.Integrator subclass in {module!r}")
-        definition = dict(python=spec, sha256=sha256)
+        args = t.raw("args", {})
+        if not isinstance(args, dict):
+            raise t.error("args", f"must be a table of the class's keyword arguments, got {args!r}")
+        try:
+            cell_key(args)
+        except ValueError:
+            raise t.error("args", f"must hold finite numbers, got {args!r}") from None
+        definition = dict(python=spec, sha256=sha256, args=args)
         context = dict(folder=folder)
         label = t.string("label", cls)
         grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
@@ -358,7 +412,10 @@ def load_study(path: str | os.PathLike[str]) -> Study:
     description = st.string("description", "")
     duration = st.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
     outputs = st.integer("outputs", 10, minimum=1, maximum=100_000)
-    repeats = st.integer("repeats", 1, minimum=1, maximum=1000)
+    repeats: int | str = "auto" if st.raw("repeats", None) == "auto" else st.integer("repeats", 1, minimum=1,
+                                                                                      maximum=1000)
+    tier = st.string("tier", "full", choices=("quick", "full"))
+    budget = st.integer("budget", None, minimum=1, maximum=100_000) if st.has("budget") else None
     metrics = st.raw("metrics", ["position_error", "stability"])
     if not isinstance(metrics, list) or not all(isinstance(m, str) for m in metrics):
         raise st.error("metrics", f"must be a list of metric names, got {metrics!r}")
@@ -384,8 +441,12 @@ def load_study(path: str | os.PathLike[str]) -> Study:
             atol = rt.number("atol", check=lambda x: x > 0, expect="'auto' or a tolerance > 0")
         energy_tolerance = rt.number("energy_tolerance", 1e-6, check=lambda x: 0 < x < 1,
                                      expect="a relative tolerance in (0, 1)")
+        fraction = rt.number("fraction", 0.01, check=lambda x: 0 < x < 1, expect="a fraction in (0, 1)")
+        if rt.has("fraction") and rtol != "auto":
+            raise rt.error("fraction", 'bounds the reference\'s own error when rtol = "auto" chooses it: '
+                                       "give rtol = \"auto\" or leave fraction out")
         rt.finish()
-        reference = dict(rtol=rtol, atol=atol, energy_tolerance=energy_tolerance)
+        reference = dict(rtol=rtol, atol=atol, energy_tolerance=energy_tolerance, fraction=fraction)
     needs = [m for m in metrics if m in _NEEDS_REFERENCE]
     if needs and reference is None:
         raise st.error("metrics", f"{needs[0]} is measured against the reference: add a [reference] table (rtol)")
@@ -405,9 +466,56 @@ def load_study(path: str | os.PathLike[str]) -> Study:
                 index = items[k].index if what == "scene" else k
                 raise _StudyTable(source, {}, (what, index), f"{what}[{index}]").error(
                     "name" if what == "scene" else "label", f"two {what}s are called {label!r}: give one a name")
+    if budget is not None:
+        for k, m in enumerate(methods):
+            n = math.prod(len(v) for v in m.grid.values())
+            if n != budget:
+                raise _StudyTable(source, {}, ("method", k), f"method[{k}]").error(
+                    None, f"{m.label} has {n} parameter settings, and the study's budget is {budget} for every "
+                          "method: give each method the same number of settings")
+    charts = tuple(_read_chart(source, c, k, metrics, scenes, methods)
+                   for k, c in enumerate(_list_of_tables(top, "chart")))
     top.finish()
     return Study(p, name, description, duration, outputs, repeats, tuple(metrics), reference, scenes, methods,
-                 profile_accuracy)
+                 profile_accuracy, tier, charts, budget)
+
+
+def _list_of_tables(top: _StudyTable, key: str) -> list[Any]:
+    v = top.raw(key, [])
+    if not isinstance(v, list):
+        raise top.error(key, f"declare them as [[{key}]] tables")
+    return v
+
+
+CHART_KINDS = {
+    "line": "a metric (y) against a parameter (x), one panel per scene, one line per method and setting of "
+            "the other parameters",
+    "map": "a stability map: one panel per method and scene, a cell per (x, y) setting, coloured stable, "
+           "blew up, or (with wrong) stable but farther than `wrong` m from the reference",
+}
+
+
+def _read_chart(source: _Source, data: Any, k: int, metrics: list[str], scenes, methods) -> dict[str, Any]:
+    if not isinstance(data, dict):
+        raise StudyError(f"{source.path}: chart {k + 1}: declare charts as [[chart]] tables")
+    t = _StudyTable(source, data, ("chart", k), f"chart[{k}]")
+    kind = t.string("kind", choices=tuple(CHART_KINDS))
+    axes = list(_PARAMS) + [n for s in scenes for n in s.point]
+    x = t.string("x", choices=tuple(dict.fromkeys(axes)))
+    chart: dict[str, Any] = dict(kind=kind, x=x, title=t.string("title", ""))
+    if kind == "line":
+        chart["y"] = t.string("y", choices=tuple(m for m in metrics if m != "stability") + ("cpu_per_simulated_s",))
+    else:
+        chart["y"] = t.string("y", choices=tuple(dict.fromkeys(axes)))
+        if chart["y"] == x:
+            raise t.error("y", "must differ from x")
+        chart["wrong"] = t.number("wrong", None, check=lambda v: v > 0, expect="a distance > 0 m")
+        if chart["wrong"] is not None and "position_error" not in metrics:
+            raise t.error("wrong", "a stable-but-wrong class needs the position_error metric")
+        if "stability" not in metrics:
+            raise t.error("kind", "a stability map needs the stability metric")
+    t.finish()
+    return chart
 
 
 def _import_user_module(module: str, folder: str | None, sha256: str | None):
