@@ -24,13 +24,21 @@ std::string path_arg(const py::handle& path) {
 }  // namespace
 
 void bind_plugin(py::module_& m) {
-  py::class_<PluginLibrary, std::shared_ptr<PluginLibrary>>(m, "Plugin",
+  // Both classes first, so that each one's signatures can name the other.
+  py::class_<PluginLibrary, std::shared_ptr<PluginLibrary>> plugin(m, "Plugin",
       "A method brought as a plug-in: a shared library written against csb_plugin.h (in csb.plugin_include_dir()), "
       "loaded by csb.load_plugin(path). Calling it, plugin(dt=..., substeps=1, iterations=10, gravity=(0, -9.81, 0)), "
       "makes a csb.PluginIntegrator, a csb.Integrator that the runner, the viewer and the studies step like a "
       "built-in; so the Plugin itself can be passed wherever a callable making an Integrator is taken "
-      "(csb.studies.make_stepper).")
-      .def_property_readonly("path", &PluginLibrary::path, "the file it was loaded from, as given")
+      "(csb.studies.make_stepper).");
+  py::class_<PluginIntegrator, Integrator, py::smart_holder> integrator(m, "PluginIntegrator",
+      "An integrator of a plug-in (csb.load_plugin(path)(dt=...)): a csb.Integrator. step() calls the plug-in one "
+      "step at a time, checks that every position and velocity is finite and advances state.t and state.step; a "
+      "step the plug-in reports as failed, or one that leaves a non-finite value, puts the state back at the end "
+      "of the last completed step and raises csb.SimulationError (csb.ParameterError for a model or settings the "
+      "plug-in refuses), naming the plug-in, its file, the step and the plug-in's message.");
+
+  plugin.def_property_readonly("path", &PluginLibrary::path, "the file it was loaded from, as given")
       .def_property_readonly("name", &PluginLibrary::name, "the method's name, as csb_plugin_name() gives it")
       .def_property_readonly("abi_version", &PluginLibrary::abi_version, "the version of csb_plugin.h it was built for")
       .def("__call__", [](std::shared_ptr<PluginLibrary> self, double dt, IntArg substeps, IntArg iterations,
@@ -46,19 +54,15 @@ void bind_plugin(py::module_& m) {
            "An integrator of this plug-in with step dt (s), `substeps` sub-steps per step, `iterations` constraint "
            "sweeps per sub-step and gravity (m/s²): a csb.PluginIntegrator. Settings out of range are a "
            "csb.ParameterError naming them, as are settings the plug-in refuses (with its message).")
-      .def("__reduce__", [m](const PluginLibrary& self) {
-        return py::make_tuple(m.attr("load_plugin"), py::make_tuple(self.path()));
+      .def("__reduce__", [m](const PluginLibrary& self) -> py::tuple {
+        // Pickled by its path: loaded again where it is unpickled (a study's worker process).
+        return py::make_tuple(py::object(m.attr("load_plugin")), py::make_tuple(self.path()));
       })
       .def("__repr__", [](const PluginLibrary& self) {
         return "<csb.Plugin '" + self.name() + "' from " + self.path() + ">";
       });
 
-  py::class_<PluginIntegrator, Integrator, py::smart_holder>(m, "PluginIntegrator",
-      "An integrator of a plug-in (csb.load_plugin(path)(dt=...)): a csb.Integrator. step() calls the plug-in one "
-      "step at a time, checks that every position and velocity is finite and advances state.t and state.step; a "
-      "step the plug-in reports as failed, or one that leaves a non-finite value, puts the state back at the end "
-      "of the last completed step and raises csb.SimulationError (csb.ParameterError for a model or settings the "
-      "plug-in refuses), naming the plug-in, its file, the step and the plug-in's message.")
+  integrator
       .def_property_readonly("plugin", [](const PluginIntegrator& s) { return std::const_pointer_cast<PluginLibrary>(s.library()); },
                              "the csb.Plugin it was made from")
       .def_property_readonly("substeps", [](const PluginIntegrator& s) { return s.options().substeps; })

@@ -14,7 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['AccuracyWarning', 'BackwardEuler', 'BackwardEulerResidual', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'IncrementalPotential', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'backward_euler_residual', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['AccuracyWarning', 'BackwardEuler', 'BackwardEulerResidual', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'IncrementalPotential', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'Plugin', 'PluginIntegrator', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'backward_euler_residual', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'load_plugin', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -555,6 +555,53 @@ class ForceStepper(Integrator):
         """
         Evaluations of the spring network's forces since construction: one per sub-step (velocity Verlet reuses the end of a sub-step's forces at the start of the next, unless damping or drag make them depend on the velocity: then two).
         """
+class Plugin:
+    """
+    A method brought as a plug-in: a shared library written against csb_plugin.h (in csb.plugin_include_dir()), loaded by csb.load_plugin(path). Calling it, plugin(dt=..., substeps=1, iterations=10, gravity=(0, -9.81, 0)), makes a csb.PluginIntegrator, a csb.Integrator that the runner, the viewer and the studies step like a built-in; so the Plugin itself can be passed wherever a callable making an Integrator is taken (csb.studies.make_stepper).
+    """
+    def __call__(self, dt: typing.SupportsFloat | typing.SupportsIndex, *, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0]) -> PluginIntegrator:
+        """
+        An integrator of this plug-in with step dt (s), `substeps` sub-steps per step, `iterations` constraint sweeps per sub-step and gravity (m/s²): a csb.PluginIntegrator. Settings out of range are a csb.ParameterError naming them, as are settings the plug-in refuses (with its message).
+        """
+    def __reduce__(self) -> tuple:
+        ...
+    def __repr__(self) -> str:
+        ...
+    @property
+    def abi_version(self) -> int:
+        """
+        the version of csb_plugin.h it was built for
+        """
+    @property
+    def name(self) -> str:
+        """
+        the method's name, as csb_plugin_name() gives it
+        """
+    @property
+    def path(self) -> str:
+        """
+        the file it was loaded from, as given
+        """
+class PluginIntegrator(Integrator):
+    """
+    An integrator of a plug-in (csb.load_plugin(path)(dt=...)): a csb.Integrator. step() calls the plug-in one step at a time, checks that every position and velocity is finite and advances state.t and state.step; a step the plug-in reports as failed, or one that leaves a non-finite value, puts the state back at the end of the last completed step and raises csb.SimulationError (csb.ParameterError for a model or settings the plug-in refuses), naming the plug-in, its file, the step and the plug-in's message.
+    """
+    @property
+    def gravity(self) -> numpy.ndarray:
+        """
+        m/s²
+        """
+    @property
+    def iterations(self) -> int:
+        ...
+    @property
+    def plugin(self) -> Plugin:
+        """
+        the csb.Plugin it was made from
+        """
+    @property
+    def substeps(self) -> int:
+        ...
 class SpringNetwork:
     """
     The reference's first-order system y' = f(y), y = [x; v] of the dynamic particles: for tests and studies.
@@ -963,6 +1010,10 @@ def distance_violations(model: Model, state: State) -> numpy.typing.NDArray[nump
 def elastic_energy(model: Model, state: State) -> float:
     """
     Σ C²/(2α) over the constraints with compliance α > 0, J.
+    """
+def load_plugin(path: typing.Any) -> Plugin:
+    """
+    Loads the method in the shared library at `path` (a str or os.PathLike; a name without a directory is taken in the working directory, not searched for) and returns a csb.Plugin, which makes integrators: csb.load_plugin(path)(dt=0.01, substeps=1, iterations=10, gravity=(0, -9.81, 0)). A missing file is a FileNotFoundError; a file that is not a shared library, lacks one of csb_plugin.h's entry points (named) or was built for another version of csb_plugin.h is a csb.ParameterError naming the file.
     """
 def lumped_measure(mesh: Mesh) -> numpy.typing.NDArray[numpy.float64]:
     """
