@@ -1,8 +1,10 @@
 """csb.studies: the study framework. This module holds the small measurement set-ups shared by the
 validation studies (validation/) and their quick versions in the tests; csb.studies.collisions and
-csb.studies.soft_bodies the collision and soft-body set-ups, csb.studies.report the main job's
-report, csb.studies.study the study files that `csb study run` reads and runs on Dask (run_study).
-They use the library (csb), never the benchmarks."""
+csb.studies.soft_bodies the collision and soft-body set-ups, csb.studies.literature the
+literature's test scenes (XPBD's oscillator, chain and cantilever, the ratio chains, the twisting
+cloth) as study set-ups, csb.studies.report the main job's report, csb.studies.study the study
+files that `csb study run` reads and runs on Dask (run_study). They use the library (csb), never
+the benchmarks."""
 
 from __future__ import annotations
 
