@@ -77,9 +77,7 @@ def _make_stepper(definition: dict[str, Any], context: dict[str, Any], params: d
     from .. import make_stepper
 
     if "plugin" in method:
-        from ...plugin import load_plugin
-
-        made = load_plugin(context["method"]["path"])
+        made = _core.load_plugin(context["method"]["path"])
     else:
         module, _, cls = method["python"].partition(":")
         made = getattr(_import_user_module(module, context["method"].get("folder"), method.get("sha256")), cls)

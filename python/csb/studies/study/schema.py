@@ -21,6 +21,7 @@ from ...model import ModelBuilder
 from ...scene import find_scene, load_scene
 from ...scene_file import SceneError, _Source, _Table, read_toml
 from .. import hanging_chain, pendulum_model, spinning_cloth, swinging_chain
+from ..literature import SETUPS as LITERATURE_SETUPS
 from ..soft_bodies import hanging_tet_cube
 
 __all__ = ["StudyError", "Study", "Cell", "load_study", "cell_key", "METRICS", "SETUPS"]
@@ -80,6 +81,8 @@ SETUPS: dict[str, Callable[..., tuple[_core.Model, _core.State]]] = {
     "spinning_cloth": _with_rest_state(spinning_cloth),
     "hanging_cloth": _with_rest_state(hanging_cloth),
     "hanging_tet_cube": _with_rest_state(hanging_tet_cube),
+    # the literature's scenes with their published parameters (csb.studies.literature)
+    **{name: _with_rest_state(make) for name, make in LITERATURE_SETUPS.items()},
 }
 
 # What each metric is; all are measured at the study's output times (the start included).
@@ -340,14 +343,12 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
         lib = Path(t.string("plugin"))
         path = lib if lib.is_absolute() else base / lib
         try:
-            from ...plugin import load_plugin
-
-            made = load_plugin(path)
-        except (OSError, ImportError, _core.Error, ValueError) as e:
+            made = _core.load_plugin(path)
+        except (OSError, _core.Error, ValueError) as e:
             raise t.error("plugin", str(e)) from None
         definition = dict(plugin=str(lib), sha256=_sha256_file(path))
         context = dict(path=str(path.resolve()))
-        label = t.string("label", getattr(made, "plugin_name", lib.stem))
+        label = t.string("label", made.name)
         grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
         for key in ("substeps", "iterations"):
             g = _grid(t, key, "count")
