@@ -288,3 +288,40 @@ def test_a_failing_step_leaves_the_state_at_the_last_good_step(build_c, flag, er
     assert state.step == 3 and state.t == pytest.approx(0.03)
     np.testing.assert_allclose(np.asarray(state.x), np.asarray(model.rest_positions) + 3.0, rtol=0, atol=1e-12)
     assert np.all(np.isfinite(state.v))
+
+
+def test_the_documented_use_runs(example, monkeypatch, tmp_path):
+    """docs/your_own_method.md's plug-in block, run as printed with the example built here."""
+    import re
+
+    text = (ROOT / "docs" / "your_own_method.md").read_text()
+    (block,) = [b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "load_plugin" in b]
+    (tmp_path / "build" / "plugin").mkdir(parents=True)
+    shutil.copy(example, tmp_path / "build" / "plugin" / "libmy_xpbd.so")
+    monkeypatch.chdir(tmp_path)
+    namespace: dict = {}
+    exec(compile(block, "your_own_method.md", "exec"), namespace)
+    assert namespace["state"].step == 400 and isinstance(namespace["stepper"], csb.PluginIntegrator)
+
+
+def test_one_integrator_is_one_threads_at_a_time(example):
+    """A second thread stepping the integrator another thread is stepping is refused before it
+    reaches the plug-in (a plug-in's handle is one thread's at a time). The first thread is held
+    inside its step by its interrupt, which csb asks between steps."""
+    stepper, model = csb.load_plugin(example)(dt=0.01), swinging_chain()
+    inside, done = threading.Event(), threading.Event()
+
+    def hold() -> bool:
+        inside.set()
+        done.wait(30)
+        return False
+
+    first = threading.Thread(target=stepper.step, args=(model, model.initial_state(), 3), kwargs={"interrupt": hold})
+    first.start()
+    assert inside.wait(30)
+    try:
+        with pytest.raises(csb.ConcurrentUseError, match="PluginIntegrator::step: this stepper is in use by another"):
+            stepper.step(model, model.initial_state(), 1)
+    finally:
+        done.set()
+        first.join()
