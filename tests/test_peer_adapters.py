@@ -153,3 +153,155 @@ def test_a_diverging_mujoco_step_is_an_error_not_a_silent_reset(tmp_path, monkey
         MujocoFlexIntegrator(1e-3).step(model, state, 100)  # stiff springs, explicit steps
     assert np.all(np.isfinite(state.x)) and 0 <= state.step < 100
     assert not (tmp_path / "MUJOCO_LOG.TXT").exists()
+
+
+# ---------------------------------------------------------------------------------------------
+# NVIDIA Newton (newton on warp, device "cpu"). Newton's first use compiles its kernels for the
+# CPU (about 17 s for SolverXPBD's, 7 s for SolverVBD's, 4 s for the model's and Style3D's, once
+# per machine: Warp keeps them in its kernel cache); with the cache these tests take a few seconds.
+
+
+@pytest.fixture(scope="module")
+def newton_installed():
+    pytest.importorskip("warp", reason="warp-lang (csb's optional 'bench' extra) is not installed")
+    pytest.importorskip("newton", reason="newton (csb's optional 'bench' extra) is not installed")
+
+
+NEWTON = [adapters.NewtonXpbdIntegrator, adapters.NewtonVbdIntegrator, adapters.NewtonStyle3dIntegrator]
+
+
+def test_a_missing_newton_names_the_extra(monkeypatch):
+    monkeypatch.setattr(adapters.importlib.util, "find_spec", lambda name: None)
+    with pytest.raises(ImportError, match=r"'newton' is not installed: .* optional 'bench' extra"):
+        adapters.NewtonVbdIntegrator(1 / 60)
+
+
+def hanging(n: int = 6) -> csb.Model:
+    from csb.studies.study.schema import hanging_cloth
+
+    return hanging_cloth(n=n)
+
+
+def test_newton_xpbd_is_csbs_summed_jacobi_xpbd(newton_installed):
+    """Newton's XPBD sums the corrections of a sweep (Jacobi): csb's XPBD with solver
+    "jacobi-summed" is the same method, and on the chain the two agree to float32 over 60 steps."""
+    from csb.studies import swinging_chain
+
+    model = swinging_chain(links=5, compliance=1e-6)
+    peer = adapters.NewtonXpbdIntegrator(1 / 120, iterations=10)
+    c = conformance(peer, model)
+    assert c.ok, str(c)
+    assert c.figures["first_step_gap_m"] < 1e-3 * c.figures["fall_m"]
+    a, b = model.initial_state(), model.initial_state()
+    peer.step(model, a, 60)
+    peer.counterpart().step(model, b, 60)
+    assert np.max(np.abs(np.asarray(a.x) - np.asarray(b.x))) < 1e-6
+    assert a.step == b.step == 60 and a.t == pytest.approx(0.5)
+
+
+def test_newton_xpbd_on_a_stiff_cloth_is_reported_not_compared(newton_installed):
+    """Summed Jacobi diverges on the hanging cloth (α = 1e-4 m/N) at 1/30 s, in csb as in Newton:
+    the check says it cannot compare, instead of comparing two diverged states."""
+    c = conformance(adapters.NewtonXpbdIntegrator(1 / 30), hanging())
+    assert not c.ok and "cannot check the first step: csb's xpbd diverges in it" in str(c)
+
+
+@pytest.mark.parametrize("cls", NEWTON[1:], ids=["vbd", "style3d"])
+def test_newton_implicit_solvers_conform_on_the_hanging_cloth(newton_installed, cls):
+    c = conformance(cls(1 / 120, iterations=10), hanging())
+    assert c.ok, str(c)
+    assert c.figures["first_step_gap_m"] < 0.05 * c.figures["fall_m"]
+
+
+def test_newton_vbd_conforms_on_the_chain(newton_installed):
+    from csb.studies import swinging_chain
+
+    c = conformance(adapters.NewtonVbdIntegrator(1 / 120), swinging_chain(links=5, compliance=1e-6))
+    assert c.ok, str(c)
+    assert c.figures["first_step_gap_m"] < 1e-3 * c.figures["fall_m"]
+
+
+@pytest.mark.parametrize("cls", NEWTON, ids=["xpbd", "vbd", "style3d"])
+def test_newton_free_fall_is_the_closed_form(newton_installed, cls):
+    """A free cloth (no pins) falls as one body: after k sub-steps of h from rest every particle
+    has fallen g h² (1 + 2 + ... + k) (semi-implicit and backward Euler alike), to float32.
+    Style3D scales the velocity by 0.998 each step, and the closed form takes that in."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.5, 0.5, 4, 4), density=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
+               bending_compliance=1.0)
+    model = b.build()
+    state = model.initial_state()
+    dt, substeps, steps = 1 / 60, 2, 30
+    cls(dt, substeps=substeps).step(model, state, steps)
+    h, keep = dt / substeps, 0.998 if cls is adapters.NewtonStyle3dIntegrator else 1.0
+    y = v = 0.0
+    for _ in range(steps * substeps):
+        dy = h * (v - 9.81 * h)
+        y, v = y + dy, keep * dy / h
+    x = np.asarray(state.x)
+    assert np.max(np.abs(x - (np.asarray(model.rest_positions) + [0.0, y, 0.0]))) < 1e-5
+    assert np.max(np.abs(np.asarray(state.v) - [0.0, v, 0.0])) < 1e-4
+    assert state.step == steps
+
+
+@pytest.mark.parametrize("cls", NEWTON, ids=["xpbd", "vbd", "style3d"])
+def test_newton_says_what_it_cannot_map(newton_installed, cls):
+    peer = cls(1 / 60)
+    soft = csb.load_scene("soft_cube_drop").build().model
+    why = peer.unmappable(soft)
+    assert any("volume constraints" in w for w in why) and "colliders" in why
+    with pytest.raises(csb.ParameterError, match=rf"Newton's {cls.SOLVER} cannot simulate this model: .*volume"):
+        peer.step(soft, soft.initial_state())
+    draped = csb.load_scene("cloth_sphere").build().model
+    assert "self-collision" in peer.unmappable(draped)
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.chain(3, 0.1), density=0.1)  # compliance 0: hard
+    b.pin(0)
+    hard = b.build()
+    assert any(w.startswith("hard distance constraints") for w in peer.unmappable(hard))
+    assert not conformance(peer, hard).ok
+
+
+def test_newton_style3d_needs_a_flat_cloth_of_triangles(newton_installed):
+    from csb.studies import swinging_chain
+
+    peer = adapters.NewtonStyle3dIntegrator(1 / 60)
+    with pytest.raises(csb.ParameterError, match="SolverStyle3D cannot simulate this model: no triangles"):
+        peer.step(swinging_chain(), swinging_chain().initial_state())
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.5, 0.5, 4, 4), density=0.2, stretch_compliance=1e-4, bending_stiffness=None)
+    cloth = b.build()
+    assert peer.unmappable(cloth) == []
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.5, 0.5, 4, 4), density=0.2, stretch_stiffness=None)
+    bare = b.build()  # triangles without distance constraints
+    assert any("triangle edges without a distance constraint" in w for w in peer.unmappable(bare))
+
+
+def test_a_wrong_newton_mapping_does_not_conform(newton_installed):
+    class Unpinned(adapters.NewtonVbdIntegrator):
+        """Gives the pinned particles a mass: the cloth falls away from its pins."""
+
+        def _particles(self, builder, model):
+            x = np.asarray(model.rest_positions, dtype=float)
+            builder.add_particles(x.tolist(), [(0.0, 0.0, 0.0)] * len(x), np.asarray(model.mass).tolist(),
+                                  radius=[0.0] * len(x))
+
+    c = conformance(Unpinned(1 / 120), hanging())
+    assert not c.ok
+    assert any(f.startswith("pins:") for f in c.failures)
+    assert any("differs from csb's" in f for f in c.failures)
+
+
+@pytest.mark.parametrize("cls", NEWTON, ids=["xpbd", "vbd", "style3d"])
+def test_newton_bad_settings_are_named(newton_installed, cls):
+    for dt in (0.0, -1.0, float("nan"), "0.01"):
+        with pytest.raises(csb.ParameterError, match="dt must be"):
+            cls(dt)
+    for substeps in (0, 1.5, True):
+        with pytest.raises(csb.ParameterError, match="substeps must be"):
+            cls(1 / 60, substeps=substeps)
+    with pytest.raises(csb.ParameterError, match="iterations must be"):
+        cls(1 / 60, iterations=0)
+    with pytest.raises(csb.ParameterError, match="gravity must be"):
+        cls(1 / 60, gravity=(0.0, float("inf"), 0.0))
