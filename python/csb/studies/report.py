@@ -228,7 +228,10 @@ def run_study_files(files: list[Path], out: Path) -> list[StudySection]:
     from .study.cells import _read_record
 
     def pending(path: Path) -> bool:
-        st = load_study(path)
+        try:
+            st = load_study(path)
+        except Exception:
+            return False  # reported below
         cells = out / "studies" / st.name / "cells"
         return any(_read_record(cells / f"{c.key}.json") is None for c in st.cells())
 
@@ -381,9 +384,7 @@ def main(argv: list[str] | None = None) -> int:
                       flush=True)
                 failures += reused is None
     if study_files:
-        from .study import load_study
-
-        chosen = [f for f in study_files if args.full or load_study(f).tier == "quick"]
+        chosen = [f for f in study_files if args.full or _tier(f) == "quick"]
         studies = run_study_files(chosen, out)
     else:
         studies = []
@@ -415,6 +416,16 @@ def main(argv: list[str] | None = None) -> int:
     # its section; a study that cannot run at all fails the job.
     failed = failures or any(s.returncode for s in sections) or bench_code or any(s.error for s in studies)
     return 1 if failed else 0
+
+
+def _tier(path: Path) -> str:
+    """A study file's tier; "quick" if it cannot be read (so that it runs, and its error is reported)."""
+    from .study import load_study
+
+    try:
+        return load_study(path).tier
+    except Exception:
+        return "quick"
 
 
 def _scene_or_error(scene: str, out: Path, cache: Cache) -> tuple[str, bool | None]:
