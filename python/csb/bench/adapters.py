@@ -369,8 +369,9 @@ class NewtonIntegrator(_Peer):
       each step. Newton computes in float32: positions are rounded to 6e-8 of their size.
     * Newton's model is built at the first step of each csb Model and kept for it.
     * cost: Newton's first use compiles its kernels for the CPU and keeps them in Warp's kernel
-      cache (``~/.cache/warp``): 17 s for SolverXPBD's, 7 s for SolverVBD's, 3.5 s for the
-      model's own on this machine; a process that finds them cached loads them in about a second.
+      cache (``~/.cache/warp``): 16 s for SolverXPBD's, 7 s for SolverVBD's, 4.6 s for the
+      model's own on the development machine (papers/benchmarks.md). Every sub-step launches its
+      kernels from Python, which dominates the cost on small models.
 
     Not mapped, and said so by ``unmappable``: volume, attachment, balloon and user constraint
     families, colliders, self-collision, one-sided distance constraints, rest lengths other than
@@ -694,7 +695,8 @@ class NewtonStyle3dIntegrator(NewtonIntegrator):
             props[e, 0] = area[e] / (3.0 * a * (w1 * h) ** 2)
             self._hinges += 1
         nm.edge_bending_properties.assign(props)
-        solver = newton.solvers.SolverStyle3D(nm, config=newton.solvers.SolverStyle3D.Config(iterations=self.iterations))
+        config = newton.solvers.SolverStyle3D.Config(iterations=self.iterations)
+        solver = newton.solvers.SolverStyle3D(nm, config=config)
         solver.collision = None
         return solver
 
