@@ -75,14 +75,14 @@ def xpbd_oscillator(*, mass: float = 1.0, rest_length: float = 1.0, start_length
     The anchor is pinned at the origin and the particle of ``mass`` (kg, default 1) hangs below it
     on a distance constraint of ``rest_length`` (m, default 1) and ``compliance`` α (m/N, default
     1e-3, a stiffness of 1000 N/m), released at rest at ``start_length`` (m, default 1.5) from the
-    anchor. The paper states no figure for this scene, and our note lists none: the values are
-    those csb takes for it (a spring of 1 m pulled to 1.5 m, α = 1e-3 m/N).
+    anchor. Our note of the paper records no single-spring scene in it, so no published values:
+    these are the ones csb takes (a spring of 1 m pulled to 1.5 m, α = 1e-3 m/N).
 
     What to see: a harmonic oscillation along the spring of amplitude start_length - rest_length
     (0.5 m) and period 2π sqrt(m α) = 0.1987 s (oscillator_period) — exactly, as the motion stays
-    on the spring's line where C = |x| - L is linear. The paper's scene has no gravity (study:
-    ``gravity = [0, 0, 0]``); under gravity along the spring (the study's default, -y) only the
-    centre moves, down by m g α (9.81 mm), the period is the same. XPBD, backward Euler in
+    on the spring's line where C = |x| - L is linear. Without gravity (study: ``gravity = [0, 0,
+    0]``) it oscillates about the rest length; under gravity along the spring (the study's
+    default, -y) only the centre moves, down by m g α (9.81 mm), the period is the same. XPBD, backward Euler in
     disguise, damps the amplitude by sqrt(1 + (ωh)²) a step (ω = 31.6 rad/s: 12 % a step at
     dt = 1/60 s) and lengthens the period; sub-steps take both away.
     """
