@@ -131,8 +131,8 @@ def test_mujoco_flex_says_what_it_cannot_map_and_when_it_diverges(tmp_path, monk
     from csb.studies import swinging_chain
 
     peer = MujocoFlexIntegrator(1e-3, substeps=10)
-    assert any("triangles" in w for w in peer.unmappable(cloth(4)))
-    with pytest.raises(csb.ParameterError, match="MuJoCo's flex cannot simulate this model: triangles"):
+    assert "hard distance constraints" in " ".join(peer.unmappable(cloth(4)))  # the bundled cloth is PBD's
+    with pytest.raises(csb.ParameterError, match="MuJoCo's flex cannot simulate this model: hard distance"):
         peer.step(cloth(4), cloth(4).initial_state())
     # Explicit steps too long for these stiff springs: the peer diverges in its first step and the
     # check reports it, instead of comparing a state MuJoCo reset.
@@ -140,6 +140,41 @@ def test_mujoco_flex_says_what_it_cannot_map_and_when_it_diverges(tmp_path, monk
     assert not c.ok and "MuJoCo's flex diverged in step 1" in str(c)
     with pytest.raises(csb.ParameterError, match="integrator must be one of"):
         MujocoFlexIntegrator(1e-3, integrator="rk2")
+
+
+@needs_mujoco
+def test_mujoco_flex_conforms_on_the_hanging_cloth_and_follows_csb():
+    """A cloth: its springs a 1-D flex, each bending hinge a 2-D flex of stiffness 1/α. MuJoCo's
+    hinge bending is quadratic about the flat rest state, csb's θ²/(2α) is not, so the two agree
+    to the fold's second order: 1e-7 m after 2000 steps of 1e-5 s (2.2 mm of fall)."""
+    from csb.studies.study.schema import hanging_cloth
+
+    model = hanging_cloth(n=6)
+    peer = MujocoFlexIntegrator(1e-5)
+    assert peer.unmappable(model) == []
+    c = conformance(peer, model)
+    assert c.ok, str(c)
+    assert peer.counts["bending"] == len(np.asarray(model.bending["rest_angle"])) == 65
+    a, b = model.initial_state(), model.initial_state()
+    peer.step(model, a, 2000)
+    csb.ForceStepper(method="symplectic-euler", dt=1e-5).step(model, b, 2000)
+    x0 = np.asarray(model.rest_positions)
+    assert np.max(np.abs(np.asarray(b.x) - x0)) > 2e-3
+    assert np.max(np.abs(np.asarray(a.x) - np.asarray(b.x))) < 5e-7
+
+
+@needs_mujoco
+def test_mujoco_flex_maps_a_cloth_without_bending_exactly():
+    """Without bending a cloth is a spring network: MuJoCo's Euler is csb's symplectic Euler to
+    round-off, as on the chain."""
+    b = csb.ModelBuilder()
+    inst = b.add_mesh(csb.cloth_grid(0.5, 0.5, 5, 5), density=0.2, stretch_compliance=1e-4, bending_stiffness=None)
+    b.pin(inst.first_particle)
+    model = b.build()
+    x, y = model.initial_state(), model.initial_state()
+    MujocoFlexIntegrator(1e-5).step(model, x, 1000)
+    csb.ForceStepper(method="symplectic-euler", dt=1e-5).step(model, y, 1000)
+    assert np.max(np.abs(np.asarray(x.x) - np.asarray(y.x))) < 1e-13
 
 
 @needs_mujoco
@@ -305,3 +340,27 @@ def test_newton_bad_settings_are_named(newton_installed, cls):
         cls(1 / 60, iterations=0)
     with pytest.raises(csb.ParameterError, match="gravity must be"):
         cls(1 / 60, gravity=(0.0, float("inf"), 0.0))
+
+
+def curved_cloth() -> csb.Model:
+    """A cloth bent into a parabola at rest: its hinges' rest angles are not 0 (up to 0.17 rad)."""
+    flat = csb.cloth_grid(0.5, 0.5, 4, 4)
+    v = np.array(flat.vertices)
+    v[:, 1] = 0.5 * v[:, 0] ** 2
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.Mesh(v, np.asarray(flat.triangles)), density=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
+               bending_compliance=1.0)
+    return b.build()
+
+
+@needs_mujoco
+def test_mujoco_flex_takes_flat_rest_states_only():
+    with pytest.raises(csb.ParameterError, match="bending rest angles other than 0"):
+        model = curved_cloth()
+        MujocoFlexIntegrator(1e-5).step(model, model.initial_state())
+
+
+def test_newton_style3d_takes_flat_rest_states_only(newton_installed):
+    why = adapters.NewtonStyle3dIntegrator(1 / 60).unmappable(curved_cloth())
+    assert any(w.startswith("a cloth not flat at rest") for w in why)
+    assert any(w.startswith("bending rest angles other than 0") for w in why)

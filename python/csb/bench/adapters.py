@@ -20,9 +20,9 @@ adapter raises ImportError naming the extra.
 * ``MujocoFlexIntegrator``: MuJoCo's flex (``mujoco``), a one-dimensional flex whose edges are
   csb's distance constraints as springs of stiffness 1/α (N/m), each particle a body on three
   slide joints with its own mass (a pin: a body with none), stepped by MuJoCo's semi-implicit
-  Euler (or its implicit-in-velocity and RK4 integrators). Maps chains and spring networks
-  without triangles; a cloth's flex in MuJoCo is a continuum model (Young's modulus, Poisson's
-  ratio, thickness) that csb's per-edge springs and dihedral bending do not map onto.
+  Euler (or its implicit-in-velocity and RK4 integrators). A cloth's bending is a two-dimensional
+  flex per hinge with MuJoCo's hinge bending, its Young's modulus chosen so that the hinge's
+  stiffness is 1/α (exact to second order in the fold about a flat rest state).
 * ``NewtonXpbdIntegrator``, ``NewtonVbdIntegrator``, ``NewtonStyle3dIntegrator``: NVIDIA Newton's
   cloth solvers (``newton`` on ``warp``, device "cpu"), SolverXPBD, SolverVBD and SolverStyle3D.
   The mapping of each is in its class's docstring (:class:`NewtonIntegrator` has what they share).
@@ -218,9 +218,23 @@ class PypbdIntegrator(_Peer):
 
 
 class MujocoFlexIntegrator(_Peer):
-    """MuJoCo's one-dimensional flex stepping a csb Model of distance springs: dt (s) a step in
-    `substeps` mj_step calls of dt/substeps. integrator: "Euler" (MuJoCo's semi-implicit Euler, the
-    force-based counterpart of csb's symplectic Euler), "implicitfast" or "RK4"."""
+    """MuJoCo's flex stepping a csb Model of distance springs and dihedral bending: dt (s) a step
+    in `substeps` mj_step calls of dt/substeps. integrator: "Euler" (MuJoCo's semi-implicit Euler,
+    the force-based counterpart of csb's symplectic Euler), "implicitfast" or "RK4".
+
+    * distance constraints: one 1-D flex whose elements are csb's distance pairs, edges of
+      stiffness 1/α (N/m), damping 0: exact (MuJoCo's edge stiffness is for 1-D flexes only; a
+      2-D flex's stretching is a continuum St Venant-Kirchhoff membrane, not per-edge springs).
+    * bending: a 2-D flex per hinge, its two triangles, elastic2d "bend" only, Poisson's ratio
+      0, thickness t = 1 m and Young's modulus E = 12 A / (t³ |e|² α), A the two triangles' rest
+      area and |e| the hinge's edge. MuJoCo's 2-D bending is a hinge model for flat references of
+      stiffness D |e|²/A per hinge, D = E t³/(12 (1 - ν²)) one rigidity per flex (measured here
+      to 1e-6: k/(D |e|²/A) = 0.9999998 at a fold of 1 mrad, on square and equilateral hinges), so
+      a flex per hinge gives each hinge csb's 1/α, whatever its shape. It is quadratic in the
+      positions about the flat rest state (a constant Hessian), csb's θ²/(2α) is not: the two
+      agree to second order in the fold, and a fold of θ rad turns MuJoCo's force by about θ/2
+      from csb's. Rest angles must be 0.
+    """
 
     INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
 
@@ -247,11 +261,13 @@ class MujocoFlexIntegrator(_Peer):
         return self._dt
 
     def unmappable(self, model: _core.Model) -> list[str]:
-        why = []
-        if len(np.asarray(model.triangles)):
-            why.append("triangles: MuJoCo's 2-D flex is a continuum model, not csb's per-edge springs and "
-                       "dihedral bending")
-        why += _unmappable(model, "a flex", takes=("distance",))
+        why = _unmappable(model, "a flex", takes=("distance", "bending"))
+        bending = model.bending
+        if np.any(np.abs(np.asarray(bending["rest_angle"])) > 1e-9):
+            why.append("bending rest angles other than 0 (MuJoCo's 2-D flex bending is a hinge model for flat "
+                       "rest states)")
+        if np.any(np.asarray(bending["compliance"]) <= 0):
+            why.append("hard bending constraints (compliance 0): a flex hinge is a stiffness 1/α")
         alpha = np.asarray(model.distance["compliance"])
         if len(alpha) == 0:
             why.append("no distance constraints")
@@ -279,6 +295,17 @@ class MujocoFlexIntegrator(_Peer):
             m_i = float(mass[i]) if w[i] > 0 else 1.0  # a pin's mass is never used (it has no joint)
             bodies.append(f'<body name="p{i}" pos="{_num(p[0])} {_num(p[1])} {_num(p[2])}"><inertial pos="0 0 0" mass="{_num(m_i)}" '
                           f'diaginertia="1e-12 1e-12 1e-12"/>{slide if w[i] > 0 else ""}</body>')
+        hinges = []
+        q = np.asarray(model.bending["particles"])
+        for (a, b, c, d), alpha_b in zip(q.tolist(), np.asarray(model.bending["compliance"]).tolist()):
+            e2 = float(np.sum((x0[b] - x0[a]) ** 2))
+            area = 0.5 * (np.linalg.norm(np.cross(x0[c] - x0[a], x0[c] - x0[b]))
+                          + np.linalg.norm(np.cross(x0[d] - x0[b], x0[d] - x0[a])))
+            young = 12.0 * area / (e2 * alpha_b)  # thickness 1 m, Poisson 0: D |e|²/A = 1/α
+            hinges.append(f'<flex name="hinge{len(hinges)}" dim="2" body="p{a} p{b} p{c} p{d}" '
+                          f'vertex="{" ".join(["0 0 0"] * 4)}" element="2 0 1 3 1 0" radius="1e-4">'
+                          f'<elasticity young="{_num(young)}" poisson="0" thickness="1" elastic2d="bend"/>'
+                          f'<contact contype="0" conaffinity="0" selfcollide="none"/></flex>')
         g = self.gravity
         xml = f"""<mujoco>
   <option timestep="{_num(self._dt / self.substeps)}" gravity="{_num(g[0])} {_num(g[1])} {_num(g[2])}"
@@ -290,7 +317,7 @@ class MujocoFlexIntegrator(_Peer):
       radius="1e-4">
       <edge stiffness="{_num(stiffness)}" damping="0"/>
       <contact contype="0" conaffinity="0" selfcollide="none"/>
-    </flex>
+    </flex>{''.join(hinges)}
   </deformable>
 </mujoco>"""
         self._mj = mujoco
@@ -304,7 +331,9 @@ class MujocoFlexIntegrator(_Peer):
             if self._m.body_jntnum[b]:
                 self._adr[i] = self._m.jnt_qposadr[self._m.body_jntadr[b]]
         self._x0 = x0
-        self.counts = dict(particles=int(self._m.nflexvert), distance=int(self._m.nflexedge), bending=0, other=0)
+        dims = np.asarray(self._m.flex_dim)
+        self.counts = dict(particles=int(self._m.flex_vertnum[0]), distance=int(self._m.flex_edgenum[0]),
+                           bending=int(np.sum(dims == 2)), other=int(np.sum(dims == 3)))
         self.pinned = [i for i in range(len(x0)) if self._adr[i] < 0]
         self._model = model
 
