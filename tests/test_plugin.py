@@ -325,3 +325,46 @@ def test_one_integrator_is_one_threads_at_a_time(example):
     finally:
         done.set()
         first.join()
+
+
+def test_a_plugin_goes_through_a_study_file(example, tmp_path):
+    from csb.studies.study import StudyError, load_study, run_study
+
+    study = tmp_path / "study.toml"
+    body = f"""\
+[study]
+duration = 0.3
+metrics = ["position_error", "max_strain", "residual", "stability"]
+
+[reference]
+rtol = 1e-10
+
+[[scene]]
+setup = "swinging_chain"
+args = {{ links = 5, compliance = 1e-6 }}
+
+[[method]]
+plugin = "{example}"
+dt = [0.01, 0.005]
+iterations = 10
+
+[[method]]
+name = "xpbd"
+dt = [0.01, 0.005]
+iterations = 10
+"""
+    study.write_text(body)
+    r = run_study(study, out=tmp_path / "out", workers=0)
+    assert r.failed == 0
+    rows = {(row["method"], row["dt"]): row for row in r.table}
+    name = csb.load_plugin(example).name
+    for dt in (0.01, 0.005):
+        mine, builtin = rows[(name, dt)], rows[("xpbd", dt)]
+        # The example sweeps the links in order, csb's default XPBD in its own order: rounding apart.
+        assert mine["position_error"] == pytest.approx(builtin["position_error"], abs=1e-9)
+        assert mine["residual"] == pytest.approx(builtin["residual"], rel=1e-6)
+    # The library's bytes are part of the cells' keys; a path that is no plug-in is named.
+    assert all(row["key"] for row in r.table)
+    study.write_text(body.replace(str(example), str(tmp_path / "missing.so")))
+    with pytest.raises(StudyError, match=r"method\[0\]\.plugin: .*missing\.so"):
+        load_study(study)
