@@ -321,3 +321,60 @@ def test_a_users_class_takes_arguments_from_the_study(tmp_path):
     bad = write(tmp_path, p.read_text().replace("args = { damping = 0.5 }", "args = [1]"), "bad.toml")
     with pytest.raises(StudyError, match=r"method\[1\]\.args: must be a table"):
         load_study(bad)
+
+
+def test_a_method_the_study_file_does_not_name_runs_through_it_over_another_methods_grid(tmp_path, monkeypatch):
+    (tmp_path / "mine.py").write_text(textwrap.dedent("""\
+        import csb
+
+        class Mine(csb.Integrator):
+            def __init__(self, dt, iterations=10, gravity=(0, -9.81, 0)):
+                super().__init__()
+                self.inner = csb.PbdStepper(method="xpbd", dt=dt, iterations=iterations, gravity=gravity, threads=1)
+            def name(self):
+                return "mine"
+            def dt(self):
+                return self.inner.dt()
+            def step(self, model, state, steps=1, interrupt=None):
+                self.inner.step(model, state, steps)
+        """))
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.2
+        metrics = ["max_strain", "stability"]
+        """ + CHAIN + """
+        [[method]]
+        name = "symplectic-euler"
+        dt = 1e-4
+
+        [[method]]
+        name = "xpbd"
+        dt = [0.02, 0.01]
+        iterations = [2, 8]
+        """)
+    monkeypatch.chdir(tmp_path)
+    first = run_study(p, out=tmp_path / "out", workers=0)
+    r = run_study(p, out=tmp_path / "out", workers=0, extra_methods=["mine:Mine"], like="xpbd")
+    assert (r.computed, r.reused) == (4, first.computed)  # only the added method's cells run
+    mine = {(row["dt"], row["iterations"]): row for row in r.table if row["method"] == "Mine"}
+    xpbd = {(row["dt"], row["iterations"]): row for row in r.table if row["method"] == "xpbd"}
+    assert set(mine) == set(xpbd) == {(0.02, 2), (0.02, 8), (0.01, 2), (0.01, 8)}
+    assert all(mine[k]["max_strain"] == xpbd[k]["max_strain"] for k in mine)
+    with pytest.raises(StudyError, match=r"no method 'pbd' that takes a time step.*symplectic-euler, xpbd"):
+        load_study(p, extra_methods=["mine:Mine"], like="pbd")
+    with pytest.raises(StudyError, match=r"method\[2\]\.python: cannot import 'absent'"):
+        load_study(p, extra_methods=["absent:Mine"])
+
+
+STUDIES = Path(__file__).resolve().parents[1] / "validation" / "studies"
+
+
+@pytest.mark.parametrize("study", sorted(STUDIES.glob("*.toml")), ids=lambda p: p.stem)
+def test_the_documented_user_method_can_join_every_study_file(study, monkeypatch):
+    monkeypatch.chdir(STUDIES)  # where docs/your_own_method.md's MyPbd lives, as my_pbd.py
+    if any(m.definition.get("python") == "my_pbd:MyPbd" for m in load_study(study).methods):
+        return  # the study names it already
+    st = load_study(study, extra_methods=["my_pbd:MyPbd"])
+    added = st.methods[-1]
+    assert added.label == "MyPbd" and added.definition["python"] == "my_pbd:MyPbd"
+    assert len(st.cells()) > len(load_study(study).cells())

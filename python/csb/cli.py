@@ -43,7 +43,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     from .studies.study import run_study
 
     result = run_study(args.study, out=args.out, workers=args.workers, scheduler=args.scheduler,
-                       retry_failed=args.retry_failed, progress=not args.quiet)
+                       retry_failed=args.retry_failed, progress=not args.quiet, extra_methods=args.add or (),
+                       like=args.like)
     print(result.summary())
     for f in result.files:
         print(f"  wrote {f}")
@@ -236,6 +237,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scheduler", help="address of a running Dask scheduler (tcp://host:port) instead of a local cluster")
     p.add_argument("--retry-failed", action="store_true", help="run the cells stored as failed again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--with", dest="add", action="append", metavar="METHOD",
+                   help="add a method the study file does not name: module:Class (a csb.Integrator subclass, "
+                        "imported from the working directory) or the path of a plug-in's shared library; "
+                        "it takes the grid of the --like method (may be given more than once)")
+    p.add_argument("--like", metavar="LABEL", help="the study's method whose dt, substeps and iterations grid the "
+                                                   "--with methods take (default: its first that takes a time step)")
     p.set_defaults(func=_cmd_study)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)

@@ -123,15 +123,25 @@ def stability_map(table: list[dict], chart: dict, scenes: list[str], methods: li
     for scene in scenes:
         groups.setdefault(scene.split(" ")[0] if x_key not in _PARAMS or y_key not in _PARAMS else scene,
                           []).append(scene)
-    panels = [(g, m) for g in groups for m in methods]
+    def cells_of(group: str, method: str) -> list[dict]:
+        return [r for r in table if r["scene"] in groups[group] and r["method"] == method
+                and r.get(x_key) is not None and r.get(y_key) is not None]
+
+    # Only the scenes (and methods) the map's axes apply to: a panel per pair with cells.
+    panels = [(g, m) for g in groups for m in methods if cells_of(g, m)]
+    if not panels:
+        panels = [(g, m) for g in groups for m in methods][:1]
     cols = min(4, len(panels))
     rows_n = math.ceil(len(panels) / cols)
     fig, axes = plt.subplots(rows_n, cols, figsize=(4.2 * cols, 3.6 * rows_n), constrained_layout=True,
                              squeeze=False)
     colour = dict(MAP_CLASSES)
     for ax, (group, method) in zip(axes.flat, panels):
-        cells = [r for r in table if r["scene"] in groups[group] and r["method"] == method
-                 and r.get(x_key) is not None and r.get(y_key) is not None]
+        cells = cells_of(group, method)
+        if not cells:
+            ax.axis("off")
+            ax.set_title(f"no cell has both {x_key} and {y_key}", fontsize="small")
+            continue
         xs = sorted({r[x_key] for r in cells})
         ys = sorted({r[y_key] for r in cells})
         for r in cells:

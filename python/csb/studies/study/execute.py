@@ -253,7 +253,8 @@ def _param_text(row: dict) -> str:
 
 
 def run_study(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | None = None, workers: int | None = None,
-              scheduler: str | None = None, retry_failed: bool = False, progress: bool = False) -> StudyResult:
+              scheduler: str | None = None, retry_failed: bool = False, progress: bool = False,
+              extra_methods: tuple[str, ...] | list[str] = (), like: str | None = None) -> StudyResult:
     """Run the study file at ``path``: the cells without a stored result are computed (on Dask:
     ``scheduler`` an address, else a LocalCluster of ``workers`` processes, default one per core
     up to the cells; ``workers=0`` in this process), each stored as ``<out>/cells/<key>.json``
@@ -261,8 +262,9 @@ def run_study(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | Non
     metrics need (their tolerance chosen, with ``rtol = "auto"``, from the smallest error the
     cells show against them), the table (``results.csv``, ``results.parquet`` with pyarrow), the
     charts and the report section are written to ``out`` (default ``out/studies/<name>``). A
-    stored failed cell is run again only with ``retry_failed``."""
-    study = load_study(path)
+    stored failed cell is run again only with ``retry_failed``. ``extra_methods`` and ``like``:
+    methods the file does not name, over the grid of one it does (see :func:`load_study`)."""
+    study = load_study(path, extra_methods=extra_methods, like=like)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 0):
         raise _core.ParameterError(f"workers must be an integer >= 0 (0: in this process), got {workers!r}")
     out_dir = Path(out) if out is not None else Path("out") / "studies" / study.name

@@ -399,8 +399,14 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
     return MethodDef(label, definition, context, grid)
 
 
-def load_study(path: str | os.PathLike[str]) -> Study:
-    """Read and check a study file; every error is a StudyError naming the file, line and key."""
+def load_study(path: str | os.PathLike[str], *, extra_methods: tuple[str, ...] | list[str] = (),
+               like: str | None = None) -> Study:
+    """Read and check a study file; every error is a StudyError naming the file, line and key.
+
+    ``extra_methods`` adds methods the file does not name, each a user's class ("module:Class",
+    imported from the working directory or sys.path) or a plug-in (a path to a shared library),
+    over the grid (dt, substeps, iterations) of the file's method labelled ``like`` (default: its
+    first method that takes a time step): a researcher's method run through any study unedited."""
     p = Path(path)
     data, source = read_toml(p, "study file", StudyError)
     top = _StudyTable(source, data, (), "study file")
@@ -460,6 +466,19 @@ def load_study(path: str | os.PathLike[str]) -> Study:
     if not isinstance(raw_methods, list) or not raw_methods:
         raise top.error(None, "declare at least one [[method]]")
     methods = tuple(_read_method(source, m, k, p.parent) for k, m in enumerate(raw_methods))
+    if extra_methods:
+        stepping = [m for m in methods if "dt" in m.grid]
+        template = next((m for m in stepping if m.label == like), None) if like else (stepping or [None])[0]
+        if template is None:
+            known = ", ".join(m.label for m in stepping) or "none"
+            raise StudyError(f"{p}: the study has no method {like!r} that takes a time step whose grid an added "
+                             f"method could take (its methods with one: {known})" if like else
+                             f"{p}: the study has no method that takes a time step whose grid an added method could take")
+        for k, spec in enumerate(extra_methods):
+            kind = "plugin" if spec.endswith((".so", ".dylib", ".dll")) or os.sep in spec else "python"
+            data = {kind: spec, **{key: list(v) for key, v in template.grid.items()
+                                   if key in ("dt", "substeps", "iterations")}}
+            methods += (_read_method(source, data, len(raw_methods) + k, Path.cwd()),)
     for what, items in (("scene", scenes), ("method", methods)):
         labels = [x.label for x in items]
         for k, label in enumerate(labels):
