@@ -364,3 +364,12 @@ def test_newton_style3d_takes_flat_rest_states_only(newton_installed):
     why = adapters.NewtonStyle3dIntegrator(1 / 60).unmappable(curved_cloth())
     assert any(w.startswith("a cloth not flat at rest") for w in why)
     assert any(w.startswith("bending rest angles other than 0") for w in why)
+
+
+@needs_mujoco
+def test_mujoco_flex_bending_needs_mujoco_4(monkeypatch):
+    from csb.studies.study.schema import hanging_cloth
+
+    monkeypatch.setattr(MujocoFlexIntegrator, "_mujoco_version", staticmethod(lambda: "3.3.7"))
+    why = MujocoFlexIntegrator(1e-5).unmappable(hanging_cloth(n=4))
+    assert any("needs MuJoCo 4.0 or later" in w for w in why)

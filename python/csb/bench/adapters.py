@@ -233,7 +233,8 @@ class MujocoFlexIntegrator(_Peer):
       a flex per hinge gives each hinge csb's 1/α, whatever its shape. It is quadratic in the
       positions about the flat rest state (a constant Hessian), csb's θ²/(2α) is not: the two
       agree to second order in the fold, and a fold of θ rad turns MuJoCo's force by about θ/2
-      from csb's. Rest angles must be 0.
+      from csb's. Rest angles must be 0, and MuJoCo 4.0 or later (whose bending rigidity is the
+      plate's D; earlier versions took 3/4 (1 - ν) D).
     """
 
     INTEGRATORS = ("Euler", "implicitfast", "implicit", "RK4")
@@ -263,6 +264,9 @@ class MujocoFlexIntegrator(_Peer):
     def unmappable(self, model: _core.Model) -> list[str]:
         why = _unmappable(model, "a flex", takes=("distance", "bending"))
         bending = model.bending
+        if len(np.asarray(bending["rest_angle"])) and self._mujoco_major() < 4:
+            why.append(f"bending with MuJoCo {self._mujoco_version()}: the hinge mapping needs MuJoCo 4.0 or later "
+                       f"(earlier versions scale a 2-D flex's bending rigidity by 3/4 (1 - ν))")
         if np.any(np.abs(np.asarray(bending["rest_angle"])) > 1e-9):
             why.append("bending rest angles other than 0 (MuJoCo's 2-D flex bending is a hinge model for flat "
                        "rest states)")
@@ -278,6 +282,17 @@ class MujocoFlexIntegrator(_Peer):
         if np.any(np.asarray(model.mass)[np.asarray(model.inv_mass) > 0] <= 0):
             why.append("free particles without mass")
         return why
+
+    @staticmethod
+    def _mujoco_version() -> str:
+        from importlib.metadata import version
+
+        return version("mujoco")
+
+    @classmethod
+    def _mujoco_major(cls) -> int:
+        head = cls._mujoco_version().split(".")[0]
+        return int(head) if head.isdigit() else 0
 
     def _build(self, model: _core.Model) -> None:
         import mujoco
