@@ -14,7 +14,8 @@ What runs, in order:
 * the validation scripts ``<studies>/*.py``, two at a time, each with ``--quick`` unless
   ``--full``, their files gathered into ``<out>/validation/`` (what a script printed is kept
   beside them as ``<script>.txt``);
-* the benchmarks (``csb bench``; ``--no-bench`` skips them), into ``<out>/validation/benchmarks.txt``.
+* the benchmarks (``csb bench``: the quick tier's tables, QUICK_BENCH_PARTS, or with ``--full``
+  every table; ``--no-bench`` skips them), into ``<out>/validation/benchmarks.txt``.
 
 A scene, a script or the benchmarks whose inputs have not changed since they last ran (the
 installed csb, to the byte, the script's source and its arguments) is not run again: its stored
@@ -42,6 +43,10 @@ from pathlib import Path
 # body, a balloon, tearing.
 SCENES = ("cloth_drop", "cloth_sphere", "cloth_table", "soft_cube_drop", "balloon_squeeze", "cloth_tear")
 PARALLEL = 2  # scenes and scripts run two at a time (the studies on a LocalCluster of as many workers)
+# The benchmark tables of the quick tier (about 40 s on a 2-core machine); the full tier prints
+# every table (csb bench --help lists them: front ends, frames per second of big cloths, cost per
+# particle up to a million, a million-particle cloth, the reference's KLU cost, ...).
+QUICK_BENCH_PARTS = ("step", "dispatch", "types", "threads", "memory", "viewer")
 
 
 @dataclass
@@ -397,6 +402,8 @@ def main(argv: list[str] | None = None) -> int:
             print(s.output, flush=True)
     bench, bench_code, bench_measured = None, 0, ""
     if not args.no_bench:
+        if not args.bench_args and not args.full:
+            args.bench_args = ["--parts", *QUICK_BENCH_PARTS]
         key = cache.key("bench", " ".join(args.bench_args))
         hit = cache.get("bench", key)
         if hit is not None:
