@@ -378,3 +378,13 @@ def test_the_documented_user_method_can_join_every_study_file(study, monkeypatch
     added = st.methods[-1]
     assert added.label == "MyPbd" and added.definition["python"] == "my_pbd:MyPbd"
     assert len(st.cells()) > len(load_study(study).cells())
+
+
+def test_the_hanging_cloth_without_bending_has_distance_constraints_only():
+    from csb.studies.study.schema import hanging_cloth
+
+    bare, full = hanging_cloth(n=6, bending=False), hanging_cloth(n=6)
+    assert bare.num_constraints == len(bare.distance["rest_length"]) == len(full.distance["rest_length"])
+    assert full.num_constraints > bare.num_constraints
+    with pytest.raises(csb.ParameterError, match="bending must be true or false"):
+        hanging_cloth(n=6, bending=1)

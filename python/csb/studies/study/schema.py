@@ -49,12 +49,15 @@ class _StudyTable(_Table):
 
 
 def hanging_cloth(*, n: int = 12, size: float = 0.5, density: float = 0.2, stretch_compliance: float = 1e-4,
-                  bending_compliance: float = 1.0) -> _core.Model:
+                  bending_compliance: float = 1.0, bending: bool = True) -> _core.Model:
     """An n x n cloth of ``size`` (m) side, ``density`` (kg/m²), stretch compliance (m/N) and
-    bending compliance (1/(N m)), hanging from its two corners at z = -size/2."""
+    bending compliance (1/(N m)), hanging from its two corners at z = -size/2. ``bending = false``:
+    distance constraints only (the cloth a method that projects nothing else can step)."""
+    if not isinstance(bending, bool):
+        raise _core.ParameterError(f"bending must be true or false, got {bending!r}")
     b = ModelBuilder()
     inst = b.add_mesh(_core.cloth_grid(size, size, n, n), density=density, stretch_compliance=stretch_compliance,
-                      bending_stiffness=1.0, bending_compliance=bending_compliance)
+                      bending_stiffness=1.0 if bending else None, bending_compliance=bending_compliance)
     b.pin(inst.nearest([-size / 2, 0, -size / 2]))
     b.pin(inst.nearest([size / 2, 0, -size / 2]))
     return b.build()
