@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <sstream>
 
@@ -77,12 +78,17 @@ void IncrementalPotential::gradient(const Real* x, Real* r) const {
   for (std::size_t i = 0; i < n3; ++i) r[i] = net_.mass(static_cast<Index>(i / 3)) * (x[i] - x_tilde_[i]) * ih2 - f[i];
 }
 
-void IncrementalPotential::hessian(const Real* x, bool definite, Eigen::SparseMatrix<Real>& H,
-                                   SpringNetwork::Stiffness& work) const {
+void IncrementalPotential::hessian_entries(const Real* x, bool definite, SpringNetwork::Stiffness& work) const {
   const auto n3 = static_cast<Eigen::Index>(x_tilde_.size());
   net_.stiffness(x, definite, work);
   const Real ih2 = 1 / (dt_ * dt_);
   for (Eigen::Index i = 0; i < n3; ++i) work.entries.emplace_back(i, i, net_.mass(static_cast<Index>(i / 3)) * ih2);
+}
+
+void IncrementalPotential::hessian(const Real* x, bool definite, Eigen::SparseMatrix<Real>& H,
+                                   SpringNetwork::Stiffness& work) const {
+  const auto n3 = static_cast<Eigen::Index>(x_tilde_.size());
+  hessian_entries(x, definite, work);
   H.resize(n3, n3);
   H.setFromTriplets(work.entries.begin(), work.entries.end());
 }
@@ -127,6 +133,116 @@ Residual backward_euler_residual(const Model& model, const State& previous, cons
 
 // ------------------------------------------------------------------------------ the stepper
 
+using Ldlt = Eigen::SimplicialLDLT<Eigen::SparseMatrix<Real>>;
+
+struct BackwardEulerStepper::Workspace {
+  SpringNetwork::Stiffness work;
+  Eigen::SparseMatrix<Real> H;  // compressed, as setFromTriplets leaves it
+  // Per entry of work.entries, where it went in H's values the last time (a hint, checked).
+  std::vector<Eigen::Index> slot;
+  // Which of H's values an assembly has written (== generation), so that the first entry of a
+  // position is stored and the later ones added, as setFromTriplets sums duplicates.
+  std::vector<std::uint32_t> stamp;
+  std::uint32_t generation = 0;
+  struct Analysis {
+    std::vector<Eigen::SparseMatrix<Real>::StorageIndex> outer, inner;  // the pattern it was made for
+    std::unique_ptr<Ldlt> ldlt;
+    std::uint64_t used = 0;
+  };
+  std::vector<Analysis> analyses;  // the few latest patterns (exact Hessian, Gauss-Newton, ...)
+  std::uint64_t clock = 0;
+
+  // H from `entries` (n3 x n3): bit for bit H.setFromTriplets(entries), which sums an entry's
+  // duplicates in their order. While the entries' positions fill H's previous pattern exactly,
+  // the values are written in place; otherwise setFromTriplets builds it afresh.
+  void assemble(Eigen::Index n3) {
+    const auto& entries = work.entries;
+    if (slot.size() < entries.size()) slot.resize(entries.size(), -1);
+    if (H.rows() == n3 && H.cols() == n3 && H.isCompressed() && H.nonZeros() > 0 && refill(entries)) return;
+    H.resize(n3, n3);
+    H.setFromTriplets(entries.begin(), entries.end());
+    const auto* outer = H.outerIndexPtr();
+    const auto* inner = H.innerIndexPtr();
+    for (std::size_t t = 0; t < entries.size(); ++t) {
+      const auto c = entries[t].col(), r = entries[t].row();
+      slot[t] = std::lower_bound(inner + outer[c], inner + outer[c + 1], r) - inner;
+    }
+    stamp.assign(static_cast<std::size_t>(H.nonZeros()), 0);
+    generation = 0;
+  }
+
+  bool refill(const std::vector<Eigen::Triplet<Real>>& entries) {
+    const auto nnz = static_cast<std::size_t>(H.nonZeros());
+    if (stamp.size() != nnz) {
+      stamp.assign(nnz, 0);
+      generation = 0;
+    }
+    if (++generation == 0) {
+      std::fill(stamp.begin(), stamp.end(), 0);
+      generation = 1;
+    }
+    const auto* outer = H.outerIndexPtr();
+    const auto* inner = H.innerIndexPtr();
+    Real* value = H.valuePtr();
+    const Eigen::Index n = H.cols();
+    std::size_t filled = 0;
+    for (std::size_t t = 0; t < entries.size(); ++t) {
+      const auto r = entries[t].row(), c = entries[t].col();
+      if (c < 0 || c >= n) return false;
+      Eigen::Index s = slot[t];
+      if (!(s >= outer[c] && s < outer[c + 1] && inner[s] == r)) {
+        const auto* end = inner + outer[c + 1];
+        const auto* at = std::lower_bound(inner + outer[c], end, r);
+        if (at == end || *at != r) return false;  // a position outside the pattern
+        s = at - inner;
+        slot[t] = s;
+      }
+      auto& mark = stamp[static_cast<std::size_t>(s)];
+      if (mark != generation) {
+        mark = generation;
+        value[s] = entries[t].value();
+        ++filled;
+      } else {
+        value[s] += entries[t].value();
+      }
+    }
+    return filled == nnz;  // else a position of the pattern got no entry
+  }
+
+  // The LDLᵀ analysed for H's pattern: a kept one, or a new analysis (the oldest dropped).
+  Ldlt& analysed() {
+    const auto* outer = H.outerIndexPtr();
+    const auto* inner = H.innerIndexPtr();
+    const auto no = static_cast<std::size_t>(H.cols() + 1), ni = static_cast<std::size_t>(H.nonZeros());
+    for (Analysis& a : analyses)
+      if (a.outer.size() == no && a.inner.size() == ni && std::equal(a.outer.begin(), a.outer.end(), outer) &&
+          std::equal(a.inner.begin(), a.inner.end(), inner)) {
+        a.used = ++clock;
+        return *a.ldlt;
+      }
+    constexpr std::size_t kept = 4;
+    if (analyses.size() >= kept)
+      analyses.erase(std::min_element(analyses.begin(), analyses.end(),
+                                      [](const Analysis& a, const Analysis& b) { return a.used < b.used; }));
+    Analysis a;
+    a.outer.assign(outer, outer + no);
+    a.inner.assign(inner, inner + ni);
+    a.ldlt = std::make_unique<Ldlt>();
+    a.ldlt->analyzePattern(H);
+    a.used = ++clock;
+    analyses.push_back(std::move(a));
+    return *analyses.back().ldlt;
+  }
+};
+
+BackwardEulerStepper::WorkspaceHolder::WorkspaceHolder() : p_(std::make_unique<Workspace>()) {}
+BackwardEulerStepper::WorkspaceHolder::~WorkspaceHolder() = default;
+BackwardEulerStepper::WorkspaceHolder::WorkspaceHolder(const WorkspaceHolder&) : p_(std::make_unique<Workspace>()) {}
+BackwardEulerStepper::WorkspaceHolder& BackwardEulerStepper::WorkspaceHolder::operator=(const WorkspaceHolder&) {
+  p_ = std::make_unique<Workspace>();
+  return *this;
+}
+
 BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings) : settings_(settings) {
   check_dt(settings_.dt);
   if (!settings_.gravity.allFinite()) throw InvalidArgument("gravity must be finite, got " + str(settings_.gravity));
@@ -139,6 +255,7 @@ BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings
 
 void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t steps,
                                 const std::function<bool()>& interrupt) {
+  const UseGuard::Scope in_use(use_, "BackwardEuler.step");
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
   const Index np = model.num_particles();
   if (state.x.cols() != np || state.v.cols() != np)
@@ -179,9 +296,9 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
     const std::size_t n3 = 3 * dyn.size();
     std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
     BackwardEulerStats st;
-    Eigen::SparseMatrix<Real> H;
-    SpringNetwork::Stiffness work;
-    Eigen::SimplicialLDLT<Eigen::SparseMatrix<Real>> ldlt;
+    Workspace& ws = *workspace_;
+    const Eigen::SparseMatrix<Real>& H = ws.H;
+    const SpringNetwork::Stiffness& work = ws.work;
     for (int it = 0;; ++it) {
       P.gradient(x.data(), r.data());
       Real scale = 0, rounding = 0;
@@ -207,12 +324,14 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
       bool found = false;
       Real slope = 0;
       for (int level = 0; level < 8 && !found; ++level) {
-        P.hessian(x.data(), level > 0, H, work);
+        P.hessian_entries(x.data(), level > 0, ws.work);
+        ws.assemble(static_cast<Eigen::Index>(n3));
         if (level > 1) {
           const Real shift = std::pow(Real(100), level - 2) * 1e-6;
-          for (Eigen::Index i = 0; i < H.rows(); ++i) H.coeffRef(i, i) *= 1 + shift;
+          for (Eigen::Index i = 0; i < ws.H.rows(); ++i) ws.H.coeffRef(i, i) *= 1 + shift;
         }
-        ldlt.compute(H);
+        Ldlt& ldlt = ws.analysed();
+        ldlt.factorize(H);
         if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0)) continue;
         Eigen::Map<const Eigen::VectorXd> rv(r.data(), static_cast<Eigen::Index>(n3));
         Eigen::VectorXd z = -(ldlt.solve(rv));

@@ -30,6 +30,7 @@
 
 #include "csb/integrator.hpp"
 #include "csb/reference.hpp"
+#include "csb/use_guard.hpp"
 
 #include <memory>
 #include <vector>
@@ -72,6 +73,9 @@ class IncrementalPotential {
   void gradient(const Real* x, Real* r) const;       // N, 3 num_dynamic()
   // The Newton matrix H = M/h² + ∇²U (N/m), `definite` as SpringNetwork::stiffness.
   void hessian(const Real* x, bool definite, Eigen::SparseMatrix<Real>& H, SpringNetwork::Stiffness& work) const;
+  // H's entries before assembly: work.entries (duplicates summed in their order by
+  // Eigen's setFromTriplets, the mass diagonal last) and the balloons' rank-one terms.
+  void hessian_entries(const Real* x, bool definite, SpringNetwork::Stiffness& work) const;
   // The step's force scale (N) and the residual's rounding floor (N).
   void scales(const Real* x, Real& force_scale, Real& rounding) const;
 
@@ -103,9 +107,14 @@ class BackwardEulerStepper final : public Integrator {
   std::string name() const override { return "backward-euler"; }
   Real dt() const override { return settings_.dt; }
   const BackwardEulerSettings& settings() const { return settings_; }
+  const UseGuard& use_guard() const { return use_; }
   // Each step solved to convergence; SimulationError if Newton does not converge in
   // max_iterations, the state left at the end of the last completed step. E has no contact term:
-  // a model with colliders or self-collision is an InvalidArgument.
+  // a model with colliders or self-collision is an InvalidArgument. One thread at a time
+  // (use_guard.hpp): a second thread stepping the same stepper meanwhile gets ConcurrentUse.
+  //
+  // What a step keeps for the next (the workspace below) changes its cost, never its bits: each
+  // step's positions are those of a fresh stepper given the same state.
   void step(const Model& model, State& state, std::int64_t steps = 1,
             const std::function<bool()>& interrupt = {}) override;
 
@@ -116,7 +125,28 @@ class BackwardEulerStepper final : public Integrator {
 
  private:
   void solve_one(const Model& model, State& state, Real h);
+
+  // The Newton matrix's storage and assembly, and the sparse LDLᵀ's symbolic analysis (AMD
+  // order, elimination tree) of each sparsity pattern it has had, kept across Newton iterations
+  // and steps: a new pattern is analysed once, the same pattern only refactored. Eigen's
+  // analysis depends on the pattern alone and its factorisation on the analysis and the values
+  // alone, so reusing them gives the bits of SimplicialLDLT::compute. A copy starts empty.
+  struct Workspace;
+  class WorkspaceHolder {
+   public:
+    WorkspaceHolder();
+    ~WorkspaceHolder();
+    WorkspaceHolder(const WorkspaceHolder&);
+    WorkspaceHolder& operator=(const WorkspaceHolder&);
+    Workspace& operator*() const { return *p_; }
+
+   private:
+    std::unique_ptr<Workspace> p_;
+  };
+
   BackwardEulerSettings settings_;
+  WorkspaceHolder workspace_;
+  UseGuard use_;
   BackwardEulerStats last_;
   Real max_residual_ = 0;
   std::int64_t total_iterations_ = 0;
