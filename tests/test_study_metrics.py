@@ -388,3 +388,59 @@ def test_the_hanging_cloth_without_bending_has_distance_constraints_only():
     assert full.num_constraints > bare.num_constraints
     with pytest.raises(csb.ParameterError, match="bending must be true or false"):
         hanging_cloth(n=6, bending=1)
+
+
+def test_a_chart_draws_the_scenes_and_methods_it_names(tmp_path):
+    body = """\
+        [study]
+        duration = 0.1
+        metrics = ["max_strain", "stability"]
+        """ + CHAIN + """
+        [[scene]]
+        setup = "mass_ratio_chain"
+        grid = { ratio = [1.0, 100.0] }
+
+        [[method]]
+        name = "xpbd"
+        dt = [0.01, 0.005]
+
+        [[method]]
+        name = "pbd"
+        dt = [0.01, 0.005]
+
+        [[chart]]
+        kind = "map"
+        x = "dt"
+        y = "ratio"
+        scenes = ["mass_ratio_chain"]
+        methods = ["xpbd"]
+        """
+    st = load_study(write(tmp_path, body))
+    assert st.charts[0]["scenes"] == ["mass_ratio_chain"] and st.charts[0]["methods"] == ["xpbd"]
+    r = run_study(write(tmp_path, body), out=tmp_path / "out", workers=0)
+    assert (tmp_path / "out" / "chart_1.png").is_file() and r.failed == 0
+    with pytest.raises(StudyError, match=r"chart\[0\]\.scenes: 'cloth' is not one of the study's scenes"):
+        load_study(write(tmp_path, body.replace('["mass_ratio_chain"]', '["cloth"]'), "bad.toml"))
+
+
+def test_a_same_step_reference_that_fails_leaves_the_metric_null_with_the_reason(tmp_path, monkeypatch):
+    class Failing:
+        def __init__(self, **_):
+            pass
+
+        def step(self, model, state, steps=1):
+            raise csb.SimulationError("backward Euler: no descent direction")
+
+    monkeypatch.setattr(csb._core, "BackwardEuler", Failing)
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.1
+        metrics = ["same_step_error", "residual", "stability"]
+        """ + CHAIN + """
+        [[method]]
+        name = "xpbd"
+        dt = 0.01
+        """)
+    (row,) = run_study(p, out=tmp_path / "out", workers=0).table
+    assert row["status"] == "ok" and row["same_step_error"] is None and row["residual"] > 0
+    assert "same_step_error: the same-step reference failed: backward Euler: no descent direction" in row["notes"]

@@ -35,7 +35,7 @@ A study file::
     kind = "map"                     # "line": y (a metric) against x (a parameter), or "map": the
     x = "dt"                         # stability class over x and y (parameters or scene grid
     y = "compliance"                 # arguments), "stable but wrong" beyond wrong (m) from the
-    wrong = 0.05                     # reference
+    wrong = 0.05                     # reference; optional: scenes = [...], methods = [...] it draws
 
 Every error names the study file, the line and the key (:class:`StudyError`). The cells' results
 are files ``<out>/cells/<key>.json`` (with their positions at the output times, ``<key>.npy``),

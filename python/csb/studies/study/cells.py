@@ -241,6 +241,9 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
             except _core.ParameterError as e:  # a hard constraint: no incremental potential
                 values[m] = None
                 notes.append(f"{m}: {e}")
+            except _core.SimulationError as e:  # the converged backward-Euler step failed: no same step
+                values[m] = None
+                notes.append(f"{m}: the same-step reference failed: {e}")
     per_second = [c / duration for c in costs]
     positions = np.stack([np.asarray(s.x, dtype=np.float64) for s in states]) if not blew else None
     return dict(metrics=values, notes=notes, dt_used=dt_used, positions=positions,

@@ -565,7 +565,11 @@ def _write_outputs(result: StudyResult) -> list[Path]:
                                                  f"{result.study.name}: accuracy against cost"))
     for spec, path in zip(result.study.charts, charts):
         draw = charts_module.line_chart if spec["kind"] == "line" else charts_module.stability_map
-        files.append(draw(rows, spec, scenes, methods, path, f"{result.study.name}: {_chart_title(spec)}"))
+        chosen_scenes = [s.label for s in result.study.scenes
+                         if not spec.get("scenes") or s.label in spec["scenes"] or s.definition.get("setup") in spec["scenes"]]
+        chosen_methods = [m for m in methods if not spec.get("methods") or m in spec["methods"]]
+        files.append(draw(rows, spec, chosen_scenes, chosen_methods, path,
+                          f"{result.study.name}: {_chart_title(spec)}"))
     if profile is not None:
         from ..profiles import plot_performance_profile
 

@@ -526,6 +526,18 @@ def _read_chart(source: _Source, data: Any, k: int, metrics: list[str], scenes, 
     axes = list(_PARAMS) + [n for s in scenes for n in s.point]
     x = t.string("x", choices=tuple(dict.fromkeys(axes)))
     chart: dict[str, Any] = dict(kind=kind, x=x, title=t.string("title", ""))
+    # Optional: the scenes (by name, or by set-up for a grid's scenes) and methods it draws.
+    for key, items in (("scenes", scenes), ("methods", methods)):
+        names = {s.label for s in items} | ({s.definition.get("setup") for s in items} - {None}
+                                             if key == "scenes" else set())
+        chosen = t.raw(key, None)
+        if chosen is not None:
+            if not isinstance(chosen, list) or not chosen or not all(isinstance(c, str) for c in chosen):
+                raise t.error(key, f"must be a non-empty list of names, got {chosen!r}")
+            for c in chosen:
+                if c not in names:
+                    raise t.error(key, f"{c!r} is not one of the study's {key}: {', '.join(sorted(names))}")
+        chart[key] = chosen
     if kind == "line":
         chart["y"] = t.string("y", choices=tuple(m for m in metrics if m != "stability") + ("cpu_per_simulated_s",))
     else:
