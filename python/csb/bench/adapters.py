@@ -515,9 +515,9 @@ class NewtonIntegrator(_Peer):
         if self._model is not model:
             self._build(model)
         xn, vn = np.array(state.x, dtype=float), np.array(state.v, dtype=float)
-        vn[~self._free] = 0.0  # a pin stays (Newton would move a massless particle by its velocity)
+        v_in = np.where(self._free[:, None], vn, 0.0)  # a pin stays (Newton moves a massless particle by its v)
         self._s0.particle_q.assign(xn.astype(np.float32))
-        self._s0.particle_qd.assign(vn.astype(np.float32))
+        self._s0.particle_qd.assign(v_in.astype(np.float32))
         h = self._dt / self.substeps
         try:
             for s in range(steps):
