@@ -570,11 +570,10 @@ void SpringNetwork::stiffness(const Real* x, bool definite, Stiffness& out) cons
       for (int j = 0; j < 4 && ok; ++j)
         for (int c = 0; c < 3 && ok; ++c) {
           Vec3 q[4] = {p[0], p[1], p[2], p[3]}, gp[4], gm[4];
-          Real t = 0;
           q[j][c] = p[j][c] + delta;
-          ok = dihedral_angle_and_gradient(q[0], q[1], q[2], q[3], t, gp);
+          ok = dihedral_gradient(q[0], q[1], q[2], q[3], gp);
           q[j][c] = p[j][c] - delta;
-          ok = ok && dihedral_angle_and_gradient(q[0], q[1], q[2], q[3], t, gm);
+          ok = ok && dihedral_gradient(q[0], q[1], q[2], q[3], gm);
           for (int i = 0; i < 4; ++i) D[i][j].col(c) = (gp[i] - gm[i]) / (2 * delta);
         }
       if (ok)

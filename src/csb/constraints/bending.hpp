@@ -53,24 +53,37 @@ inline Real wrap_angle(Real x) {
   return x <= -kPi ? x + 2 * kPi : x;
 }
 
-// The signed dihedral angle (rad) and its gradient with respect to a, b, c, d (rad/m). Returns
-// false for a degenerate configuration (zero-length edge or zero-area triangle), where θ is
-// undefined.
-inline bool dihedral_angle_and_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Real& theta,
-                                        Vec3 grad[4]) {
+namespace detail {
+template <bool Angle>
+inline bool dihedral_terms(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Real* theta, Vec3 grad[4]) {
   const Vec3 e = b - a;
   const Vec3 N1 = (c - a).cross(c - b);
   const Vec3 N2 = (d - b).cross(d - a);
   const Real e2 = e.squaredNorm(), n1 = N1.squaredNorm(), n2 = N2.squaredNorm();
   if (!(e2 > 0 && n1 > 0 && n2 > 0)) return false;
   const Real elen = std::sqrt(e2);
-  theta = std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * elen);
+  if constexpr (Angle) *theta = std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * elen);
   const Vec3 g1 = N1 / n1, g2 = N2 / n2;
   grad[0] = -((c - b).dot(e) / elen * g1 + (d - b).dot(e) / elen * g2);
   grad[1] = (c - a).dot(e) / elen * g1 + (d - a).dot(e) / elen * g2;
   grad[2] = -elen * g1;
   grad[3] = -elen * g2;
   return true;
+}
+}  // namespace detail
+
+// The signed dihedral angle (rad) and its gradient with respect to a, b, c, d (rad/m). Returns
+// false for a degenerate configuration (zero-length edge or zero-area triangle), where θ is
+// undefined.
+inline bool dihedral_angle_and_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Real& theta,
+                                        Vec3 grad[4]) {
+  return detail::dihedral_terms<true>(a, b, c, d, &theta, grad);
+}
+
+// The gradient alone, the same bits as dihedral_angle_and_gradient's (its angle is not needed
+// for a finite difference of the gradient, and atan2 is most of the cost).
+inline bool dihedral_gradient(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, Vec3 grad[4]) {
+  return detail::dihedral_terms<false>(a, b, c, d, nullptr, grad);
 }
 
 // What both projections need: the violation θ - θ0, the gradient and Σ w |∇C|². ok = false for a
