@@ -498,6 +498,8 @@ class NewtonIntegrator(_Peer):
         import warp as wp
 
         wp.config.quiet = True
+        if hasattr(wp, "LOG_ERROR"):  # Warp 1.19+: the greeting and module loads are log messages
+            wp.config.log_level = wp.LOG_ERROR
         import newton
 
         builder = newton.ModelBuilder(up_axis=newton.Axis.Y, gravity=tuple(float(g) for g in self.gravity))

@@ -415,6 +415,8 @@ def _side_versions(side_name: str) -> dict[str, str]:
         import warp as wp
 
         wp.config.quiet = True
+        if hasattr(wp, "LOG_ERROR"):  # Warp 1.19+: the greeting and module loads are log messages
+            wp.config.log_level = wp.LOG_ERROR
         import newton
 
         return dict(newton=newton.__version__, warp=wp.__version__)
