@@ -24,6 +24,23 @@ def write(tmp_path: Path, text: str, name: str = "study.toml") -> Path:
     return p
 
 
+# A user's class: csb's XPBD (one thread) with its damping as a keyword argument.
+WRAPPED_XPBD = textwrap.dedent("""\
+    import csb
+
+    class Wrapped(csb.Integrator):
+        def __init__(self, dt, iterations=10, gravity=(0, -9.81, 0), damping=0.0):
+            super().__init__()
+            self.inner = csb.PbdStepper(method="xpbd", dt=dt, iterations=iterations, gravity=gravity,
+                                        damping=damping, threads=1)
+        def name(self):
+            return "wrapped"
+        def dt(self):
+            return self.inner.dt()
+        def step(self, model, state, steps=1, interrupt=None):
+            self.inner.step(model, state, steps)
+    """)
+
 CHAIN = """\
 [[scene]]
 name = "chain"
@@ -284,33 +301,19 @@ def test_a_scene_grid_may_not_sweep_a_column_of_the_table(tmp_path):
 
 
 def test_a_users_class_takes_arguments_from_the_study(tmp_path):
-    (tmp_path / "damped.py").write_text(textwrap.dedent("""\
-        import csb
-
-        class Damped(csb.Integrator):
-            def __init__(self, dt, iterations=10, gravity=(0, -9.81, 0), damping=0.0):
-                super().__init__()
-                self.inner = csb.PbdStepper(method="xpbd", dt=dt, iterations=iterations, gravity=gravity,
-                                            damping=damping, threads=1)
-            def name(self):
-                return "damped"
-            def dt(self):
-                return self.inner.dt()
-            def step(self, model, state, steps=1, interrupt=None):
-                self.inner.step(model, state, steps)
-        """))
+    (tmp_path / "wrapped.py").write_text(WRAPPED_XPBD)
     p = write(tmp_path, """\
         [study]
         duration = 0.2
         metrics = ["energy_drift", "stability"]
         """ + CHAIN + """
         [[method]]
-        python = "damped:Damped"
+        python = "wrapped:Wrapped"
         label = "undamped"
         dt = 0.01
 
         [[method]]
-        python = "damped:Damped"
+        python = "wrapped:Wrapped"
         label = "damped"
         args = { damping = 0.5 }
         dt = 0.01
@@ -324,20 +327,7 @@ def test_a_users_class_takes_arguments_from_the_study(tmp_path):
 
 
 def test_a_method_the_study_file_does_not_name_runs_through_it_over_another_methods_grid(tmp_path, monkeypatch):
-    (tmp_path / "mine.py").write_text(textwrap.dedent("""\
-        import csb
-
-        class Mine(csb.Integrator):
-            def __init__(self, dt, iterations=10, gravity=(0, -9.81, 0)):
-                super().__init__()
-                self.inner = csb.PbdStepper(method="xpbd", dt=dt, iterations=iterations, gravity=gravity, threads=1)
-            def name(self):
-                return "mine"
-            def dt(self):
-                return self.inner.dt()
-            def step(self, model, state, steps=1, interrupt=None):
-                self.inner.step(model, state, steps)
-        """))
+    (tmp_path / "wrapped.py").write_text(WRAPPED_XPBD)
     p = write(tmp_path, """\
         [study]
         duration = 0.2
@@ -354,16 +344,16 @@ def test_a_method_the_study_file_does_not_name_runs_through_it_over_another_meth
         """)
     monkeypatch.chdir(tmp_path)
     first = run_study(p, out=tmp_path / "out", workers=0)
-    r = run_study(p, out=tmp_path / "out", workers=0, extra_methods=["mine:Mine"], like="xpbd")
+    r = run_study(p, out=tmp_path / "out", workers=0, extra_methods=["wrapped:Wrapped"], like="xpbd")
     assert (r.computed, r.reused) == (4, first.computed)  # only the added method's cells run
-    mine = {(row["dt"], row["iterations"]): row for row in r.table if row["method"] == "Mine"}
+    mine = {(row["dt"], row["iterations"]): row for row in r.table if row["method"] == "Wrapped"}
     xpbd = {(row["dt"], row["iterations"]): row for row in r.table if row["method"] == "xpbd"}
     assert set(mine) == set(xpbd) == {(0.02, 2), (0.02, 8), (0.01, 2), (0.01, 8)}
     assert all(mine[k]["max_strain"] == xpbd[k]["max_strain"] for k in mine)
     with pytest.raises(StudyError, match=r"no method 'pbd' that takes a time step.*symplectic-euler, xpbd"):
-        load_study(p, extra_methods=["mine:Mine"], like="pbd")
+        load_study(p, extra_methods=["wrapped:Wrapped"], like="pbd")
     with pytest.raises(StudyError, match=r"method\[2\]\.python: cannot import 'absent'"):
-        load_study(p, extra_methods=["absent:Mine"])
+        load_study(p, extra_methods=["absent:Wrapped"])
 
 
 STUDIES = Path(__file__).resolve().parents[1] / "validation" / "studies"
