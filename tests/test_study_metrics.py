@@ -60,6 +60,12 @@ def test_the_residual_falls_with_the_iterations_and_backward_euler_is_its_own_sa
         kind = "line"
         x = "iterations"
         y = "residual"
+
+        [[chart]]
+        kind = "line"
+        x = "cpu_per_simulated_s"
+        y = "residual"
+        along = "iterations"
         """ + CHAIN + """
         [[method]]
         name = "xpbd"
@@ -82,7 +88,9 @@ def test_the_residual_falls_with_the_iterations_and_backward_euler_is_its_own_sa
     assert be["residual"] < 1e-6 * res[0]
     assert be["same_step_error"] < 1e-12
     assert (tmp_path / "out" / "chart_1.png").stat().st_size > 10_000
+    assert (tmp_path / "out" / "chart_2.png").stat().st_size > 10_000
     assert "![residual against iterations](chart_1.png)" in r.report()
+    assert "![residual against cpu_per_simulated_s](chart_2.png)" in r.report()
 
 
 def test_residual_of_a_scene_with_hard_constraints_is_null_with_the_reason(tmp_path):
@@ -265,6 +273,8 @@ def test_a_stability_map_over_a_scene_grid_and_the_time_step(tmp_path):
     ('kind = "line"\nx = "dt"\ny = "stability"', r"chart\[0\]\.y"),
     ('kind = "map"\nx = "dt"\ny = "dt"', r"chart\[0\]\.y: must differ"),
     ('kind = "map"\nx = "dt"\ny = "iterations"\nwrong = 0.1', r"chart\[0\]\.wrong: .*position_error"),
+    ('kind = "line"\nx = "cpu_per_simulated_s"\ny = "max_strain"', r"chart\[0\]\.along: .*iterations, say"),
+    ('kind = "map"\nx = "cpu_per_simulated_s"\ny = "dt"', r"chart\[0\]\.x"),
 ])
 def test_a_bad_chart_is_named(tmp_path, chart, message):
     p = write(tmp_path, """\

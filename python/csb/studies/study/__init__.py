@@ -32,7 +32,8 @@ A study file::
                                      # grids: dt (s), substeps, iterations; rtol for "cvode"
 
     [[chart]]                        # besides the accuracy-against-cost chart (with position_error):
-    kind = "map"                     # "line": y (a metric) against x (a parameter), or "map": the
+    kind = "map"                     # "line": y (a metric) against x (a parameter, or the cost
+                                     # cpu_per_simulated_s with along = the parameter joined), or "map": the
     x = "dt"                         # stability class over x and y (parameters or scene grid
     y = "compliance"                 # arguments), "stable but wrong" beyond wrong (m) from the
     wrong = 0.05                     # reference; optional: scenes = [...], methods = [...] it draws

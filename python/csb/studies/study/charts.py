@@ -63,12 +63,14 @@ def _fmt(v: Any) -> str:
 
 
 def line_chart(table: list[dict], chart: dict, scenes: list[str], methods: list[str], path: Path, title: str) -> Path:
-    """Per scene, the metric ``chart["y"]`` against the parameter ``chart["x"]``: one line per
-    method and setting of its other parameters (log axes where the values are positive)."""
+    """Per scene, the metric ``chart["y"]`` against ``chart["x"]`` (a parameter, or the cost): one
+    line per method and setting of the parameters other than ``chart["along"]``, the one the
+    line runs along (log axes)."""
     plt = _plt()
     x_key, y_key = chart["x"], chart["y"]
+    along = chart.get("along", x_key)
     fig, axes = plt.subplots(1, len(scenes), figsize=(6.5 * len(scenes), 5.2), constrained_layout=True, squeeze=False)
-    others = [p for p in (*_PARAMS, *_scene_columns(table)) if p != x_key]
+    others = [p for p in (*_PARAMS, *_scene_columns(table)) if p != along]
     for ax, scene in zip(axes[0], scenes):
         for method in methods:
             rows = [r for r in table if r["scene"] == scene and r["method"] == method and r.get(x_key) is not None]
@@ -76,7 +78,8 @@ def line_chart(table: list[dict], chart: dict, scenes: list[str], methods: list[
             for r in rows:
                 groups.setdefault(tuple(r.get(p) for p in others), []).append(r)
             for key, group in groups.items():
-                pts = sorted((r for r in group if _measured(r, y_key)), key=lambda r: r[x_key])
+                pts = sorted((r for r in group if _measured(r, y_key) and r.get(x_key) is not None),
+                             key=lambda r: (r[along] if r.get(along) is not None else 0, r[x_key]))
                 if not pts:
                     continue
                 label = " ".join([method] + [f"{p}={_fmt(v)}" for p, v in zip(others, key)
@@ -88,7 +91,7 @@ def line_chart(table: list[dict], chart: dict, scenes: list[str], methods: list[
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(scene, fontsize="medium")
-        ax.set_xlabel(x_key)
+        ax.set_xlabel("CPU time per simulated second (s)" if x_key == "cpu_per_simulated_s" else x_key)
         ax.set_ylabel(y_key)
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:

@@ -524,8 +524,17 @@ def _read_chart(source: _Source, data: Any, k: int, metrics: list[str], scenes, 
     t = _StudyTable(source, data, ("chart", k), f"chart[{k}]")
     kind = t.string("kind", choices=tuple(CHART_KINDS))
     axes = list(_PARAMS) + [n for s in scenes for n in s.point]
-    x = t.string("x", choices=tuple(dict.fromkeys(axes)))
+    cost = "cpu_per_simulated_s"
+    x = t.string("x", choices=tuple(dict.fromkeys(axes)) + ((cost,) if kind == "line" else ()))
     chart: dict[str, Any] = dict(kind=kind, x=x, title=t.string("title", ""))
+    if kind == "line":
+        # The parameter a line runs along: x itself, or, against the cost, the one whose settings
+        # it joins (iterations: the residual against CPU time as the iterations grow).
+        along = t.string("along", None if x == cost else x, choices=tuple(dict.fromkeys(axes)))
+        if along is None:
+            raise t.error("along", f"a line against {cost} joins the settings of one parameter: give along "
+                                   "(iterations, say)")
+        chart["along"] = along
     # Optional: the scenes (by name, or by set-up for a grid's scenes) and methods it draws.
     for key, items in (("scenes", scenes), ("methods", methods)):
         names = {s.label for s in items} | ({s.definition.get("setup") for s in items} - {None}
