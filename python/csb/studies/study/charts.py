@@ -22,6 +22,14 @@ def _plt():
     return plt
 
 
+def _styles(methods: list[str]) -> dict[str, dict[str, Any]]:
+    """A colour and a marker per method, the same in every panel and chart of a study."""
+    plt = _plt()
+    colours = plt.get_cmap("tab10" if len(methods) <= 10 else "tab20").colors
+    markers = "osD^vP*Xh<>"
+    return {m: dict(color=colours[k % len(colours)], marker=markers[k % len(markers)]) for k, m in enumerate(methods)}
+
+
 def _measured(row: dict, key: str) -> bool:
     v = row.get(key)
     return row["status"] == "ok" and row.get("stability") != "blew-up" and v is not None and v > 0
@@ -31,6 +39,7 @@ def accuracy_cost(table: list[dict], scenes: list[str], methods: list[str], path
     """Per scene, each cell's largest distance to the reference against its cost (the median, with
     the range of its repeats as a horizontal bar), one colour per method."""
     plt = _plt()
+    style = _styles(methods)
     fig, axes = plt.subplots(1, len(scenes), figsize=(6.5 * len(scenes), 5.5), constrained_layout=True, squeeze=False)
     for ax, scene in zip(axes[0], scenes):
         for method in methods:
@@ -42,8 +51,8 @@ def accuracy_cost(table: list[dict], scenes: list[str], methods: list[str], path
             x = [r["cpu_per_simulated_s"] for r in pts]
             lo = [xi - (r.get("cpu_low") if r.get("cpu_low") is not None else xi) for xi, r in zip(x, pts)]
             hi = [(r.get("cpu_high") if r.get("cpu_high") is not None else xi) - xi for xi, r in zip(x, pts)]
-            ax.errorbar(x, [r["position_error"] for r in pts], xerr=[lo, hi], fmt="o", ms=6, alpha=0.85,
-                        capsize=2, label=method)
+            ax.errorbar(x, [r["position_error"] for r in pts], xerr=[lo, hi], fmt=style[method]["marker"], ms=6,
+                        alpha=0.85, capsize=2, color=style[method]["color"], label=method)
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(f"{scene}: error against cost", fontsize="medium")
@@ -69,6 +78,7 @@ def line_chart(table: list[dict], chart: dict, scenes: list[str], methods: list[
     plt = _plt()
     x_key, y_key = chart["x"], chart["y"]
     along = chart.get("along", x_key)
+    style = _styles(methods)
     fig, axes = plt.subplots(1, len(scenes), figsize=(6.5 * len(scenes), 5.2), constrained_layout=True, squeeze=False)
     others = [p for p in (*_PARAMS, *_scene_columns(table)) if p != along]
     for ax, scene in zip(axes[0], scenes):
@@ -84,7 +94,8 @@ def line_chart(table: list[dict], chart: dict, scenes: list[str], methods: list[
                     continue
                 label = " ".join([method] + [f"{p}={_fmt(v)}" for p, v in zip(others, key)
                                              if v is not None and len({r.get(p) for r in rows}) > 1])
-                ax.plot([r[x_key] for r in pts], [r[y_key] for r in pts], "o-", ms=4, label=label)
+                ax.plot([r[x_key] for r in pts], [r[y_key] for r in pts], "-", marker=style[method]["marker"], ms=4,
+                        color=style[method]["color"], label=label)
                 blown = [r for r in group if r.get("stability") == "blew-up"]
                 if blown:
                     ax.plot([r[x_key] for r in blown], [ax.get_ylim()[1]] * len(blown), "x", color="#d7263d")
