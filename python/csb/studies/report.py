@@ -297,7 +297,8 @@ def _study_markdown(s: StudySection, out: Path) -> list[str]:
 
 
 def write_report(out: Path, sections: list[Section], bench: str | None, bench_code: int,
-                 studies: list[StudySection] | None = None, tier: str = "quick", bench_measured: str = "") -> Path:
+                 studies: list[StudySection] | None = None, tier: str = "quick", bench_measured: str = "",
+                 seconds: float | None = None) -> Path:
     """Writes ``out/report.md``: the bundled scenes run into ``out/<scene>``, the study files'
     sections, the scripts' sections and the benchmark output."""
     studies = studies or []
@@ -305,7 +306,9 @@ def write_report(out: Path, sections: list[Section], bench: str | None, bench_co
              f"Written by `python -m csb.studies.report` (run by `./dev run`), the {tier} tiers of the studies. "
              "Every figure below was measured by a run of the job: this one, or an earlier one whose inputs (the "
              "installed csb, to the byte, and the script) are unchanged, as the section says. The methods and "
-             "their papers are described in `papers/` of the repository.", ""]
+             "their papers are described in `papers/` of the repository."
+             + (f" This run of the job took {seconds:.0f} s of wall time (after the set-up)." if seconds is not None
+                else ""), ""]
     failed = ([s.name for s in studies if s.error] + [s.name for s in sections if s.returncode != 0]
               + (["benchmarks"] if bench_code != 0 else []))
     if failed:
@@ -417,7 +420,7 @@ def main(argv: list[str] | None = None) -> int:
             bench_measured = _now()
             cache.put("bench", key, output=bench, returncode=bench_code, files=[str(vdir / "benchmarks.txt")],
                       measured=bench_measured, seconds=0.0)
-    path = write_report(out, sections, bench, bench_code, studies, tier, bench_measured)
+    path = write_report(out, sections, bench, bench_code, studies, tier, bench_measured, time.time() - start)
     print(f"[report] wrote {path} ({time.time() - start:.0f} s)")
     # A study's failed cells are results (a peer not installed, a method that refuses a scene), in
     # its section; a study that cannot run at all fails the job.
