@@ -172,8 +172,10 @@ def run_study(script: Path, out: Path, *, quick: bool = False, cache: Cache | No
     shutil.rmtree(work, ignore_errors=True)
     work.mkdir(parents=True)
     start = time.time()
-    code, text = _run([sys.executable, str(script), "--out", str(work), *args], out / f"{script.stem}.txt", echo)
+    code, text = _run([sys.executable, str(script), "--out", str(work), *args], echo=echo)
     seconds = time.time() - start
+    text = text.replace(str(work), str(out))  # the files it names are moved there below
+    (out / f"{script.stem}.txt").write_text(text, encoding="utf-8")
     files = []
     for f in sorted(work.iterdir()):
         if f.is_file():
