@@ -439,9 +439,12 @@ def _references(study: Study, cells: list[Cell], records: dict[str, dict], posit
         else:
             level[s.label] = "auto"
     fraction = ref["fraction"]
+    def rtol_of(scene) -> float:  # the tolerance under test, as a number
+        r = level[scene.label]
+        return made(scene, "auto")[1]["rtol"] if r == "auto" else r
+
     while level:
-        tighter = {label: (made(s, "auto")[1]["rtol"] if r == "auto" else r) / 100
-                   for s in study.scenes if (r := level.get(label := s.label)) is not None}
+        tighter = {s.label: rtol_of(s) / 100 for s in study.scenes if s.label in level}
         get([(s, tighter[s.label]) for s in study.scenes if s.label in level])
         for s in study.scenes:
             if s.label not in level:
