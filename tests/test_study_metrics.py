@@ -444,3 +444,13 @@ def test_a_same_step_reference_that_fails_leaves_the_metric_null_with_the_reason
     (row,) = run_study(p, out=tmp_path / "out", workers=0).table
     assert row["status"] == "ok" and row["same_step_error"] is None and row["residual"] > 0
     assert "same_step_error: the same-step reference failed: backward Euler: no descent direction" in row["notes"]
+
+
+def test_one_slow_run_does_not_stretch_the_spread_of_four_or_more():
+    from csb.studies.study.cells import _enough, cost_range
+
+    assert cost_range([1.0, 1.2]) == (1.0, 1.2)  # two or three runs: their range
+    assert cost_range([1.0, 1.01, 1.02, 1.03, 9.0]) == (1.01, 1.03)  # quartiles: the slow run is an outlier
+    assert not _enough([1.0, 1.5, 2.0], "auto")  # a spread of half the median: run again
+    assert _enough([1.0, 1.01, 1.02, 1.03, 9.0], "auto")
+    assert _enough([1.0, 2.0], 2) and not _enough([1.0], 2)

@@ -120,10 +120,20 @@ def run_cell(definition: dict[str, Any], context: dict[str, Any]) -> dict:
     return record
 
 
-# Repeats = "auto": timed runs until the spread (largest - smallest) of the cost is within
+# Repeats = "auto": timed runs until the spread of the cost (its range, from four runs on its
+# interquartile range, which one run slowed by another process does not stretch) is within
 # AUTO_SPREAD of the median, at least AUTO_MIN and at most AUTO_MAX of them, and no more once
 # the runs have taken AUTO_BUDGET s of CPU time (the spread is then reported as it is).
 AUTO_MIN, AUTO_MAX, AUTO_SPREAD, AUTO_BUDGET = 3, 15, 0.1, 10.0
+
+
+def cost_range(costs: list[float]) -> tuple[float, float]:
+    """The spread of a cell's costs: their range, or from four runs their first and third
+    quartiles."""
+    if len(costs) < 4:
+        return min(costs), max(costs)
+    q1, _, q3 = statistics.quantiles(costs, n=4, method="inclusive")
+    return q1, q3
 
 
 def _enough(costs: list[float], repeats: int | str) -> bool:
@@ -131,9 +141,9 @@ def _enough(costs: list[float], repeats: int | str) -> bool:
         return len(costs) >= int(repeats)
     if len(costs) < AUTO_MIN:
         return False
-    median = statistics.median(costs)
+    low, high = cost_range(costs)
     return (len(costs) >= AUTO_MAX or sum(costs) >= AUTO_BUDGET
-            or max(costs) - min(costs) <= AUTO_SPREAD * median)
+            or high - low <= AUTO_SPREAD * statistics.median(costs))
 
 
 def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
@@ -248,11 +258,12 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
                 values[m] = None
                 notes.append(f"{m}: the same-step reference failed: {e}")
     per_second = [c / duration for c in costs]
+    low, high = cost_range(per_second)
     positions = np.stack([np.asarray(s.x, dtype=np.float64) for s in states]) if not blew else None
     return dict(metrics=values, notes=notes, dt_used=dt_used, positions=positions,
                 steps=None if steps_per_interval is None else steps_per_interval * (len(times) - 1),
                 cost=dict(cpu_per_simulated_s=statistics.median(per_second),
-                          spread=max(per_second) - min(per_second), low=min(per_second), high=max(per_second),
+                          spread=high - low, low=low, high=high,
                           samples=per_second, repeats=len(costs)))
 
 

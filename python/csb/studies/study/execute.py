@@ -162,8 +162,9 @@ class StudyResult:
             for scene in st.scenes:
                 front = _front([r for r in self.table if r["scene"] == scene.label])
                 ranks = _cost_ranks(front)
-                lines += [f"{scene.label}: the cells no other cell beats in both error and cost. Cost rank: cells "
-                          "whose cost ranges (fastest to slowest repeat) overlap share a rank: a tie, not a ranking.",
+                lines += [f"{scene.label}: the cells no other cell beats in both error and cost. Cost rank: 1 + the "
+                          "number of cells whose whole cost range (of the repeats: their range, from four runs the "
+                          "quartiles) lies below the cell's; cells whose ranges overlap are ties, not a ranking.",
                           "", "| cost rank | method | parameters | largest distance to the reference (m) | "
                           "CPU s per simulated s (median, range) |", "|---:|---|---|---:|---:|"]
                 lines += [f"| {rank} | {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
@@ -199,32 +200,29 @@ def _profile(result: "StudyResult"):
 def cells_auto_text() -> str:
     from .cells import AUTO_BUDGET, AUTO_MAX, AUTO_MIN, AUTO_SPREAD
 
-    return (f"as many runs as the spread asks (at least {AUTO_MIN}, until the range of the costs is within "
-            f"{AUTO_SPREAD:.0%} of their median, at most {AUTO_MAX} or {AUTO_BUDGET:g} s of CPU time)")
+    return (f"as many runs as the spread asks (at least {AUTO_MIN}, until the spread of the costs — their range, "
+            f"from four runs their interquartile range — is within {AUTO_SPREAD:.0%} of their median; at most "
+            f"{AUTO_MAX} runs, or {AUTO_BUDGET:g} s of CPU time)")
 
 
 def _cost_ranks(rows: list[dict]) -> list[int]:
-    """Ranks by median cost, cheapest first, where a row whose cost range (cpu_low..cpu_high)
-    overlaps the range of the row ranked before it shares its rank."""
-    ranks: list[int] = []
-    high = -math.inf
-    for k, r in enumerate(rows):
-        low = r.get("cpu_low", r["cpu_per_simulated_s"])
-        low = r["cpu_per_simulated_s"] if low is None else low
-        if k and low <= high:
-            ranks.append(ranks[-1])
-        else:
-            ranks.append(k + 1)
-        top = r.get("cpu_high")
-        high = max(high, r["cpu_per_simulated_s"] if top is None else top)
-    return ranks
+    """Each row's cost rank: 1 + the number of rows whose whole cost range (cpu_low..cpu_high; a
+    single run's cost alone) lies below its own. Rows whose ranges overlap are not ranked apart."""
+    def span(r: dict) -> tuple[float, float]:
+        lo, hi = r.get("cpu_low"), r.get("cpu_high")
+        m = r["cpu_per_simulated_s"]
+        return (m if lo is None else lo), (m if hi is None else hi)
+
+    spans = [span(r) for r in rows]
+    return [1 + sum(hi < lo for _, hi in spans) for lo, _ in spans]
 
 
 def _range_text(row: dict) -> str:
     lo, hi = row.get("cpu_low"), row.get("cpu_high")
     if lo is None or hi is None:
         return "one run"
-    return f"{lo:.3g}-{hi:.3g}, {row.get('repeats')} runs"
+    n = row.get("repeats")
+    return f"{'quartiles ' if n and n >= 4 else ''}{lo:.3g}-{hi:.3g}, {n} runs"
 
 
 def _chart_title(chart: dict) -> str:
