@@ -19,7 +19,7 @@ import numpy as np
 
 from ... import _core
 from . import charts as charts_module
-from .cells import _machine, _read_record, _write_atomic, compute_reference, run_cell
+from .cells import _machine, _read_record, _write_atomic, compute_reference, cost_range, run_cell
 from .schema import _NEEDS_REFERENCE, _PARAMS, Cell, Study, cell_key, load_study
 
 
@@ -166,7 +166,7 @@ class StudyResult:
                           "number of cells whose whole cost range (of the repeats: their range, from four runs the "
                           "quartiles) lies below the cell's; cells whose ranges overlap are ties, not a ranking.",
                           "", "| cost rank | method | parameters | largest distance to the reference (m) | "
-                          "CPU s per simulated s (median, range) |", "|---:|---|---|---:|---:|"]
+                          "CPU s per simulated s (median, spread) |", "|---:|---|---|---:|---:|"]
                 lines += [f"| {rank} | {r['method']} | {_param_text(r)} | {r['position_error']:.3g} | "
                           f"{r['cpu_per_simulated_s']:.3g} ({_range_text(r)}) |" for r, rank in zip(front, ranks)]
                 lines.append("")
@@ -503,9 +503,10 @@ def _row(study: Study, cell: Cell, record: dict, positions: _Positions, referenc
             row["position_error"] = float(np.linalg.norm(x - reference.x, axis=2).max())
     cost = record.get("cost", {})
     row["cpu_per_simulated_s"] = cost.get("cpu_per_simulated_s")
-    row["cpu_spread"] = cost.get("spread")
-    row["cpu_low"] = cost.get("low")
-    row["cpu_high"] = cost.get("high")
+    low, high = cost_range(cost["samples"]) if cost.get("samples") else (cost.get("low"), cost.get("high"))
+    row["cpu_spread"] = None if low is None else high - low
+    row["cpu_low"] = low
+    row["cpu_high"] = high
     row["repeats"] = cost.get("repeats", len(cost.get("samples", [])) or None)
     row["status"] = record["status"]
     row["error_type"] = record.get("error_type")
