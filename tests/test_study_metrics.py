@@ -454,3 +454,19 @@ def test_one_slow_run_does_not_stretch_the_spread_of_four_or_more():
     assert not _enough([1.0, 1.5, 2.0], "auto")  # a spread of half the median: run again
     assert _enough([1.0, 1.01, 1.02, 1.03, 9.0], "auto")
     assert _enough([1.0, 2.0], 2) and not _enough([1.0], 2)
+
+
+def test_the_one_step_metrics_with_one_step_between_outputs(tmp_path):
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.1
+        outputs = 5
+        metrics = ["residual", "same_step_error", "stability"]
+        """ + CHAIN + """
+        [[method]]
+        name = "xpbd"
+        dt = 0.02
+        iterations = 5
+        """)
+    (row,) = run_study(p, out=tmp_path / "out", workers=0).table
+    assert row["steps"] == 5 and row["status"] == "ok" and row["residual"] > 0 and row["same_step_error"] > 0

@@ -193,9 +193,10 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
             for _k in range(1, len(times)):
                 try:
                     if keep:
-                        c0 = time.process_time()
-                        stepper.step(model, state, steps_per_interval - 1)
-                        cpu += time.process_time() - c0
+                        if steps_per_interval > 1:  # (an Integrator need not take 0 steps)
+                            c0 = time.process_time()
+                            stepper.step(model, state, steps_per_interval - 1)
+                            cpu += time.process_time() - c0
                         before = state.copy()
                         c0 = time.process_time()
                         stepper.step(model, state, 1)
