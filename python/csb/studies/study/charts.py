@@ -56,7 +56,7 @@ def accuracy_cost(table: list[dict], scenes: list[str], methods: list[str], path
         ax.set_xscale("log")
         ax.set_yscale("log")
         ax.set_title(f"{scene}: error against cost", fontsize="medium")
-        ax.set_xlabel("CPU time per simulated second (s): median; bar: range of the repeats, from four the quartiles")
+        ax.set_xlabel("CPU s per simulated s: median; bar: spread of the repeats")
         ax.set_ylabel("largest distance to the reference (m)")
         ax.grid(alpha=0.3, which="both")
         if ax.get_legend_handles_labels()[0]:
