@@ -65,6 +65,18 @@ def _check_steps(dt: Any, substeps: Any) -> None:
         raise _core.ParameterError(f"substeps must be an integer >= 1, got {substeps!r}")
 
 
+def _check_iterations(iterations: Any) -> None:
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise _core.ParameterError(f"iterations must be an integer >= 1, got {iterations!r}")
+
+
+def _check_gravity(gravity: Any) -> np.ndarray:
+    g = np.asarray(gravity, dtype=float)
+    if g.shape != (3,) or not np.all(np.isfinite(g)):
+        raise _core.ParameterError(f"gravity must be 3 finite numbers (m/s²), got {gravity!r}")
+    return g
+
+
 def _unmappable(model: _core.Model, peer: str, *, takes: tuple[str, ...]) -> list[str]:
     """What of `model` no adapter here maps: constraint kinds beyond `takes` (of "distance",
     "bending"), colliders, self-collision, one-sided distance constraints, and rest lengths other
@@ -95,7 +107,20 @@ def _unmappable(model: _core.Model, peer: str, *, takes: tuple[str, ...]) -> lis
 class _Peer(_core.Integrator):
     """What every adapter has beyond csb.Integrator: ``unmappable(model)``, ``counterpart()`` (csb's
     method of the same family) and ``conformance(model)``, which a study runs before it measures
-    a peer (it finds the method by that name; csb.studies does not import this module)."""
+    a peer (it finds the method by that name; csb.studies does not import this module); and the
+    settings every adapter checks and keeps, with its per-Model state."""
+
+    def __init__(self, dt: float, substeps: int, iterations: int):
+        super().__init__()
+        _check_steps(dt, substeps)
+        _check_iterations(iterations)
+        self._dt, self.substeps, self.iterations = float(dt), substeps, iterations
+        self._model: _core.Model | None = None  # the csb Model the peer's model was built from
+        self.counts: dict[str, int] = {}
+        self.pinned: list[int] = []
+
+    def dt(self) -> float:
+        return self._dt
 
     def conformance(self, model: _core.Model, *, tolerance: float = 0.2) -> "Conformance":
         return conformance(self, model, tolerance=tolerance)
@@ -112,22 +137,13 @@ class PypbdIntegrator(_Peer):
 
     def __init__(self, dt: float, *, substeps: int = 1, iterations: int = 10,
                  gravity: tuple[float, float, float] = PYPBD_GRAVITY):
-        super().__init__()
         _require("pypbd")
-        _check_steps(dt, substeps)
-        if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-            raise _core.ParameterError(f"iterations must be an integer >= 1, got {iterations!r}")
+        super().__init__(dt, substeps, iterations)
         if tuple(float(g) for g in gravity) != PYPBD_GRAVITY:
             raise _core.ParameterError(f"gravity: pypbd is given {PYPBD_GRAVITY} m/s² only, got {tuple(gravity)!r}")
-        self._dt, self.substeps, self.iterations = float(dt), substeps, iterations
-        self._model: _core.Model | None = None
-        self.counts: dict[str, int] = {}
 
     def name(self) -> str:
         return "pypbd"
-
-    def dt(self) -> float:
-        return self._dt
 
     # -- the mapping
     def unmappable(self, model: _core.Model) -> list[str]:
@@ -241,25 +257,15 @@ class MujocoFlexIntegrator(_Peer):
 
     def __init__(self, dt: float, *, substeps: int = 1, gravity: tuple[float, float, float] = (0.0, -9.81, 0.0),
                  integrator: str = "Euler"):
-        super().__init__()
         _require("mujoco")
-        _check_steps(dt, substeps)
-        g = np.asarray(gravity, dtype=float)
-        if g.shape != (3,) or not np.all(np.isfinite(g)):
-            raise _core.ParameterError(f"gravity must be 3 finite numbers (m/s²), got {gravity!r}")
+        super().__init__(dt, substeps, 1)  # no iterations: one force evaluation a sub-step
+        self.gravity = _check_gravity(gravity)
         if integrator not in self.INTEGRATORS:
             raise _core.ParameterError(f"integrator must be one of {', '.join(self.INTEGRATORS)}, got {integrator!r}")
-        self._dt, self.substeps, self.gravity, self.integrator = float(dt), substeps, g, integrator
-        self.iterations = 1  # no iterations: one force evaluation a sub-step
-        self._model: _core.Model | None = None
-        self.counts: dict[str, int] = {}
-        self.pinned: list[int] = []
+        self.integrator = integrator
 
     def name(self) -> str:
         return f"mujoco-flex ({self.integrator})"
-
-    def dt(self) -> float:
-        return self._dt
 
     def unmappable(self, model: _core.Model) -> list[str]:
         why = _unmappable(model, "a flex", takes=("distance", "bending"))
@@ -388,18 +394,6 @@ class MujocoFlexIntegrator(_Peer):
             state.x, state.v = xn, vn
 
 
-def _check_iterations(iterations: Any) -> None:
-    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
-        raise _core.ParameterError(f"iterations must be an integer >= 1, got {iterations!r}")
-
-
-def _check_gravity(gravity: Any) -> np.ndarray:
-    g = np.asarray(gravity, dtype=float)
-    if g.shape != (3,) or not np.all(np.isfinite(g)):
-        raise _core.ParameterError(f"gravity must be 3 finite numbers (m/s²), got {gravity!r}")
-    return g
-
-
 class NewtonIntegrator(_Peer):
     """NVIDIA Newton stepping a csb Model on the CPU (warp device "cpu"): dt (s) a step in
     `substeps` calls of the solver's step with dt/substeps, `iterations` of the solver each. A
@@ -428,22 +422,13 @@ class NewtonIntegrator(_Peer):
 
     def __init__(self, dt: float, *, substeps: int = 1, iterations: int = 10,
                  gravity: tuple[float, float, float] = (0.0, -9.81, 0.0)):
-        super().__init__()
         _require("newton")
         _require("warp")
-        _check_steps(dt, substeps)
-        _check_iterations(iterations)
-        self._dt, self.substeps, self.iterations = float(dt), substeps, iterations
+        super().__init__(dt, substeps, iterations)
         self.gravity = _check_gravity(gravity)
-        self._model: _core.Model | None = None
-        self.counts: dict[str, int] = {}
-        self.pinned: list[int] = []
 
     def name(self) -> str:
         return f"newton-{self.LABEL}"
-
-    def dt(self) -> float:
-        return self._dt
 
     def unmappable(self, model: _core.Model) -> list[str]:
         """What of `model` this adapter cannot give Newton's solver (empty: all of it)."""
