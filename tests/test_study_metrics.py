@@ -470,3 +470,41 @@ def test_the_one_step_metrics_with_one_step_between_outputs(tmp_path):
         """)
     (row,) = run_study(p, out=tmp_path / "out", workers=0).table
     assert row["steps"] == 5 and row["status"] == "ok" and row["residual"] > 0 and row["same_step_error"] > 0
+
+
+def test_a_scene_may_leave_out_some_of_the_studys_metrics_and_then_gets_no_reference(tmp_path):
+    p = write(tmp_path, """\
+        [study]
+        duration = 0.2
+        metrics = ["position_error", "residual", "stability"]
+
+        [reference]
+        rtol = 1e-9
+
+        [[scene]]
+        name = "chain"
+        setup = "swinging_chain"
+        args = { links = 3, compliance = 1e-6 }
+
+        [[scene]]
+        name = "twisted"
+        setup = "twisting_cloth"
+        args = { n = 4 }
+        metrics = ["residual", "stability"]   # no converged continuous reference here
+
+        [[method]]
+        name = "xpbd"
+        dt = 0.01
+        iterations = 5
+        """)
+    r = run_study(p, out=tmp_path / "out", workers=0)
+    chain, twisted = r.table
+    assert chain["position_error"] > 0 and chain["residual"] > 0
+    assert twisted["position_error"] is None and twisted["residual"] > 0
+    assert "position_error: not measured on this scene" in twisted["notes"]
+    assert set(r.references) == {"chain"}  # the reference ran for the chain only
+    assert "twisted: the cells no other cell" not in r.report()
+    bad = write(tmp_path, p.read_text().replace('metrics = ["residual", "stability"]', 'metrics = ["volume_error"]'),
+                "bad.toml")
+    with pytest.raises(StudyError, match=r"scene\[1\]\.metrics: 'volume_error' is not one of the study's metrics"):
+        load_study(bad)

@@ -24,6 +24,8 @@ A study file::
     setup = "swinging_chain"         # setup = a study set-up (SETUPS, the literature's among them)
     args = { links = 5 }
     grid = { compliance = [1e-6, 1e-4] }   # a set-up's arguments swept: one scene per value
+    metrics = ["residual", "stability"]    # optional: the study's metrics measured on this scene
+                                           # (without position_error, no reference is run for it)
 
     [[method]]
     name = "xpbd"                    # a built-in (csb.methods()) or "cvode"; or python = "module:Class"

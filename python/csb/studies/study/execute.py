@@ -160,6 +160,8 @@ class StudyResult:
         if "position_error" in st.metrics:
             lines += ["![accuracy against cost](accuracy_cost.png)", ""]
             for scene in st.scenes:
+                if not scene.measures("position_error", st.metrics):
+                    continue
                 front = _front([r for r in self.table if r["scene"] == scene.label])
                 ranks = _cost_ranks(front)
                 lines += [f"{scene.label}: the cells no other cell beats in both error and cost. Cost rank: 1 + the "
@@ -283,7 +285,7 @@ def run_study(path: str | os.PathLike[str], *, out: str | os.PathLike[str] | Non
         else:
             missing.append(c)
     reused = len(records)
-    need_ref = any(m in _NEEDS_REFERENCE for m in study.metrics)
+    need_ref = any(s.measures(m, study.metrics) for s in study.scenes for m in _NEEDS_REFERENCE)
     run, close = None, None
     try:
         if missing or need_ref:
@@ -420,17 +422,18 @@ def _references(study: Study, cells: list[Cell], records: dict[str, dict], posit
         return min(values) if values else None
 
     out: dict[str, Reference] = {}
+    scenes = [s for s in study.scenes if s.measures("position_error", study.metrics)]
     if ref["rtol"] != "auto":
-        get([(s, ref["rtol"]) for s in study.scenes])
-        for s in study.scenes:
+        get([(s, ref["rtol"]) for s in scenes])
+        for s in scenes:
             x, info = made(s, ref["rtol"])
             out[s.label] = Reference(x, info.get("rtol"), info.get("atol"), info.get("energy_drift"),
                                      error=info.get("error"), cpu_s=info.get("cpu_s", 0.0))
         return out
     # rtol = "auto": level[scene] is the tolerance under test, its run 100 times tighter the check.
-    get([(s, "auto") for s in study.scenes])
+    get([(s, "auto") for s in scenes])
     level: dict[str, Any] = {}
-    for s in study.scenes:
+    for s in scenes:
         x, info = made(s, "auto")
         if x is None:
             out[s.label] = Reference(None, error=info["error"])
@@ -442,9 +445,9 @@ def _references(study: Study, cells: list[Cell], records: dict[str, dict], posit
         return made(scene, "auto")[1]["rtol"] if r == "auto" else r
 
     while level:
-        tighter = {s.label: rtol_of(s) / 100 for s in study.scenes if s.label in level}
-        get([(s, tighter[s.label]) for s in study.scenes if s.label in level])
-        for s in study.scenes:
+        tighter = {s.label: rtol_of(s) / 100 for s in scenes if s.label in level}
+        get([(s, tighter[s.label]) for s in scenes if s.label in level])
+        for s in scenes:
             if s.label not in level:
                 continue
             x0, _ = made(s, level[s.label])
@@ -493,7 +496,9 @@ def _row(study: Study, cell: Cell, record: dict, positions: _Positions, referenc
     notes = list(record.get("notes", []))
     for m in study.metrics:
         row[m] = values.get(m)
-    if "position_error" in study.metrics and record["status"] == "ok" and values.get("stability") != "blew-up":
+    measured = cell.definition["metrics"]
+    notes += [f"{m}: not measured on this scene (its [[scene]] metrics)" for m in study.metrics if m not in measured]
+    if "position_error" in measured and record["status"] == "ok" and values.get("stability") != "blew-up":
         x = positions(cell.key)
         if reference is None or reference.x is None:
             notes.append("position_error: the reference failed" + (f" ({reference.error})" if reference else ""))

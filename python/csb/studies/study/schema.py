@@ -126,6 +126,10 @@ class SceneDef:
     context: dict[str, Any]      # how to find it (the file's path): not part of the key
     index: int = 0               # its [[scene]] table, for messages
     point: dict[str, Any] = field(default_factory=dict)  # its point of the scene's grid
+    metrics: tuple[str, ...] | None = None  # the study's metrics measured on it (None: all of them)
+
+    def measures(self, metric: str, study_metrics: tuple[str, ...]) -> bool:
+        return metric in (study_metrics if self.metrics is None else self.metrics)
 
 
 @dataclass(frozen=True)
@@ -191,7 +195,8 @@ class Study:
                     # The reference is no part of a cell: the cell keeps its positions, and the
                     # errors against the reference are measured when the table is made.
                     definition = dict(
-                        scene=s.definition, method=m.definition, params=params, metrics=list(self.metrics),
+                        scene=s.definition, method=m.definition, params=params,
+                        metrics=list(self.metrics if s.metrics is None else s.metrics),
                         duration=s.definition.get("duration", self.duration),
                         outputs=self.outputs, repeats=self.repeats, csb=dict(version=build["csb"], build=build))
                     out.append(Cell(s.label, m.label, params, definition, dict(scene=s.context, method=m.context),
@@ -233,7 +238,7 @@ def _grid(t: _StudyTable, key: str, kind: str) -> tuple[Any, ...] | None:
     return tuple(float(x) if kind != "count" else int(x) for x in values)
 
 
-def _read_scene(source: _Source, data: Any, k: int, base: Path) -> list[SceneDef]:
+def _read_scene(source: _Source, data: Any, k: int, base: Path, study_metrics: tuple[str, ...]) -> list[SceneDef]:
     if not isinstance(data, dict):
         raise StudyError(f"{source.path}: scene {k + 1}: declare scenes as [[scene]] tables")
     t = _StudyTable(source, data, ("scene", k), f"scene[{k}]")
@@ -311,8 +316,20 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path) -> list[SceneDef
         duration = t.number("duration", check=lambda x: x > 0, expect="a duration > 0 s")
         for _, d, _ in variants:
             d["duration"] = duration
+    # The study's metrics measured on this scene, when not all of them (a scene with no converged
+    # continuous reference leaves out position_error, and the reference is not run for it).
+    metrics = None
+    if t.has("metrics"):
+        chosen = t.raw("metrics")
+        if (not isinstance(chosen, list) or not chosen or not all(isinstance(m, str) for m in chosen)
+                or len(set(chosen)) != len(chosen)):
+            raise t.error("metrics", f"must be a non-empty list of distinct metric names, got {chosen!r}")
+        unknown = [m for m in chosen if m not in study_metrics]
+        if unknown:
+            raise t.error("metrics", f"{unknown[0]!r} is not one of the study's metrics: {', '.join(study_metrics)}")
+        metrics = tuple(m for m in study_metrics if m in chosen)
     t.finish()
-    return [SceneDef(name, d, context, k, point) for name, d, point in variants]
+    return [SceneDef(name, d, context, k, point, metrics) for name, d, point in variants]
 
 
 def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
@@ -464,7 +481,7 @@ def load_study(path: str | os.PathLike[str], *, extra_methods: tuple[str, ...] |
     raw_scenes = top.raw("scene", [])
     if not isinstance(raw_scenes, list) or not raw_scenes:
         raise top.error(None, "declare at least one [[scene]]")
-    scenes = tuple(d for k, s in enumerate(raw_scenes) for d in _read_scene(source, s, k, p.parent))
+    scenes = tuple(d for k, s in enumerate(raw_scenes) for d in _read_scene(source, s, k, p.parent, tuple(metrics)))
     raw_methods = top.raw("method", [])
     if not isinstance(raw_methods, list) or not raw_methods:
         raise top.error(None, "declare at least one [[method]]")
