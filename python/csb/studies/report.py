@@ -282,13 +282,12 @@ def _block(text: str) -> str:
 
 
 def _study_markdown(s: StudySection, out: Path) -> list[str]:
-    """A study's own report section, its links made relative to ``out``, its headings one level down."""
+    """A study's own report section, its images' links made relative to ``out``, with a line on how
+    its run went."""
     rel = s.folder.relative_to(out).as_posix() if s.folder.is_relative_to(out) else s.folder.as_posix()
     lines = []
     for line in s.markdown.splitlines():
-        if line.startswith("## Study: "):
-            line = "## Study: " + line[len("## Study: "):]
-        elif line.startswith("!["):
+        if line.startswith("!["):
             alt, _, target = line.partition("](")
             line = f"{alt}]({rel}/{target}"
         lines.append(line)

@@ -158,6 +158,9 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
     per_step = [m for m in metrics if m in ("residual", "same_step_error")]
     last_steps: list[tuple[_core.State, _core.State]] = []
     if "name" in definition["method"] and definition["method"]["name"] == REFERENCE_METHOD:
+        if per_step:
+            raise _core.ParameterError(f"{per_step[0]} is measured on one step of a time-stepping method; "
+                                       "the continuous reference takes no steps of its own")
         costs, states = [], None
         while not _enough(costs, definition["repeats"]):
             c0 = time.process_time()
@@ -166,9 +169,6 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
             costs.append(time.process_time() - c0)
             states = list(r.states(model))
         blew, steps_per_interval, dt_used = False, None, None
-        if per_step:
-            raise _core.ParameterError(f"{per_step[0]} is measured on one step of a time-stepping method; "
-                                       "the continuous reference takes no steps of its own")
     else:
         # Whole steps between output times: the dt asked for, rounded to divide the interval.
         steps_per_interval = max(1, round(interval / params["dt"]))
@@ -194,18 +194,12 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
                 try:
                     if keep:
                         if steps_per_interval > 1:  # (an Integrator need not take 0 steps)
-                            c0 = time.process_time()
-                            stepper.step(model, state, steps_per_interval - 1)
-                            cpu += time.process_time() - c0
+                            cpu += _timed(stepper, model, state, steps_per_interval - 1)
                         before = state.copy()
-                        c0 = time.process_time()
-                        stepper.step(model, state, 1)
-                        cpu += time.process_time() - c0
+                        cpu += _timed(stepper, model, state, 1)
                         steps_list.append((before, state.copy()))
                     else:
-                        c0 = time.process_time()
-                        stepper.step(model, state, steps_per_interval)
-                        cpu += time.process_time() - c0
+                        cpu += _timed(stepper, model, state, steps_per_interval)
                 except _core.SimulationError:
                     blew = True
                 x = np.asarray(state.x)
@@ -266,6 +260,13 @@ def _measure(definition: dict[str, Any], context: dict[str, Any]) -> dict:
                 cost=dict(cpu_per_simulated_s=statistics.median(per_second),
                           spread=high - low, low=low, high=high,
                           samples=per_second, repeats=len(costs)))
+
+
+def _timed(stepper: _core.Integrator, model: _core.Model, state: _core.State, steps: int) -> float:
+    """Steps ``state`` and returns the process CPU time it took (s)."""
+    c0 = time.process_time()
+    stepper.step(model, state, steps)
+    return time.process_time() - c0
 
 
 def _one_step_metric(metric: str, model: _core.Model, before: _core.State, after: _core.State, dt: float,

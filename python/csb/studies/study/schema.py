@@ -332,6 +332,17 @@ def _read_scene(source: _Source, data: Any, k: int, base: Path, study_metrics: t
     return [SceneDef(name, d, context, k, point, metrics) for name, d, point in variants]
 
 
+def _stepping_grid(t: _StudyTable) -> dict[str, tuple[Any, ...]]:
+    """The grid of a user's method or a plug-in: dt (required), and substeps and iterations
+    where given (the method's own defaults otherwise)."""
+    grid = {"dt": _grid(t, "dt", "time") or t.raw("dt")}
+    for key in ("substeps", "iterations"):
+        g = _grid(t, key, "count")
+        if g is not None:
+            grid[key] = g
+    return grid
+
+
 def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
     if not isinstance(data, dict):
         raise StudyError(f"{source.path}: method {k + 1}: declare methods as [[method]] tables")
@@ -369,11 +380,7 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
         definition = dict(plugin=str(lib), sha256=_sha256_file(path))
         context = dict(path=str(path.resolve()))
         label = t.string("label", made.name)
-        grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
-        for key in ("substeps", "iterations"):
-            g = _grid(t, key, "count")
-            if g is not None:
-                grid[key] = g
+        grid.update(_stepping_grid(t))
     else:
         spec = t.string("python")
         module, _, cls = spec.partition(":")
@@ -410,11 +417,7 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
         definition = dict(python=spec, sha256=sha256, args=args)
         context = dict(folder=folder)
         label = t.string("label", cls)
-        grid["dt"] = _grid(t, "dt", "time") or t.raw("dt")
-        for key in ("substeps", "iterations"):
-            g = _grid(t, key, "count")
-            if g is not None:
-                grid[key] = g
+        grid.update(_stepping_grid(t))
     t.finish()
     return MethodDef(label, definition, context, grid)
 
