@@ -209,6 +209,71 @@ struct BackwardEulerStepper::Workspace {
     return filled == nnz;  // else a position of the pattern got no entry
   }
 
+  // Conjugate gradients on (H + Σ w u uᵀ) dx = b, preconditioned by the inverse 3x3 diagonal
+  // blocks of H (block Jacobi), from dx = 0, for at most `budget` iterations or until
+  // |residual| <= tolerance |b|. Sequential sums in a fixed order: the same bits on any machine
+  // thread count. Returns the iterations taken.
+  int conjugate_gradients(const SpringNetwork::Stiffness& rank_one, const Real* b, Real* dx, int budget,
+                          Real tolerance) {
+    const Eigen::Index n3 = H.rows(), nb = n3 / 3;
+    const auto* outer = H.outerIndexPtr();
+    const auto* inner = H.innerIndexPtr();
+    const Real* value = H.valuePtr();
+    block_inverse.resize(static_cast<std::size_t>(nb));
+    for (Eigen::Index s = 0; s < nb; ++s) {
+      Mat3 B = Mat3::Zero();
+      for (int c = 0; c < 3; ++c)
+        for (auto e = outer[3 * s + c]; e < outer[3 * s + c + 1]; ++e)
+          if (inner[e] >= 3 * s && inner[e] < 3 * s + 3) B(inner[e] - 3 * s, c) = value[e];
+      block_inverse[static_cast<std::size_t>(s)] = B.inverse();
+    }
+    const auto n = static_cast<std::size_t>(n3);
+    res.assign(b, b + n);
+    z.resize(n), p.resize(n), q.resize(n);
+    std::fill(dx, dx + n, 0.0);
+    const auto precondition = [&] {
+      for (Eigen::Index s = 0; s < nb; ++s) {
+        const Vec3 r3(res[3 * s], res[3 * s + 1], res[3 * s + 2]);
+        const Vec3 z3 = block_inverse[static_cast<std::size_t>(s)] * r3;
+        for (int k = 0; k < 3; ++k) z[3 * s + k] = z3[k];
+      }
+    };
+    const auto dot = [n](const std::vector<Real>& u, const std::vector<Real>& v) {
+      Real sum = 0;
+      for (std::size_t i = 0; i < n; ++i) sum += u[i] * v[i];
+      return sum;
+    };
+    const Real stop = tolerance * std::sqrt(dot(res, res));
+    precondition();
+    p = z;
+    Real rz = dot(res, z);
+    int it = 0;
+    while (it < budget) {
+      std::fill(q.begin(), q.end(), 0.0);  // q = (H + Σ w u uᵀ) p
+      for (Eigen::Index c = 0; c < n3; ++c)
+        for (auto e = outer[c]; e < outer[c + 1]; ++e) q[static_cast<std::size_t>(inner[e])] += value[e] * p[c];
+      for (std::size_t k = 0; k < rank_one.rank_one_weight.size(); ++k) {
+        const std::vector<Real>& u = rank_one.rank_one_vector[k];
+        const Real w = rank_one.rank_one_weight[k] * dot(u, p);
+        for (std::size_t i = 0; i < n; ++i) q[i] += w * u[i];
+      }
+      const Real pq = dot(p, q);
+      if (!(pq > 0)) break;  // H + M/h² is definite; round-off at a solved system
+      const Real a = rz / pq;
+      for (std::size_t i = 0; i < n; ++i) dx[i] += a * p[i], res[i] -= a * q[i];
+      ++it;
+      if (std::sqrt(dot(res, res)) <= stop) break;
+      precondition();
+      const Real rz_next = dot(res, z);
+      const Real beta = rz_next / rz;
+      rz = rz_next;
+      for (std::size_t i = 0; i < n; ++i) p[i] = z[i] + beta * p[i];
+    }
+    return it;
+  }
+  std::vector<Mat3> block_inverse;
+  std::vector<Real> res, z, p, q;
+
   // The LDLᵀ analysed for H's pattern: a kept one, or a new analysis (the oldest dropped).
   Ldlt& analysed() {
     const auto* outer = H.outerIndexPtr();
@@ -251,6 +316,20 @@ BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings
   if (settings_.substeps < 1) throw InvalidArgument("substeps must be >= 1, got " + std::to_string(settings_.substeps));
   if (settings_.max_iterations < 1)
     throw InvalidArgument("max_iterations must be >= 1, got " + std::to_string(settings_.max_iterations));
+  if (settings_.newton_iterations < 0)
+    throw InvalidArgument("newton_iterations must be >= 0 (0: to convergence), got " +
+                          std::to_string(settings_.newton_iterations));
+  if (settings_.cg_iterations < 1)
+    throw InvalidArgument("cg_iterations must be >= 1, got " + std::to_string(settings_.cg_iterations));
+  if (!(settings_.cg_tolerance >= 0 && settings_.cg_tolerance < 1))
+    throw InvalidArgument("cg_tolerance must be in [0, 1), got " + str(settings_.cg_tolerance));
+  if (settings_.newton_iterations == 0) {
+    if (settings_.linear_solver != BackwardEulerSettings::Linear::Direct)
+      throw InvalidArgument("the converged form (newton_iterations = 0) solves directly; conjugate gradients are "
+                            "for the budgeted form (newton_iterations > 0)");
+    if (!settings_.line_search)
+      throw InvalidArgument("the converged form (newton_iterations = 0) needs its line search");
+  }
 }
 
 void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t steps,
@@ -290,11 +369,16 @@ void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t s
 
 void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
   const Index np = model.num_particles();
+  const bool budgeted = settings_.newton_iterations > 0;
+  const bool cg = budgeted && settings_.linear_solver == BackwardEulerSettings::Linear::ConjugateGradient;
   {
     const IncrementalPotential P(model, state, state, h, settings_.gravity);
     const auto& dyn = P.network().dynamic_particles();
     const std::size_t n3 = 3 * dyn.size();
     std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
+    if (settings_.initial_guess == BackwardEulerSettings::Guess::Previous)
+      for (std::size_t s = 0; s < dyn.size(); ++s)
+        for (int k = 0; k < 3; ++k) x[3 * s + k] = state.x(k, dyn[s]);
     BackwardEulerStats st;
     Workspace& ws = *workspace_;
     const Eigen::SparseMatrix<Real>& H = ws.H;
@@ -313,17 +397,29 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
         throw SimulationError("backward Euler: step " + std::to_string(state.step) + " reached a non-finite residual at "
                               "Newton iteration " + std::to_string(it) + "; the state is left at the end of the last step");
       if (res <= tol) break;
-      if (it == settings_.max_iterations) {
+      if (budgeted && it == settings_.newton_iterations) break;  // the budget is spent
+      if (!budgeted && it == settings_.max_iterations) {
         std::ostringstream msg;
         msg << "backward Euler: step " << state.step << ": Newton's residual " << res << " N after " << it
             << " iterations, above the tolerance " << tol << " N (rtol " << settings_.rtol
             << "); the state is left at the end of the last step";
         throw SimulationError(msg.str());
       }
-      // Newton direction: the exact Hessian, else Gauss-Newton, else Gauss-Newton with a growing shift.
       bool found = false;
       Real slope = 0;
-      for (int level = 0; level < 8 && !found; ++level) {
+      if (cg) {  // the Gauss-Newton Hessian (positive definite with M/h²), PCG on a fixed budget
+        P.hessian_entries(x.data(), /*definite=*/true, ws.work);
+        ws.assemble(static_cast<Eigen::Index>(n3));
+        for (std::size_t i = 0; i < n3; ++i) rhs[i] = -r[i];
+        st.cg_iterations += ws.conjugate_gradients(work, rhs.data(), dx.data(), settings_.cg_iterations,
+                                                   settings_.cg_tolerance);
+        slope = 0;
+        for (std::size_t i = 0; i < n3; ++i) slope += r[i] * dx[i];
+        found = std::isfinite(slope) && slope < 0;
+        ++st.definiteness_fixes;
+      }
+      // Newton direction: the exact Hessian, else Gauss-Newton, else Gauss-Newton with a growing shift.
+      for (int level = 0; level < 8 && !found && !cg; ++level) {
         P.hessian_entries(x.data(), level > 0, ws.work);
         ws.assemble(static_cast<Eigen::Index>(n3));
         if (level > 1) {
@@ -354,11 +450,18 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
         found = true;
         if (level > 0) ++st.definiteness_fixes;
       }
-      if (!found)
+      if (!found) {
+        if (budgeted) break;  // no descent at this iterate: the step ends where it is
         throw SimulationError("backward Euler: step " + std::to_string(state.step) +
                               ": no descent direction (the Newton matrix stays singular after shifts)");
+      }
+      if (!settings_.line_search) {
+        for (std::size_t i = 0; i < n3; ++i) x[i] += dx[i];
+        continue;
+      }
       const Real e0 = P.energy(x.data());
       Real t = 1;
+      bool stalled = false;
       for (;;) {
         for (std::size_t i = 0; i < n3; ++i) trial[i] = x[i] + t * dx[i];
         const Real e = P.energy(trial.data());
@@ -368,12 +471,17 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
         t /= 2;
         ++st.line_search_halvings;
         if (t < 1e-12) {
+          if (budgeted) {
+            stalled = true;
+            break;
+          }
           std::ostringstream msg;
           msg << "backward Euler: step " << state.step << ": the line search stalled at residual " << res
               << " N (tolerance " << tol << " N); the state is left at the end of the last step";
           throw SimulationError(msg.str());
         }
       }
+      if (stalled) break;  // budgeted: no decrease along the direction; keep the iterate
       x.swap(trial);
     }
     for (std::size_t s = 0; s < dyn.size(); ++s)

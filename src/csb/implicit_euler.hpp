@@ -26,6 +26,18 @@
 // A step stops when the largest residual component is below rtol times the step's force scale
 // (the largest of max m|g|, the constraint forces |C/α||∇C| and the inertia m|x - x̃|/h²) plus the
 // rounding floor of the forces and of the inertia term: the rule of python/csb/backward_euler.py.
+//
+// The budgeted form (method "implicit-euler", Baraff and Witkin 1998's real-time practice): a
+// fixed number of Newton iterations per step (newton_iterations > 0; one is Baraff and Witkin's
+// linearised step when started from xⁿ, initial_guess = Previous), each a linear solve by
+// conjugate gradients preconditioned by the inverse 3x3 diagonal blocks of H, with a fixed budget
+// of cg_iterations (stopping early once the CG residual has fallen by cg_tolerance), or by the
+// sparse LDLᵀ. CG needs H positive definite: it takes the Gauss-Newton form (the projection to
+// positive semi-definite: a compressed spring's geometric term clamped at 0, the volumes',
+// bending's, balloons' and the families' curvature dropped; plus M/h², which makes it definite).
+// The line search is the same, and may be switched off (a full Newton step, as in real-time
+// codes). The step then ends after its budget, converged or not: no SimulationError for an
+// unconverged step, only for a non-finite one.
 #pragma once
 
 #include "csb/integrator.hpp"
@@ -43,6 +55,16 @@ struct BackwardEulerSettings {
   Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
   Real rtol = 1e-9;                  // residual relative to the step's force scale, > 0
   int max_iterations = 100;          // Newton iterations per step before SimulationError, >= 1
+  // The budgeted form: 0 solves each step to rtol (the converged form, the same-step reference);
+  // n > 0 takes at most n Newton iterations per step (fewer once the residual meets rtol).
+  int newton_iterations = 0;         // >= 0
+  enum class Linear { Direct, ConjugateGradient };
+  Linear linear_solver = Linear::Direct;  // the converged form always solves directly
+  int cg_iterations = 20;            // ConjugateGradient: iterations per Newton step, >= 1
+  Real cg_tolerance = 1e-4;          // ConjugateGradient: stop once |residual| <= this |r0|, in [0, 1)
+  bool line_search = true;           // Armijo backtracking on E; false: full Newton steps (budgeted form only)
+  enum class Guess { Inertia, Previous };
+  Guess initial_guess = Guess::Inertia;  // Newton starts from x̃ or from xⁿ (Baraff and Witkin 1998)
 };
 
 // What the last step's Newton solve did.
@@ -53,6 +75,7 @@ struct BackwardEulerStats {
   Real tolerance = 0;            // N, the bound the largest component met
   int definiteness_fixes = 0;    // Newton steps whose Hessian needed the Gauss-Newton form or a shift
   int line_search_halvings = 0;  // halvings of the step length, in all
+  int cg_iterations = 0;         // conjugate-gradient iterations, in all (budgeted form)
   std::vector<Real> history;     // N, the largest residual component before each Newton step and at the end
 };
 
@@ -104,12 +127,14 @@ class BackwardEulerStepper final : public Integrator {
   // Throws InvalidArgument naming a setting out of range.
   explicit BackwardEulerStepper(const BackwardEulerSettings& settings);
 
-  std::string name() const override { return "backward-euler"; }
+  // "backward-euler" (converged) or "implicit-euler" (budgeted: newton_iterations > 0).
+  std::string name() const override { return settings_.newton_iterations > 0 ? "implicit-euler" : "backward-euler"; }
   Real dt() const override { return settings_.dt; }
   const BackwardEulerSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
   // Each step solved to convergence; SimulationError if Newton does not converge in
-  // max_iterations, the state left at the end of the last completed step. E has no contact term:
+  // max_iterations, the state left at the end of the last completed step (budgeted form: each
+  // step ends after its budget; SimulationError only for a non-finite residual). E has no contact term:
   // a model with colliders or self-collision is an InvalidArgument. One thread at a time
   // (use_guard.hpp): a second thread stepping the same stepper meanwhile gets ConcurrentUse.
   //

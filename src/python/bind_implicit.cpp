@@ -105,22 +105,44 @@ void bind_implicit(py::module_& m) {
          "definite=True the Gauss-Newton form Newton's method falls back to");
 
   py::class_<BackwardEulerStepper, Integrator, py::smart_holder>(m, "BackwardEuler",
-      "Backward Euler over every compliant constraint (distance, bending, volume, balloons, attachments, tethers and "
-      "the other families), each step's incremental potential minimised by Newton's method (sparse LDLᵀ, Armijo "
-      "line search, Gauss-Newton where the Hessian is indefinite) to convergence: the same-step reference.")
-      .def(py::init([](double dt, IntArg substeps, py::handle gravity, double rtol, IntArg max_iterations) {
+      "Implicit (backward) Euler over every compliant constraint (distance, bending, volume, balloons, attachments, "
+      "tethers and the other families), each step's incremental potential minimised by Newton's method (Baraff and "
+      "Witkin 1998). newton_iterations = 0 (the default, method 'backward-euler'): to convergence (sparse LDLᵀ, "
+      "Armijo line search, Gauss-Newton where the Hessian is indefinite), the same-step reference. "
+      "newton_iterations = n > 0 (method 'implicit-euler'): the budgeted form, at most n Newton iterations per step, "
+      "each solved by block-Jacobi preconditioned conjugate gradients on a fixed budget (the Gauss-Newton Hessian) or "
+      "by the sparse LDLᵀ.")
+      .def(py::init([](double dt, IntArg substeps, py::handle gravity, double rtol, IntArg max_iterations,
+                       IntArg newton_iterations, const std::string& linear_solver, IntArg cg_iterations,
+                       double cg_tolerance, bool line_search, const std::string& initial_guess) {
              BackwardEulerSettings s;
              s.dt = dt;
              s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
              s.gravity = to_vec3(gravity, "gravity");
              s.rtol = rtol;
              s.max_iterations = in_range<int>(max_iterations, "max_iterations", 1, kMaxIterations);
+             s.newton_iterations = in_range<int>(newton_iterations, "newton_iterations", 0, kMaxIterations);
+             if (linear_solver == "direct") s.linear_solver = BackwardEulerSettings::Linear::Direct;
+             else if (linear_solver == "cg") s.linear_solver = BackwardEulerSettings::Linear::ConjugateGradient;
+             else throw InvalidArgument("linear_solver must be 'direct' or 'cg', got '" + linear_solver + "'");
+             s.cg_iterations = in_range<int>(cg_iterations, "cg_iterations", 1, kMaxIterations);
+             s.cg_tolerance = cg_tolerance;
+             s.line_search = line_search;
+             if (initial_guess == "inertia") s.initial_guess = BackwardEulerSettings::Guess::Inertia;
+             else if (initial_guess == "previous") s.initial_guess = BackwardEulerSettings::Guess::Previous;
+             else throw InvalidArgument("initial_guess must be 'inertia' or 'previous', got '" + initial_guess + "'");
              return BackwardEulerStepper(s);
            }),
            py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("gravity") = std::vector<double>{0, -9.81, 0},
-           py::arg("rtol") = 1e-9, py::arg("max_iterations") = 100,
-           "dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: the largest residual component at which a step stops, relative to the "
-           "step's force scale, on top of the rounding floor. max_iterations: Newton iterations per step.")
+           py::arg("rtol") = 1e-9, py::arg("max_iterations") = 100, py::arg("newton_iterations") = 0,
+           py::arg("linear_solver") = "direct", py::arg("cg_iterations") = 20, py::arg("cg_tolerance") = 1e-4,
+           py::arg("line_search") = true, py::arg("initial_guess") = "inertia",
+           "dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: "
+           "the largest residual component at which a step stops, relative to the step's force scale, on top of the "
+           "rounding floor. max_iterations: Newton iterations per step of the converged form. newton_iterations: 0 "
+           "to convergence, n > 0 the budgeted form. linear_solver: 'direct' or 'cg' (budgeted form). cg_iterations, "
+           "cg_tolerance: CG's budget per Newton iteration and its relative residual for stopping early. line_search: "
+           "Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃) or 'previous' (xⁿ).")
       .def("step", [](BackwardEulerStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
         step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64), interrupt);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1, py::arg("interrupt") = py::none(),
@@ -129,6 +151,11 @@ void bind_implicit(py::module_& m) {
       .def_property_readonly("substeps", [](const BackwardEulerStepper& s) { return s.settings().substeps; })
       .def_property_readonly("rtol", [](const BackwardEulerStepper& s) { return s.settings().rtol; })
       .def_property_readonly("max_iterations", [](const BackwardEulerStepper& s) { return s.settings().max_iterations; })
+      .def_property_readonly("linear_solver", [](const BackwardEulerStepper& s) {
+        return s.settings().linear_solver == BackwardEulerSettings::Linear::Direct ? "direct" : "cg";
+      })
+      .def_property_readonly("cg_iterations", [](const BackwardEulerStepper& s) { return s.last().cg_iterations; },
+           "conjugate-gradient iterations of the last step, in all (budgeted form with linear_solver 'cg')")
       .def_property_readonly("gravity", [](const BackwardEulerStepper& s) { return vec3_array(s.settings().gravity); }, "m/s²")
       .def_property_readonly("newton_iterations", [](const BackwardEulerStepper& s) { return s.last().newton_iterations; },
            "Newton iterations of the last step")

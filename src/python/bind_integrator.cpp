@@ -121,6 +121,15 @@ void bind_integrator(py::module_& m) {
         return o.str();
       });
 
+  py::class_<SettingInfo>(m, "SettingInfo", "One of a method's own settings: make_integrator's keyword, a scene's "
+                                             "[solver.settings] key.")
+      .def_readonly("name", &SettingInfo::name)
+      .def_readonly("default", &SettingInfo::default_value, "as a scene file writes it")
+      .def_readonly("description", &SettingInfo::description, "what it is, its unit and range")
+      .def("__repr__", [](const SettingInfo& i) {
+        return "SettingInfo(name='" + i.name + "', default=" + i.default_value + ")";
+      });
+
   py::class_<MethodInfo>(m, "MethodInfo", "A method csb can step with, as listed by csb.methods().")
       .def_readonly("name", &MethodInfo::name, "how to ask for it: make_integrator(name, dt)")
       .def_readonly("label", &MethodInfo::label, "for tables and the viewer")
@@ -128,6 +137,7 @@ void bind_integrator(py::module_& m) {
       .def_readonly("reads", &MethodInfo::reads, "what it reads of a constraint's material: 'stiffness' or 'compliance'")
       .def_readonly("iterates", &MethodInfo::iterates, "whether `iterations` means anything to it")
       .def_readonly("aliases", &MethodInfo::aliases, "other names it answers to")
+      .def_readonly("settings", &MethodInfo::settings, "its own settings, beyond dt, substeps, iterations and gravity")
       .def_property_readonly("pbd_variant", [](const MethodInfo& i) { return i.pbd && method_info(*i.pbd).name == i.name; },
           "whether PbdStepper(method=name) and a scene's solver.method take this name (small steps is a set-up of "
           "XPBD, not a variant of its own)")
@@ -149,19 +159,30 @@ void bind_integrator(py::module_& m) {
         }, py::kw_only(), py::arg("aliases") = false,
         "The names PbdStepper(method=...) and a scene's solver.method take, in csb's order (with their aliases).");
   m.def("methods", [] { return methods(); }, "The built-in methods, in csb's order: name, label, source, reads, iterates.");
-  m.def("make_integrator", [](const std::string& name, double dt, IntArg substeps, IntArg iterations, py::handle gravity) {
+  m.def("make_integrator", [](const std::string& name, double dt, IntArg substeps, IntArg iterations, py::handle gravity,
+                              const py::kwargs& settings) {
     const MethodInfo& info = method_info(name);  // InvalidArgument naming the known methods
     MethodOptions o;
     o.dt = dt;
     o.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
     o.iterations = in_range<int>(iterations, "iterations", 1, kMaxIterations);
     o.gravity = to_vec3(gravity, "gravity");
-    return std::shared_ptr<Integrator>(info.make(o));
+    for (const auto& [k, v] : settings) {
+      const std::string key = py::str(k);
+      if (py::isinstance<py::bool_>(v)) o.settings.set(key, v.cast<bool>());
+      else if (py::isinstance<py::int_>(v)) o.settings.set(key, v.cast<std::int64_t>());
+      else if (py::isinstance<py::float_>(v)) o.settings.set(key, v.cast<double>());
+      else if (py::isinstance<py::str>(v)) o.settings.set(key, v.cast<std::string>());
+      else throw InvalidArgument("setting '" + key + "' must be a boolean, a number or a string, got " +
+                                 py::str(py::type::handle_of(v).attr("__name__")).cast<std::string>());
+    }
+    return std::shared_ptr<Integrator>(make_method(info, o));
   }, py::arg("name"), py::arg("dt"), py::kw_only(), py::arg("substeps") = 1, py::arg("iterations") = 10,
      py::arg("gravity") = std::vector<double>{0, -9.81, 0},
      "The built-in method `name` (see csb.methods()) with step dt (s), `substeps` sub-steps per step, `iterations` "
-     "constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); the other settings at their "
-     "defaults. An unknown name is a csb.ParameterError (a ValueError) listing the known ones.");
+     "constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); a method's own settings as further "
+     "keywords (csb.method_info(name).settings lists them), the others at their defaults. An unknown name or "
+     "setting, or a setting out of range, is a csb.ParameterError (a ValueError) naming it.");
 }
 
 }  // namespace csb::python

@@ -7,13 +7,45 @@
 #include "csb/integrator.hpp"
 #include "csb/pbd.hpp"
 
+#include <cstdint>
 #include <functional>
+#include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
+#include <variant>
 #include <vector>
 
 namespace csb {
+
+// A method's own settings beyond MethodOptions' (a linear solver's budget, an acceleration, ...),
+// by name, as scene files ([solver.settings]), studies (a method's args) and Python
+// (make_integrator's keywords) give them. A method's `make` reads the ones it knows through the
+// typed getters, which check type and range and name the key in their errors; finish() then
+// refuses any key left unread, listing the method's settings.
+class MethodSettings {
+ public:
+  using Value = std::variant<bool, std::int64_t, double, std::string>;
+  void set(const std::string& key, Value value) { values_[key] = std::move(value); }
+  bool empty() const { return values_.empty(); }
+  const std::map<std::string, Value>& values() const { return values_; }
+
+  // A number (an integer is accepted), finite, in [lo, hi].
+  double number(const std::string& key, double fallback, double lo, double hi) const;
+  // An integer in [lo, hi].
+  std::int64_t integer(const std::string& key, std::int64_t fallback, std::int64_t lo, std::int64_t hi) const;
+  bool boolean(const std::string& key, bool fallback) const;
+  // One of `choices`.
+  std::string choice(const std::string& key, const std::string& fallback, const std::vector<std::string>& choices) const;
+  // InvalidArgument naming the keys no getter read, and the ones `method` knows.
+  void finish(const std::string& method) const;
+
+ private:
+  const Value* find(const std::string& key) const;
+  std::map<std::string, Value> values_;
+  mutable std::set<std::string> known_;
+};
 
 // The settings every method is made from (SI units); a method reads what applies to it.
 struct MethodOptions {
@@ -21,6 +53,14 @@ struct MethodOptions {
   int substeps = 1;                  // sub-steps of dt/substeps per step; >= 1
   int iterations = 10;               // constraint sweeps per sub-step (position-based methods); >= 1
   Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
+  MethodSettings settings;           // the method's own; a method without any refuses every key
+};
+
+// One of a method's own settings, for its documentation, the scene files and Python.
+struct SettingInfo {
+  std::string name;           // the key: "cg_iterations"
+  std::string default_value;  // as a scene file writes it: "20", "true", "'cg'"
+  std::string description;    // what it is, its unit and range
 };
 
 struct MethodInfo {
@@ -34,8 +74,13 @@ struct MethodInfo {
   // (ForceStepper) it is, if it is one: settings that name it by string are resolved here.
   std::optional<Method> pbd;
   std::optional<ForceIntegrator> force;
+  std::vector<SettingInfo> settings;  // its own settings (MethodSettings), in the order of its docs
+  // Makes the method; reads o.settings and calls o.settings.finish(name) (make_method does).
   std::function<std::unique_ptr<Integrator>(const MethodOptions&)> make;
 };
+
+// info.make(o), then o.settings.finish(info.name): the one way every front end makes a method.
+std::unique_ptr<Integrator> make_method(const MethodInfo& info, const MethodOptions& o);
 
 // Every method, in the order of registry.cpp's list.
 const std::vector<MethodInfo>& methods();
@@ -59,6 +104,6 @@ MethodInfo xpbd_method();         // xpbd.cpp
 MethodInfo small_steps_method();  // small_steps.cpp
 MethodInfo jakobsen_method();     // jakobsen.cpp
 MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
-MethodInfo backward_euler_method();  // backward_euler.cpp
+MethodInfo backward_euler_method(), implicit_euler_method();  // backward_euler.cpp
 
 }  // namespace csb

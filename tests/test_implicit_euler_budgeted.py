@@ -1,0 +1,141 @@
+"""Implicit Euler in its real-time practice (method "implicit-euler", Baraff and Witkin 1998): a fixed
+number of Newton iterations per step, each a linear solve by block-Jacobi preconditioned conjugate
+gradients on a fixed budget (or the sparse LDLᵀ), against its converged form, the same-step reference
+(method "backward-euler")."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import csb
+
+from test_implicit_euler import G, chain, copy_state, every_type, spring_cloth
+
+
+def cloth(n: int = 8) -> csb.Model:
+    """An n x n cloth, 1 m x 1 m, 0.2 kg, stretch springs (α = 1e-5 m/N) and dihedral bending
+    (α = 0.1 1/(N m)), two corners pinned."""
+    b = csb.ModelBuilder()
+    inst = b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
+                      bending_compliance=0.1)
+    b.pin(inst.first_particle)
+    b.pin(inst.first_particle + n - 1)
+    return b.build()
+
+
+def falling(model: csb.Model, steps: int, dt: float) -> csb.State:
+    """The state after `steps` converged backward Euler steps from rest: a cloth in motion."""
+    s = model.initial_state()
+    csb.BackwardEuler(dt=dt).step(model, s, steps)
+    return s
+
+
+def test_the_registered_method():
+    info = csb.method_info("implicit-euler")
+    assert info.reads == "compliance" and info.iterates and info.aliases == []
+    assert [k.name for k in info.settings] == ["linear_solver", "cg_iterations", "cg_tolerance", "line_search",
+                                               "initial_guess", "rtol"]
+    made = csb.make_integrator("implicit-euler", 0.01, iterations=2, cg_iterations=40, cg_tolerance=0.0)
+    assert isinstance(made, csb.BackwardEuler) and made.name() == "implicit-euler" and made.linear_solver == "cg"
+    direct = csb.BackwardEuler(dt=0.01, newton_iterations=2, linear_solver="cg", cg_iterations=40, cg_tolerance=0.0,
+                               initial_guess="previous")
+    model = every_type()
+    s1, s2 = model.initial_state(), model.initial_state()
+    made.step(model, s1, 5)
+    direct.step(model, s2, 5)
+    assert np.array_equal(s1.x, s2.x) and np.array_equal(s1.v, s2.v)
+    assert made.newton_iterations <= 2 and 0 < made.cg_iterations <= 2 * 40
+
+
+def test_more_newton_iterations_reach_the_converged_step():
+    """From one moving state, the budgeted step's residual falls with the Newton budget, and a budget
+    of direct solves large enough reaches the converged step: both minimise the same E, whose
+    Newton iteration converges quadratically, so at 30 iterations the two agree to the converged
+    form's tolerance (rtol 1e-9 of the force scale over a stiffness of order 1/α = 1e5 N/m: positions
+    within 1e-9 m)."""
+    model, dt = cloth(), 1 / 60
+    start = falling(model, 20, dt)
+    ref = copy_state(model, start)
+    csb.BackwardEuler(dt=dt).step(model, ref)
+    residuals = []
+    for n in (1, 2, 4, 8):
+        s = copy_state(model, start)
+        ie = csb.make_integrator("implicit-euler", dt, iterations=n, cg_iterations=200, cg_tolerance=1e-10)
+        ie.step(model, s)
+        residuals.append(csb.backward_euler_residual(model, start, s, dt, G).max)
+    assert all(b < a for a, b in zip(residuals, residuals[1:])), residuals
+    s = copy_state(model, start)
+    csb.make_integrator("implicit-euler", dt, iterations=30, linear_solver="direct").step(model, s)
+    assert np.max(np.abs(s.x - ref.x)) < 1e-9
+
+
+def test_conjugate_gradients_solve_the_gauss_newton_system():
+    """One Newton iteration from xⁿ with CG run to a tight tolerance is the step dx = -H⁻¹∇E of the
+    Gauss-Newton Hessian H (csb.IncrementalPotential's, solved densely here) to 1e-8 of its size;
+    with a budget of 3 iterations its residual is larger."""
+    model, dt = cloth(6), 1 / 60
+    start = falling(model, 10, dt)
+    P = csb.IncrementalPotential(model, start, dt, gravity=G)
+    dyn = np.asarray(P.dynamic_particles)
+    x0 = np.asarray(start.x)
+    dx = -np.linalg.solve(P.hessian(x0, definite=True), P.gradient(x0)[dyn].ravel()).reshape(-1, 3)
+    out = {}
+    for name, settings in {"tight": dict(cg_iterations=2000, cg_tolerance=1e-14),
+                           "three": dict(cg_iterations=3, cg_tolerance=0.0)}.items():
+        s = copy_state(model, start)
+        csb.make_integrator("implicit-euler", dt, iterations=1, line_search=False, **settings).step(model, s)
+        out[name] = s
+    step = np.asarray(out["tight"].x)[dyn] - x0[dyn]
+    assert np.max(np.abs(step - dx)) < 1e-8 * np.max(np.abs(dx))
+    r = {k: csb.backward_euler_residual(model, start, v, dt, G).max for k, v in out.items()}
+    assert r["three"] > r["tight"]
+
+
+def test_stable_where_explicit_methods_fail():
+    """Unconditional stability: a stiff chain (α = 1e-8 m/N, 0.1 kg links: ω ~ 3e4 rad/s) at
+    dt = 1/30 s, 300 steps, one Newton iteration per step; symplectic Euler diverges within a step
+    at this dt (its limit is 2/ω ~ 7e-5 s). The chain's energy never grows above its start (backward
+    Euler only dissipates), and it stays finite and near its links' rest length."""
+    model, dt = chain(10, alpha=1e-8), 1 / 30
+    s = model.initial_state()
+    ie = csb.make_integrator("implicit-euler", dt, iterations=1)
+    e0 = csb.measure(model, s, G)["total_energy"]
+    for _ in range(300):
+        ie.step(model, s)
+        assert csb.measure(model, s, G)["total_energy"] <= e0 + 1e-9
+    links = np.linalg.norm(np.diff(np.asarray(s.x), axis=0), axis=1)
+    assert np.max(np.abs(links - 0.1)) < 0.01
+    with pytest.raises(csb.SimulationError):
+        csb.make_integrator("symplectic-euler", dt).step(model, model.initial_state(), 300)
+
+
+def test_deterministic():
+    model = every_type()
+    runs = []
+    for _ in range(2):
+        s = model.initial_state()
+        csb.make_integrator("implicit-euler", 1 / 60, iterations=3).step(model, s, 10)
+        runs.append((np.array(s.x), np.array(s.v)))
+    assert np.array_equal(runs[0][0], runs[1][0]) and np.array_equal(runs[0][1], runs[1][1])
+
+
+@pytest.mark.parametrize("settings, match", [
+    (dict(cg_iterations=0), "setting 'cg_iterations' must be an integer in \\[1,"),
+    (dict(cg_tolerance=1.5), "setting 'cg_tolerance' must be a number in \\[0,"),
+    (dict(linear_solver="lu"), "setting 'linear_solver' must be 'cg' or 'direct', got 'lu'"),
+    (dict(line_search="yes"), "setting 'line_search' must be true or false, got a string"),
+    (dict(cg_iteration=5), "method 'implicit-euler' has no setting 'cg_iteration'; its settings are .*'cg_iterations'"),
+])
+def test_bad_settings_are_named(settings, match):
+    with pytest.raises(csb.ParameterError, match=match):
+        csb.make_integrator("implicit-euler", 0.01, **settings)
+
+
+def test_the_converged_form_refuses_a_budget_setting():
+    with pytest.raises(csb.ParameterError, match="method 'backward-euler' has no setting 'cg_iterations'"):
+        csb.make_integrator("backward-euler", 0.01, cg_iterations=5)
+    with pytest.raises(csb.ParameterError, match="converged form .* solves directly"):
+        csb.BackwardEuler(dt=0.01, linear_solver="cg")
+    with pytest.raises(csb.ParameterError, match="method 'pbd' has no setting 'chebyshev'; it takes none"):
+        csb.make_integrator("pbd", 0.01, chebyshev=True)
