@@ -151,7 +151,7 @@ def bad(tmp_path, text):
         (("density = 0.2", "# no mass"), r"mesh\[0\] \(cloth\): give exactly one of 'mass' \(kg\), 'density'"),
         (("resolution = [6, 6]", "resolution = [6, 1]"), r"bad\.toml:14: .*resolution: must be \[nx, ny\] with at least 2"),
         (("shape = \"cloth\"", "shape = \"cube\""), r"bad\.toml:12: .*shape: must be one of 'cloth', 'chain', 'pendulum'"),
-        (("[solver]", "[solver]\nmethod = \"xpb\""), r"solver\.method: must be one of 'pbd', 'xpbd', 'jakobsen', got 'xpb'"),
+        (("[solver]", "[solver]\nmethod = \"xpb\""), r"solver\.method: must be one of 'pbd', 'xpbd', 'small-steps', 'jakobsen', .*'backward-euler'.*, got 'xpb'"),
         (("[solver]", "[solver]\nmethod = \"jakobsen\"\ndamping = 0.1"),
          r"bad\.toml:5: solver: damping \(Müller 2007 §3\.5\) acts on stored velocities"),
         (("fps = 20", "fps = 20\nmovie = true"), r"bad\.toml:22: output\.movie: unknown key"),
@@ -179,6 +179,47 @@ def test_scene_method_reaches_the_stepper(tmp_path, method):
     s = sim.stepper.settings
     assert s.method == method and s.solver == "jacobi"
     assert s.front_end == ("verlet" if method == "jakobsen" else "euler")
+
+
+COMPLIANT = GOOD.replace("stretch = { stiffness = 1.0 }", "stretch = { stiffness = 1.0, compliance = 1e-5 }").replace(
+    "bending = { stiffness = 0.2 }", "bending = { stiffness = 0.2, compliance = 0.5 }")
+
+
+EXPLICIT = {"explicit-euler", "symplectic-euler", "velocity-verlet"}
+
+
+@pytest.mark.parametrize("method", [m.name for m in csb.methods() if not m.pbd_variant])
+def test_every_method_steps_a_scene(tmp_path, method):
+    """Every registered method outside the position-based pipeline runs a scene that declares its
+    compliances, made with the scene's dt, substeps and iterations (an explicit method at a time
+    step it can take: 1e-4 s). Small steps is XPBD's stepper set up with one iteration."""
+    text = COMPLIANT.replace("[solver]", f'[solver]\nmethod = "{method}"')
+    if method in EXPLICIT:
+        text = text.replace("dt = 0.01", "dt = 0.0001").replace("duration = 0.5", "duration = 0.01")
+    sim = csb.load_scene(scene_file(tmp_path, text)).build()
+    assert sim.stepper.name() == ("xpbd" if method == "small-steps" else method)
+    sim.stepper.step(sim.model, sim.state, 3)
+    assert np.all(np.isfinite(sim.state.x)) and sim.state.step == 3
+
+
+@pytest.mark.parametrize("edit, message", [
+    ('method = "implicit-euler"\n[solver.settings]\ncg_iterations = 0',
+     r"solver: setting 'cg_iterations' must be an integer in \[1, "),
+    ('method = "implicit-euler"\n[solver.settings]\ncg_iteration = 5',
+     r"solver: method 'implicit-euler' has no setting 'cg_iteration'; its settings are .*'cg_iterations'"),
+    ('method = "implicit-euler"\n[solver.settings]\ncg_iterations = [5]',
+     r"solver\.settings\.cg_iterations: must be a boolean, a number or a string"),
+    ('method = "implicit-euler"\nsolver = "jacobi"',
+     r"solver: solver is a setting of the position-based methods; 'implicit-euler' does not read it"),
+    ('method = "pbd"\n[solver.settings]\ncg_iterations = 5',
+     r"solver: \[solver\.settings\] are the settings of methods outside the position-based pipeline"),
+])
+def test_method_settings_errors_are_named(tmp_path, edit, message):
+    text = COMPLIANT.replace("[solver]\n", "[solver]\n" + edit.split("\n[solver.settings]")[0] + "\n")
+    if "[solver.settings]" in edit:
+        text = text.replace("[[mesh]]", "[solver.settings]" + edit.split("[solver.settings]")[1] + "\n\n[[mesh]]")
+    with pytest.raises(csb.SceneError, match=message):
+        csb.load_scene(bad(tmp_path, text)).build()
 
 
 def test_scene_compliance_reaches_the_model(tmp_path):

@@ -59,7 +59,8 @@ class RunResult:
         """What the run did that its scene's materials do not allow; empty when nothing did.
 
         - Strain: an edge whose material the method reads as hard (PBD, Jakobsen: stiffness 1;
-          XPBD: compliance 0) allows none; a compliant one (XPBD) at most what the whole body's
+          XPBD and the other methods that read compliance: compliance 0) allows none; a compliant
+          one at most what the whole body's
           weight would stretch it by, α m |g| / L; a soft PBD edge (k < 1) has no strain in SI
           units, so it allows any. Flagged past that plus 10 % (what a converged solver keeps
           well under), or past the tearing threshold in a tearing scene.
@@ -131,7 +132,7 @@ def strain_allowed(model: "_core.Model", solver) -> float:
     d = model.distance
     if len(d["rest_length"]) == 0:
         return 0.0
-    if solver.method == "xpbd":
+    if _core.method_info(solver.method).reads == "compliance":
         weight = float(np.sum(np.asarray(model.mass))) * float(np.linalg.norm(solver.gravity))
         return float(np.max(np.asarray(d["compliance"]) * weight / np.asarray(d["rest_length"])))
     return float("inf") if np.any(np.asarray(d["stiffness"]) < 1) else 0.0
@@ -163,8 +164,12 @@ def summary_title(scene: "Scene", num_particles: int, stepper: "_core.Integrator
     if stepper is not None:
         return f"{scene.name}: {num_particles} particles, {stepper.name()}, dt = {1e3 * stepper.dt():.3g} ms"
     s = scene.solver
+    label = _core.method_info(s.method).label
+    if not s.position_based:
+        return (f"{scene.name}: {num_particles} particles, {label}, dt = {1e3 * s.dt:.3g} ms, "
+                f"{s.substeps} substeps x {s.iterations} iterations")
     verlet = " (Verlet)" if s.stepper().settings.front_end == "verlet" else ""  # the front end in effect
-    return (f"{scene.name}: {num_particles} particles, {_core.method_info(s.method).label}{verlet} "
+    return (f"{scene.name}: {num_particles} particles, {label}{verlet} "
             f"{_SOLVERS.get(s.solver, s.solver)}, dt = {1e3 * s.dt:.3g} ms, "
             f"{s.substeps} substeps x {s.iterations} iterations")
 

@@ -8,7 +8,9 @@ See ``python/csb/scenes/*.toml`` for annotated examples and the README for the f
 
 A constraint's material (``stretch``, ``bending``, ``volume``, ``balloon``, ``attach``) has two
 forms: ``stiffness`` in [0, 1], which the ``pbd`` and ``jakobsen`` methods read, and
-``compliance`` (SI units), which ``xpbd`` reads. A scene meant for every method declares both;
+``compliance`` (SI units), which ``xpbd`` and the force-based and implicit methods read (the
+latter need compliance > 0: a hard constraint has no potential). A scene meant for every method
+declares both;
 stepped with a method that cannot read the form declared (compliance only under ``pbd`` or
 ``jakobsen``, stiffness below 1 only under ``xpbd``), the constraints are rigid and the first
 step says so with a :class:`csb.MaterialWarning`.
@@ -52,11 +54,12 @@ __all__ = [
 
 @dataclass(frozen=True)
 class SolverSpec:
-    method: str = "pbd"             # a position-based variant: "pbd", "xpbd", "jakobsen" (csb.methods())
+    method: str = "pbd"             # any method of csb.methods(): "pbd", "xpbd", "jakobsen", "vbd", "implicit-euler", ...
     dt: float = 1.0 / 60.0          # s
     substeps: int = 1
     iterations: int = 10            # small steps (Macklin 2019): "xpbd" with many substeps, iterations = 1
     gravity: Vec3 = (0.0, -9.81, 0.0)  # m/s²
+    # The position-based pipeline's own settings (PbdStepper); a method outside it refuses them.
     damping: float = 0.0            # Müller 2007 §3.5 k_damping, per substep
     stiffness_correction: bool = True
     front_end: str = "auto"         # "euler", "verlet" or "auto" (Verlet for Jakobsen)
@@ -67,15 +70,41 @@ class SolverSpec:
     ordering: str = "coloured"      # or "sequential" (the batches as built, one thread)
     threads: int = 0                # threads per colour; 0: the free cores (the result does not depend on it)
     max_speed: float = 0.0          # m/s, the divergence guard; 0: automatic (the model's size per sub-step, ...), inf: off
+    # Any other method's own settings ([solver.settings]; csb.method_info(method).settings lists them).
+    settings: tuple[tuple[str, Any], ...] = ()
 
-    def stepper(self) -> _core.PbdStepper:
-        return _core.PbdStepper(
-            method=self.method, dt=self.dt, substeps=self.substeps, iterations=self.iterations,
-            gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
-            front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
-            verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation, ordering=self.ordering,
-            threads=self.threads, max_speed=self.max_speed,
-        )
+    @property
+    def position_based(self) -> bool:
+        """Whether the method is a variant of the position-based pipeline (PbdStepper)."""
+        return self.method in _core.pbd_variant_names(aliases=True)
+
+    def stepper(self) -> _core.Integrator:
+        """The scene's method: a PbdStepper for the position-based variants, else the registered
+        method made with the scene's dt, substeps, iterations, gravity and settings."""
+        if self.position_based:
+            if self.settings:
+                raise _core.ParameterError(
+                    f"[solver.settings] are the settings of methods outside the position-based pipeline; "
+                    f"'{self.method}' takes its settings as keys of [solver]")
+            return _core.PbdStepper(
+                method=self.method, dt=self.dt, substeps=self.substeps, iterations=self.iterations,
+                gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
+                front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
+                verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation, ordering=self.ordering,
+                threads=self.threads, max_speed=self.max_speed,
+            )
+        defaults = SolverSpec()
+        for key in _PBD_KEYS:
+            if getattr(self, key) != getattr(defaults, key):
+                raise _core.ParameterError(
+                    f"{key} is a setting of the position-based methods; '{self.method}' does not read it "
+                    f"(its own settings go in [solver.settings])")
+        return _core.make_integrator(self.method, self.dt, substeps=self.substeps, iterations=self.iterations,
+                                     gravity=self.gravity, **dict(self.settings))
+
+
+_PBD_KEYS = ("damping", "stiffness_correction", "front_end", "solver", "xpbd_damping", "verlet_drag",
+             "sqrt_approximation", "ordering", "threads", "max_speed")
 
 
 @dataclass(frozen=True)
@@ -547,6 +576,22 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
     return ColliderSpec(name, kind, params, mus, muk, e)
 
 
+def _method_settings(so) -> tuple[tuple[str, Any], ...]:
+    """[solver.settings]: a method's own settings, booleans, numbers or strings; the method checks
+    their names and ranges when the stepper is made."""
+    st = so.table("settings", "solver.settings")
+    if st is None:
+        return ()
+    out = []
+    for key in list(st.data):
+        v = st.raw(key)
+        if not isinstance(v, (bool, int, float, str)):
+            raise st.error(key, f"must be a boolean, a number or a string, got {v!r}")
+        out.append((key, v))
+    st.finish()
+    return tuple(out)
+
+
 def load_scene(path: str | os.PathLike[str]) -> Scene:
     """Read and check a scene file (or the name of a bundled scene, see :func:`bundled_scenes`)."""
     p = find_scene(path)
@@ -565,7 +610,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
     if so is None:
         raise top.error(None, "missing [solver] table (method, dt, substeps, iterations, ...)")
     solver = SolverSpec(
-        method=so.string("method", "pbd", choices=_core.pbd_variant_names()),
+        method=so.string("method", "pbd", choices=[n for m in _core.methods() for n in (m.name, *m.aliases)]),
         dt=so.number("dt", check=lambda x: x > 0, expect="a time step > 0 s"),
         substeps=so.integer("substeps", 1, minimum=1, maximum=_core.MAX_SUBSTEPS),
         iterations=so.integer("iterations", 10, minimum=1, maximum=_core.MAX_ITERATIONS),
@@ -581,6 +626,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         threads=so.integer("threads", 0, minimum=0, maximum=_core.MAX_THREADS),
         max_speed=so.number("max_speed", 0.0, check=lambda x: x >= 0, allow_inf=True,
                             expect="a speed >= 0 m/s (0: automatic divergence guard, inf: off)"),
+        settings=_method_settings(so),
     )
     so.finish()
     try:
