@@ -19,6 +19,7 @@ const std::vector<MethodInfo>& methods() {
       symplectic_euler_method(),
       velocity_verlet_method(),
       backward_euler_method(),
+      vbd_method(),
       implicit_euler_method(),
   };
   return list;

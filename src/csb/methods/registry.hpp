@@ -105,5 +105,6 @@ MethodInfo small_steps_method();  // small_steps.cpp
 MethodInfo jakobsen_method();     // jakobsen.cpp
 MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
 MethodInfo backward_euler_method(), implicit_euler_method();  // backward_euler.cpp
+MethodInfo vbd_method();           // vbd/module.cpp
 
 }  // namespace csb
