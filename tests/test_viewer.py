@@ -171,14 +171,16 @@ def test_keys_pause_step_reset_and_switch_method(viewer_on):
     assert v.state.t == pytest.approx(t + dt) and v.paused, "one step, still paused"
     v.key("r")
     assert v.state.t == 0 and np.array_equal(np.array(v.state.x), x0), "reset: the initial state, exactly"
-    assert v.method == "pbd"
-    for expected in ("xpbd", "jakobsen", "pbd"):
-        v.key("m")
-        assert v.method == expected
-    v.key("2")
-    assert v.method == "xpbd" and v.settings.method == "xpbd"
-    v.key("3")
+    assert v.method == "pbd" and v.method_switch
+    names = [m.name for m in csb.methods()]  # the keys' order: 1 is the first, m the next
+    v.key("m")
+    assert v.method == names[1] == "xpbd"
+    v.key(str(names.index("small-steps") + 1))
+    assert v.method == "small-steps" and v.settings.method == "xpbd" and v.settings.iterations == 1
+    v.key(str(names.index("jakobsen") + 1))
     assert v.method == "jakobsen" and v.settings.front_end == "verlet"
+    v.key(str(names.index("xpbd") + 1))
+    assert v.method == "xpbd" and v.settings.method == "xpbd" and v.settings.front_end == "euler"
     v.key("space")
     for _ in range(10):
         v.frame()
@@ -189,7 +191,7 @@ def test_keys_pause_step_reset_and_switch_method(viewer_on):
     assert v.particles
     with pytest.raises(csb.ParameterError, match="unknown key"):
         v.key("F13")
-    with pytest.raises(csb.ParameterError, match="method"):
+    with pytest.raises(csb.ParameterError, match="method must be 'pbd', 'xpbd'.*got 'rk4'"):
         v.method = "rk4"
 
 
@@ -215,6 +217,190 @@ def test_switching_method_continues_from_the_same_state(viewer_on):
     with pytest.warns(csb.MaterialWarning, match=note):
         stepper.step(sim.model, sim.state)
     assert np.array_equal(np.array(v.state.x), np.array(sim.state.x))
+
+
+# A small hanging cloth whose constraints all have a compliance > 0, so that every built-in method
+# can step it: the force-based and implicit ones read compliance and refuse compliance 0. Heavy
+# (2 kg/m²) and sub-stepped (h = 0.5 ms) so that explicit Euler is stable over the test's steps:
+# its stiffest mode, the bending, has ω h well below 1 there.
+SOFT_CLOTH = """\
+[scene]
+name = "soft_cloth"
+duration = 0.5
+
+[solver]
+method = "pbd"
+dt = 0.01
+substeps = 20
+iterations = 5
+
+[[mesh]]
+name = "cloth"
+shape = "cloth"
+size = [0.5, 0.5]
+resolution = [6, 6]
+density = 2.0
+stretch = { stiffness = 1.0, compliance = 0.1 }
+bending = { stiffness = 0.1, compliance = 1.0 }
+pin = { near = [[-0.25, 0.0, -0.25], [0.25, 0.0, -0.25]] }
+"""
+
+GROUND = """
+[[collider]]
+type = "plane"
+name = "ground"
+point = [0.0, -1.0, 0.0]
+normal = [0.0, 1.0, 0.0]
+"""
+
+
+def soft_cloth(tmp_path, extra=""):
+    path = tmp_path / "soft_cloth.toml"
+    path.write_text(SOFT_CLOTH + extra)
+    return csb.load_scene(path)
+
+
+def made_by_name(sc, name):
+    """The method as csb.make_integrator makes it from the scene's solver settings."""
+    s = sc.solver
+    return csb.make_integrator(name, s.dt, substeps=s.substeps, iterations=s.iterations, gravity=s.gravity)
+
+
+def refusal(sc, name):
+    """The csb.ParameterError's text with which the method refuses the scene's model, or None."""
+    sim = sc.build()
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", csb.MaterialWarning)  # PBD's notes on the material: not a refusal
+        try:
+            made_by_name(sc, name).step(sim.model, sim.state)
+        except csb.ParameterError as e:
+            return str(e)
+    return None
+
+
+def test_the_method_keys_step_with_every_registered_method(viewer_on, tmp_path):
+    """m goes through csb.methods() in its order and back to the first; each method steps the
+    state it is handed, as the registry makes it from the scene's solver settings."""
+    sc = soft_cloth(tmp_path)
+    v = viewer_on(sc, frame_time=sc.solver.dt)  # a step a frame
+    x0 = np.array(v.state.x)
+    names = [m.name for m in csb.methods()]
+    assert v.method == names[0] == "pbd" and len(names) >= 8
+    for info in csb.methods()[1:] + csb.methods()[:1]:
+        step = v.state.step
+        v.key("m")
+        assert v.method == info.name, v.message
+        assert v.message.startswith(f"method: {info.label}: {info.source}")
+        assert v.stepper.name() == made_by_name(sc, info.name).name() and v.dt == sc.solver.dt
+        assert v.position_based == isinstance(v.stepper, csb.PbdStepper)  # grabbing follows the method
+        for _ in range(3):
+            v.frame()
+        assert v.state.step == step + 3 and not v.paused, f"{info.name}: {v.message}"
+        x = np.array(v.state.x)
+        # Finite and in the cloth's reach: its 4.9 N weight stretches its columns of 10 N/m
+        # springs by about 0.5 m at rest; 2 m from where it started is a method gone wrong.
+        assert np.isfinite(x).all() and np.linalg.norm(x - x0, axis=1).max() < 2.0, info.name
+
+
+def test_a_method_that_refuses_the_model_is_not_switched_to(viewer_on, tmp_path):
+    """On cloth_drop (hard constraints: no compliance) and on a compliant cloth over a ground plane
+    (a collider), a method that refuses the model leaves the viewer on its method, says why (the
+    method's own words) and leaves the state as it was; the next m goes on past it."""
+    for sc in (csb.load_scene("cloth_drop"), soft_cloth(tmp_path, GROUND)):
+        reasons = {m.name: refusal(sc, m.name) for m in csb.methods()}
+        refused = [n for n, r in reasons.items() if r is not None]
+        assert refused and not reasons["pbd"] and not reasons["xpbd"], reasons
+        v = viewer_on(sc, paused=True)
+        v.single_step()
+        on = v.method
+        for info in csb.methods()[1:] + csb.methods()[:1]:
+            x, t = np.array(v.state.x), v.state.t
+            v.key("m")
+            if reasons[info.name] is None:
+                assert v.method == info.name, v.message
+                on = info.name
+                continue
+            assert v.method == on and f"cannot step this model: {reasons[info.name]}" in v.message
+            assert v.message.endswith(f"the method stays {on}")
+            assert np.array_equal(np.array(v.state.x), x) and v.state.t == t, "the state is as it was"
+            with pytest.raises(csb.ParameterError, match="cannot step this model"):
+                v.method = info.name
+            assert v.method == on
+        assert v.method == "pbd"
+        v.single_step()  # still steps
+        assert np.isfinite(np.array(v.state.x)).all() and v.state.step == 2
+    # A built-in handed to the viewer that refuses the model pauses at its first step, says why
+    # and leaves the state as it was; the keys switch to a method that steps it.
+    drop = csb.load_scene("cloth_drop")
+    v = viewer_on(drop, stepper=made_by_name(drop, refused[0]))
+    x = np.array(v.state.x)
+    v.frame()
+    assert v.paused and f"cannot step this model: {refusal(drop, refused[0])}" in v.message
+    assert v.state.step == 0 and np.array_equal(np.array(v.state.x), x)
+    v.key("1")
+    v.paused = False
+    v.frame()
+    assert v.method == "pbd" and v.position_based and v.state.step == v.steps_per_frame
+
+
+def test_a_method_given_by_name_or_as_a_stepper_at_start(viewer_on, tmp_path):
+    sc = soft_cloth(tmp_path)
+    for info in csb.methods():
+        v = viewer_on(sc, method=info.name, frame_time=sc.solver.dt)
+        assert v.method == info.name and v.stepper.name() == made_by_name(sc, info.name).name()
+        v.frame()
+        v.frame()
+        assert v.state.step == 2 and np.isfinite(np.array(v.state.x)).all(), v.message
+        v.close()
+    v = viewer_on(sc, method="backward-euler", paused=True)
+    assert not v.position_based and v.settings is None
+    # The mouse does not grab with it, and says so.
+    v.frame()
+    sx, sy, _ = v.camera.project(np.array(v.state.x)[20])
+    v.mouse_button(0, True, sx, sy)
+    assert v.held_particle == -1 and "grab: position-based methods only" in v.message
+    v.mouse_button(0, False, sx, sy)
+    v.key("r")  # a fresh one of the same method
+    assert v.method == "backward-euler" and v.state.step == 0
+    # A method that cannot step the scene is refused at the start.
+    hard = next(m.name for m in csb.methods() if refusal(csb.load_scene("cloth_drop"), m.name))
+    with pytest.raises(csb.ParameterError, match="cannot step this model"):
+        viewer_on("cloth_drop", method=hard)
+    # A built-in stepper handed to the viewer: the keys switch from its settings, and back to it.
+    given = made_by_name(sc, "symplectic-euler")
+    v = viewer_on(sc, stepper=given, frame_time=sc.solver.dt)
+    assert v.method_switch and v.method == "symplectic-euler" and v.stepper is given
+    v.key("m")
+    assert v.method == "velocity-verlet" and v.stepper.dt() == given.dt()
+    v.frame()
+    v.method = "symplectic-euler"
+    assert v.stepper is given
+    v.frame()
+    assert v.state.step == 2
+
+
+def test_a_diverging_method_pauses_with_its_error(viewer_on, tmp_path):
+    """Explicit Euler on stiff springs (1 µm/N, one step of 10 ms: ω h in the hundreds) grows
+    by orders of magnitude a step until a position is no longer finite: the viewer pauses and
+    shows the error, the state is the last finite one, and the keys go on."""
+    sc = soft_cloth(tmp_path)
+    path = tmp_path / "stiff.toml"
+    path.write_text(SOFT_CLOTH.replace("compliance = 0.1", "compliance = 1e-6").replace("substeps = 20", "substeps = 1"))
+    v = viewer_on(csb.load_scene(path), method="explicit-euler", frame_time=1.0)  # 100 steps a frame
+    for _ in range(10):
+        v.frame()
+        if v.paused:
+            break
+    assert v.paused and "non-finite" in v.message and "paused" in v.message, v.message
+    assert np.isfinite(np.array(v.state.x)).all()
+    v.key("r")
+    v.key("1")
+    assert v.method == "pbd"
+    v.paused = False
+    v.frame()
+    assert np.isfinite(np.array(v.state.x)).all() and not v.paused
 
 
 def test_wireframe_and_overlay_change_the_image(viewer_on):
@@ -415,6 +601,19 @@ def test_the_cpp_viewer_opens_a_mesh_file(tmp_path):
     assert r.returncode == 2 and "missing.obj" in r.stderr
     r = subprocess.run([exe, mesh, "--method", "rk4"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "--method" in r.stderr
+    r = subprocess.run([exe, "--help"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and all(f"  {m.name}" in r.stdout for m in csb.methods()), r.stdout
+    # Any registered method: a compliant cloth (lying flat: pinned at one vertex, not along its top)
+    # without the ground steps with backward Euler, ...
+    r = subprocess.run([exe, mesh, "--method", "backward-euler", "--stretch-compliance", "1e-4", "--no-ground",
+                        "--pin", "0", "--offscreen", "2", "--out", tmp_path / "be", "--size", "200x150"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "wrote 2 frames" in r.stdout, r.stderr
+    # ... which refuses the default hard stretch, saying why.
+    r = subprocess.run([exe, mesh, "--method", "backward-euler", "--no-ground", "--pin", "0", "--offscreen", "1",
+                        "--out", tmp_path / "hard"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "--method backward-euler" in r.stderr and "compliance 0" in r.stderr, r.stderr
 
 
 def test_the_frame_time_benchmark_times_whole_and_paused_frames():

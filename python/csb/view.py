@@ -8,8 +8,16 @@ its libraries were missing, :func:`viewer_available` is False and every function
 In the window: the left button on the mesh grabs the particle under the cursor and drags it in
 the plane facing the camera; elsewhere it orbits. Right or middle button (or shift + left) pans,
 the wheel zooms. Keys: space pause, ``.`` one step, ``r`` reset, ``w`` wireframe, ``p``
-particles, ``m`` next method (PBD, XPBD, Verlet), ``1``/``2``/``3`` a method, ``o`` overlay,
-``g`` grid, ``f`` frame the scene, ``c`` screenshot, ``q`` quit.
+particles, ``m`` next method, ``1`` to ``9`` a method, ``o`` overlay, ``g`` grid, ``f`` frame
+the scene, ``c`` screenshot, ``q`` quit.
+
+The method keys go through every built-in method, :func:`csb.methods` in its order (the overlay
+lists them): the position-based variants are made from the scene's solver settings (switching
+back restores them), the others with :func:`csb.make_integrator` from its dt, substeps,
+iterations and gravity. The switch keeps the state. A method that cannot step the model (the
+implicit ones refuse constraints of compliance 0 and colliders) is not switched to: the overlay
+says why and the method stays; a method that diverges pauses the viewer with its error. Grabbing
+with the mouse works with the position-based methods only.
 """
 
 from __future__ import annotations
@@ -64,12 +72,16 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
                 method: str | None = None, camera: CameraPose | None = None,
                 stepper: "_core.Integrator | None" = None, **options: Any) -> "_core.Viewer":
     """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation),
-    not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`
-    ('pbd', 'xpbd', 'jakobsen'/'verlet') overrides the scene's; `stepper`, any csb.Integrator (a
-    built-in or a user's own method), steps the scene instead of its solver (grabbing and the
-    method switch then need a PbdStepper); `options` go to :class:`csb._core.Viewer` (overlay,
-    wireframe, particles, paused, frame_time, grab_compliance, samples, vsync, title, ...). A
-    scene with tearing tears in the viewer too."""
+    not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`,
+    any built-in method's name or alias (:func:`csb.methods`: 'pbd', 'xpbd', 'jakobsen'/'verlet',
+    'symplectic-euler', 'backward-euler', ...), replaces the scene's, made from the scene's solver
+    settings as the method keys make it: a method that cannot step the scene's model (one that
+    reads compliance, given constraints of compliance 0, say) is a :class:`csb.ParameterError`
+    saying why. `stepper`, any csb.Integrator (a built-in or a user's own method), steps the scene
+    instead of its solver: the method keys then work from a built-in's settings (its dt, and its
+    substeps or the solver's) and are off for a user's own; grabbing works with a PbdStepper only.
+    `options` go to :class:`csb._core.Viewer` (overlay, wireframe, particles, paused, frame_time,
+    grab_compliance, samples, vsync, title, ...). A scene with tearing tears in the viewer too."""
     _require_viewer()
     if stepper is not None and not isinstance(stepper, _core.Integrator):
         raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
@@ -83,10 +95,24 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
         v = _core.Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
                          **options)
     else:
-        v = _core.Viewer(sim.model, sim.state, stepper if stepper is not None else sim.stepper, width=width,
-                         height=height, offscreen=offscreen, gravity=sim.gravity, **options)
+        given = stepper if stepper is not None else sim.stepper
+        registered = {name for m in _core.methods() for name in (m.name, *m.aliases)}
+        if type(given).__module__ == _core.__name__ and given.name() in registered:
+            # A built-in method (a user's subclass is defined elsewhere, a plug-in is not in the
+            # registry): the method keys make the other methods with its substeps where it has
+            # them, else the solver's, and the solver's iterations.
+            solver = sim.scene.solver
+            own = getattr(given, "settings", None)
+            options.setdefault("substeps", getattr(own, "substeps", solver.substeps))
+            options.setdefault("iterations", getattr(own, "iterations", solver.iterations))
+        v = _core.Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
+                         gravity=sim.gravity, **options)
     if method is not None:
-        v.method = method
+        try:
+            v.method = method
+        except BaseException:
+            v.close()
+            raise
     if camera is not None:
         if camera.yaw is not None:
             v.camera.yaw = camera.yaw

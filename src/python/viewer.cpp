@@ -2,6 +2,7 @@
 // see src/viewer/CMakeLists.txt).
 #include "viewer.hpp"
 
+#include "bindings.hpp"
 #include "int_arg.hpp"
 
 #include "csb/methods/registry.hpp"
@@ -20,10 +21,6 @@ using csb::viewer::Viewer;
 using namespace csb::python;
 
 namespace {
-
-Method parse_method(const std::string& m) { return pbd_variant(m); }
-
-const char* method_str(Method m) { return method_info(m).name.c_str(); }
 
 Vec3 vec3(const py::handle& obj, const char* what) {
   const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(obj);
@@ -106,23 +103,40 @@ void bind_viewer(py::module_& m) {
                        IntArg height, bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
                        bool wireframe, bool particles, bool grid, bool paused, double frame_time,
                        double grab_compliance, double tear_max_strain, IntArg tear_max_per_step,
-                       const std::string& screenshot_prefix, py::handle gravity) {
+                       const std::string& screenshot_prefix, py::handle gravity, py::handle substeps,
+                       py::handle iterations) {
              csb::viewer::ViewerOptions o = viewer_options(width, height, offscreen, title, samples, vsync, overlay,
                                                            wireframe, particles, grid, paused, frame_time,
                                                            grab_compliance, tear_max_strain, tear_max_per_step,
                                                            screenshot_prefix);
              if (!gravity.is_none()) o.gravity = vec3(gravity, "gravity");
+             if (substeps.is_none() != iterations.is_none())
+               throw InvalidArgument("viewer: give substeps and iterations together (the method switch's settings), "
+                                     "or neither");
+             if (!substeps.is_none() && stepper) {
+               MethodOptions mo;
+               mo.dt = stepper->dt();
+               mo.substeps = in_range<int>(IntArg{py::reinterpret_borrow<py::object>(substeps)}, "viewer: substeps", 1, kMaxSubsteps);
+               mo.iterations = in_range<int>(IntArg{py::reinterpret_borrow<py::object>(iterations)}, "viewer: iterations", 1, kMaxIterations);
+               mo.gravity = o.gravity;
+               o.method_options = mo;
+             }
              return std::make_unique<Viewer>(model, state, std::move(stepper), o);
            }),
            py::arg("model"), py::arg("state"), py::arg("stepper"), VIEWER_OPTION_ARGS, py::arg("gravity") = py::none(),
+           py::arg("substeps") = py::none(), py::arg("iterations") = py::none(),
            "Copies model and state (reset returns to them) and steps them with `stepper`, any csb.Integrator "
-           "(a built-in, or a Python subclass: kept alive by the viewer). Grabbing and the method switch need a "
-           "PbdStepper; with another method they are off. width, height: pixels. offscreen: EGL, no window. "
+           "(a built-in, or a Python subclass: kept alive by the viewer). Grabbing needs a PbdStepper. The method "
+           "switch (the `method` property, the m and 1-9 keys) goes through csb.methods(): it works for a "
+           "PbdStepper (made from its settings), and for a built-in stepper given `substeps` and `iterations`, "
+           "the settings (with its dt() and `gravity`) the other methods are made with; without them, for a "
+           "user's own method, it is off. width, height: pixels. offscreen: EGL, no window. "
            "frame_time: s of simulated time per frame (whole steps of the stepper's dt()). grab_compliance: m/N of "
            "the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none). gravity: m/s², "
-           "for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). An exception "
-           "the stepper raises (but csb.SimulationError from a built-in, which pauses and is shown) passes "
-           "through frame(), run() and capture().")
+           "for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). "
+           "csb.SimulationError (a diverging method) or csb.ParameterError (a model the method refuses) from a "
+           "built-in pauses the viewer and is shown; any other exception the stepper raises passes through "
+           "frame(), run() and capture().")
       .def(py::init([](const Model& model, const State& state, const PbdSettings& settings, IntArg width,
                        IntArg height, bool offscreen, const std::string& title, IntArg samples, bool vsync, bool overlay,
                        bool wireframe, bool particles, bool grid, bool paused, double frame_time,
@@ -197,20 +211,25 @@ void bind_viewer(py::module_& m) {
       .def_property("paused", &Viewer::paused, &Viewer::set_paused)
       .def("single_step", &Viewer::single_step)
       .def("reset", &Viewer::reset)
-      .def_property("method", [](const Viewer& v) -> std::string {
-                      return v.position_based() ? method_str(v.method()) : v.integrator().name();
-                    },
-                    [](Viewer& v, const std::string& m) { v.set_method(parse_method(m)); },
-                    "The method's name. Set: a built-in position-based method ('pbd', 'xpbd', 'jakobsen'), when the "
-                    "viewer steps a PbdStepper (csb.ParameterError otherwise).")
+      .def_property("method", &Viewer::method_name,
+                    [](Viewer& v, const std::string& m) { v.set_method(m); },
+                    "The method's name (csb.methods()' name, or a user's method's name()). Set: any registered "
+                    "method or alias ('pbd', 'xpbd', 'small-steps', 'symplectic-euler', 'backward-euler', ... see "
+                    "csb.methods()), from the same state; csb.ParameterError saying why, with the method and the "
+                    "state unchanged, when the method cannot step this model (hard constraints, colliders, ...) "
+                    "or the switch is off (a user's own method).")
       .def_property_readonly("stepper", [](const Viewer& v) { return v.integrator_ptr(); },
                              "The Integrator being stepped (after a method switch or a reset of a PbdStepper, a new one).")
       .def_property_readonly("position_based", &Viewer::position_based,
-                             "Whether the method is a PbdStepper: grabbing and the method switch work only then.")
+                             "Whether the method is a PbdStepper: grabbing works only then.")
+      .def_property_readonly("method_switch", &Viewer::method_switch,
+                             "Whether the method switch works: the viewer knows the settings to make the methods "
+                             "from (a PbdStepper's, or the substeps and iterations given with a built-in).")
       .def_property_readonly("dt", &Viewer::dt, "s, the method's step")
       .def_property_readonly("message", [](const Viewer& v) { return v.message(); },
                              "The overlay's last notice: a method switch (with what the method cannot read of the "
-                             "model's material), a screenshot written, a simulation error.")
+                             "model's material), a method that cannot step the model, a screenshot written, a "
+                             "simulation error.")
       .def_property("wireframe", [](Viewer& v) { return v.draw_options().wireframe; },
                     [](Viewer& v, bool on) { v.draw_options().wireframe = on; })
       .def_property("particles", [](Viewer& v) { return v.draw_options().particles; },

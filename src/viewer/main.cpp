@@ -15,11 +15,12 @@
 
 namespace {
 
-const char* kUsage = R"(usage: csb-view MESH [options]
+const char* kUsageHead = R"(usage: csb-view MESH [options]
 
 Simulates MESH (OBJ, glTF, FBX, PLY, STL, Collada, ... : any format Assimp reads) as a cloth with
 Position Based Dynamics and shows it live: drag the mesh with the left button, orbit with the
-left button elsewhere, pan with the right, zoom with the wheel; space pauses, m switches method.
+left button elsewhere, pan with the right, zoom with the wheel; space pauses, m switches method
+(through every method below; 1 to 9 pick one).
 
 options (SI units):
   --mass KG            total mass of the cloth (default 1)
@@ -30,7 +31,7 @@ options (SI units):
   --pin top|none|I,J,...   pin the highest vertices (within 1 % of the size), none, or these
                        vertex indices (default top)
   --no-ground          no ground plane below the mesh
-  --method NAME        pbd, xpbd, small-steps or jakobsen (also: verlet); default pbd
+  --method NAME        the method to start with (default pbd): one of the methods below
   --dt S               time step (default 1/60)
   --substeps N         sub-steps per step (default 1)
   --iterations N       constraint sweeps per sub-step (default 10)
@@ -40,6 +41,24 @@ options (SI units):
   --out DIR            where offscreen frames go (default csb-frames)
   --every K            offscreen: keep every K-th frame (default 1)
 )";
+
+// The usage text, with the registry's methods: a line each, its keys, its name, aliases and label.
+std::string usage() {
+  std::ostringstream out;
+  out << kUsageHead << "\nmethods (the --method names; in the viewer the keys 1 to 9, and m through all). One that\n"
+                       "cannot step the cloth says why: those that model constraints as springs need\n"
+                       "--stretch-compliance > 0, some --no-ground as well.\n";
+  const auto& list = csb::methods();
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    const csb::MethodInfo& m = list[i];
+    std::string names = m.name;
+    for (const std::string& a : m.aliases) names += ", " + a;
+    out << "  " << (i < 9 ? std::to_string(i + 1) : std::string(" ")) << "  " << names
+        << std::string(names.size() < 30 ? 30 - names.size() : 1, ' ') << m.label << " (" << m.source
+        << "; reads " << m.reads << ")\n";
+  }
+  return out.str();
+}
 
 [[noreturn]] void fail(const std::string& message) {
   std::cerr << "csb-view: error: " << message << "\n";
@@ -71,6 +90,7 @@ int main(int argc, char** argv) {
   double mass = 1, stretch = 1, stretch_compliance = 0, bending = 0.1, bending_compliance = 1;
   bool ground = true;
   PbdSettings settings;
+  const MethodInfo* other_method = nullptr;  // --method that is not position-based
   viewer::ViewerOptions options;
   std::int64_t offscreen_frames = 0, every = 1;
   for (int i = 1; i < argc; ++i) {
@@ -80,7 +100,7 @@ int main(int argc, char** argv) {
       return argv[++i];
     };
     if (a == "-h" || a == "--help") {
-      std::cout << kUsage;
+      std::cout << usage();
       return 0;
     } else if (a == "--mass") mass = number(a, value());
     else if (a == "--stretch") stretch = number(a, value());
@@ -97,10 +117,14 @@ int main(int argc, char** argv) {
       } catch (const InvalidArgument& e) {
         fail(std::string("--method: ") + e.what());
       }
-      if (!info->pbd) fail("--method: the viewer steps the position-based methods, got the force-based '" + m + "'");
-      settings.method = *info->pbd;
-      if (!info->iterates) settings.iterations = 1;  // small steps: one iteration a sub-step
-      if (settings.method == Method::Jakobsen) settings.front_end = FrontEnd::Verlet;
+      if (info->pbd) {  // as PbdSettings: the position-based variants switch back to them
+        settings.method = *info->pbd;
+        if (!info->iterates) settings.iterations = 1;  // small steps: one iteration a sub-step
+        if (settings.method == Method::Jakobsen) settings.front_end = FrontEnd::Verlet;
+        other_method = nullptr;
+      } else {  // made from the settings below when the viewer starts (Viewer::set_method)
+        other_method = info;
+      }
     } else if (a == "--dt") settings.dt = number(a, value());
     else if (a == "--substeps") settings.substeps = integer(a, value());
     else if (a == "--iterations") settings.iterations = integer(a, value());
@@ -118,7 +142,7 @@ int main(int argc, char** argv) {
     else fail("one mesh file only, got '" + path + "' and '" + a + "'");
   }
   if (path.empty()) {
-    std::cerr << kUsage;
+    std::cerr << usage();
     return 2;
   }
   try {
@@ -162,6 +186,15 @@ int main(int argc, char** argv) {
     options.title = "csb - " + path;
     options.overlay = !options.offscreen;
     viewer::Viewer v(model, model.initial_state(), settings, options);
+    if (other_method) {
+      try {
+        v.set_method(*other_method);
+      } catch (const InvalidArgument& e) {
+        std::string why = e.what();
+        if (why.rfind("viewer: ", 0) == 0) why.erase(0, 8);
+        fail("--method " + other_method->name + ": " + why);
+      }
+    }
     if (offscreen_frames > 0) {
       viewer::CaptureOptions co;
       co.frames = offscreen_frames;

@@ -18,6 +18,8 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
+#include <utility>
 
 namespace csb::viewer {
 
@@ -38,11 +40,6 @@ void on_glfw_error(int code, const char* description) {
   glfw_error() = "GLFW error " + std::to_string(code) + ": " + (description ? description : "");
 }
 
-std::string method_name(Method m) {
-  const MethodInfo& info = method_info(m);
-  return info.label + ": " + info.source;
-}
-
 // What `method` cannot read of the model's material (material.hpp), a line per constraint family
 // for the overlay; printed too, so that the terminal keeps it after the overlay changes.
 std::string material_message(const Model& model, Method method) {
@@ -52,6 +49,19 @@ std::string material_message(const Model& model, Method method) {
     out += "\n" + note.message;
   }
   return out;
+}
+
+// The overlay's font (Dear ImGui's built-in one) has Latin-1 only: the Greek letters of csb's
+// messages (compliance α, ...) are spelled out rather than drawn as '?'.
+std::string overlay_text(std::string s) {
+  static const std::pair<const char*, const char*> greek[] = {
+      {"α", "alpha"}, {"β", "beta"}, {"γ", "gamma"}, {"Δ", "Delta"}, {"δ", "delta"}, {"ε", "epsilon"},
+      {"θ", "theta"}, {"κ", "kappa"}, {"λ", "lambda"}, {"μ", "mu"}, {"ν", "nu"}, {"ρ", "rho"},
+      {"σ", "sigma"}, {"τ", "tau"}, {"φ", "phi"}, {"ω", "omega"}, {"Ω", "Omega"}};
+  for (const auto& [letter, name] : greek)
+    for (std::size_t at = s.find(letter); at != std::string::npos; at = s.find(letter, at))
+      s.replace(at, std::strlen(letter), name);
+  return s;
 }
 
 // Exponential moving average: smooth enough to read, quick enough to follow a change.
@@ -231,12 +241,41 @@ Viewer::Viewer(const Model& model, const State& state, std::shared_ptr<Integrato
   pbd_ = dynamic_cast<PbdStepper*>(stepper_.get());
   if (pbd_) {
     settings_ = initial_settings_ = pbd_->settings();
+    has_settings_ = true;
     gravity_ = settings_.gravity;
+    method_ = &csb::method_info(settings_.method);
+    switchable_ = true;
+    if (options.method_options) {
+      method_options_ = *options.method_options;
+    } else {
+      method_options_.dt = settings_.dt;
+      method_options_.substeps = settings_.substeps;
+      method_options_.iterations = settings_.iterations;
+      method_options_.gravity = settings_.gravity;
+    }
     message_ = material_message(model, settings_.method);
     if (!message_.empty()) message_.erase(0, 1);
   } else {
     gravity_ = options.gravity;
+    given_ = stepper_;
+    if (options.method_options) {  // a built-in: its method by the name it gives
+      method_options_ = *options.method_options;
+      switchable_ = true;
+      const std::string name = stepper_->name();
+      for (const MethodInfo& m : methods())
+        if (m.name == name) given_method_ = &m;
+      if (!given_method_)
+        for (const MethodInfo& m : methods())
+          if (std::find(m.aliases.begin(), m.aliases.end(), name) != m.aliases.end()) given_method_ = &m;
+      method_ = given_method_;
+    }
   }
+  // A method's own settings belong to it: the others are made with their defaults.
+  method_options_.settings = MethodSettings{};
+  if (method_)
+    method_cursor_ = static_cast<std::size_t>(method_ - methods().data());
+  else
+    method_cursor_ = methods().size() - 1;  // m goes on to the first
   dt_ = stepper_->dt();
   if (!(dt_ > 0) || !std::isfinite(dt_))
     throw InvalidArgument("viewer: the method's dt() must be a time step > 0 s, got " + std::to_string(dt_));
@@ -367,7 +406,14 @@ void Viewer::advance(int steps) {
       stepper_->step(*model_, state_, 1);
     } catch (const SimulationError& e) {
       paused_ = true;
-      message_ = e.what();
+      message_ = std::string(e.what()) + "\n(paused: r resets, m switches the method)";
+      update_energy();
+      return;
+    } catch (const InvalidArgument& e) {
+      // A built-in refuses this model (set_method tried it, but a tear or a user's change of the
+      // state may come later); it refuses before stepping, the state is as it was.
+      paused_ = true;
+      message_ = method_name() + " cannot step this model: " + e.what() + "\n(paused: m switches the method)";
       return;
     }
     smooth(stats_.step_ms, 1e3 * (now() - t0), ++stats_.steps);
@@ -402,9 +448,15 @@ void Viewer::reset() {
   release_grab();
   model_ = initial_model_;
   state_ = initial_state_;
-  if (pbd_) {  // a fresh stepper: no multipliers, grabs or workspace of the run before
-    stepper_ = std::make_shared<PbdStepper>(settings_);
-    pbd_ = static_cast<PbdStepper*>(stepper_.get());
+  if (stepper_ != given_) {  // a fresh stepper: no multipliers, grabs or workspace of the run before
+    if (pbd_) {
+      stepper_ = std::make_shared<PbdStepper>(settings_);
+      pbd_ = static_cast<PbdStepper*>(stepper_.get());
+    } else if (method_) {
+      PbdSettings unused;
+      std::string note;
+      stepper_ = make_stepper(*method_, unused, note);
+    }
   }
   stats_.steps = 0;
   message_.clear();
@@ -415,32 +467,89 @@ void Viewer::reset() {
   update_energy();
 }
 
-void Viewer::set_method(Method method) {
-  if (!pbd_)
-    throw InvalidArgument("viewer: the method switch chooses among the built-in position-based methods; this "
-                          "viewer steps '" + stepper_->name() + "', which it cannot switch");
-  if (method == settings_.method) return;
-  release_grab();
-  // From the settings given, so that switching back restores them. Jakobsen's method predicts
-  // from the previous position (Verlet) and damps only by its drag: Müller's velocity damping
-  // has nothing to act on there and is switched off, which the overlay says.
-  settings_ = initial_settings_;
-  settings_.method = method;
-  message_ = std::string("method: ") + method_name(method);
-  if (method == Method::Jakobsen) {
-    settings_.front_end = FrontEnd::Verlet;
-    if (settings_.damping > 0) {
-      message_ += " (Mueller damping " + std::to_string(settings_.damping) + " off: Verlet damps by its drag, " +
-                  std::to_string(settings_.verlet_drag) + ")";
-      settings_.damping = 0;
+std::string Viewer::method_label() const {
+  if (!method_) return stepper_->name();
+  return method_->label + ": " + method_->source;
+}
+
+std::shared_ptr<Integrator> Viewer::make_stepper(const MethodInfo& info, PbdSettings& settings,
+                                                 std::string& note) const {
+  note.clear();
+  if (given_ && &info == given_method_) return given_;
+  const bool variant = info.pbd && &csb::method_info(*info.pbd) == &info;  // not a set-up of one (small steps)
+  if (variant && has_settings_) {
+    // From the settings given, so that switching back restores them. Jakobsen's method predicts
+    // from the previous position (Verlet) and damps only by its drag: Müller's velocity damping
+    // has nothing to act on there and is switched off, which the overlay says.
+    settings = initial_settings_;
+    settings.method = *info.pbd;
+    if (settings.method == Method::Jakobsen) {
+      settings.front_end = FrontEnd::Verlet;
+      if (settings.damping > 0) {
+        note = " (Mueller damping " + std::to_string(settings.damping) + " off: Verlet damps by its drag, " +
+               std::to_string(settings.verlet_drag) + ")";
+        settings.damping = 0;
+      }
+    } else if (initial_settings_.method == Method::Jakobsen) {
+      settings.front_end = FrontEnd::Euler;
     }
-  } else if (initial_settings_.method == Method::Jakobsen) {
-    settings_.front_end = FrontEnd::Euler;
+    return std::make_shared<PbdStepper>(settings);
   }
-  stepper_ = std::make_shared<PbdStepper>(settings_);
-  pbd_ = static_cast<PbdStepper*>(stepper_.get());
-  message_ += material_message(*model_, method);
+  std::shared_ptr<Integrator> made = make_method(info, method_options_);
+  if (const auto* p = dynamic_cast<const PbdStepper*>(made.get())) settings = p->settings();
+  return made;
+}
+
+void Viewer::use_stepper(std::shared_ptr<Integrator> stepper, const MethodInfo* info, const PbdSettings& settings) {
+  stepper_ = std::move(stepper);
+  method_ = info;
+  pbd_ = dynamic_cast<PbdStepper*>(stepper_.get());
+  if (pbd_) settings_ = settings;
+  gravity_ = pbd_ ? settings_.gravity : stepper_ == given_ ? options_.gravity : method_options_.gravity;
+  dt_ = stepper_->dt();
+  steps_per_frame_ = std::max(1, static_cast<int>(std::lround(options_.frame_time / dt_)));
   stats_.step_ms = 0;
+  update_energy();
+}
+
+void Viewer::set_method(const MethodInfo& info) {
+  if (!switchable_)
+    throw InvalidArgument("viewer: the method switch chooses among the built-in methods; this viewer steps '" +
+                          stepper_->name() + "', which it cannot switch");
+  const auto& list = methods();
+  const std::size_t index = static_cast<std::size_t>(&info - list.data());
+  if (index >= list.size()) throw InvalidArgument("viewer: '" + info.name + "' is not a registered method");
+  if (&info == method_) return;
+  const std::string refused = "viewer: " + info.label + " (" + info.name + ") cannot step this model: ";
+  const std::string staying = "; the method stays " + method_name();
+  PbdSettings settings;
+  std::string note;
+  std::shared_ptr<Integrator> stepper;
+  try {
+    stepper = make_stepper(info, settings, note);
+    if (stepper != given_) {
+      // A step of a twin on a copy of the state: a method refuses a model (hard constraints,
+      // colliders) in its first step, not when it is made; the stepper kept has not stepped, so
+      // that its first step is a fresh stepper's.
+      PbdSettings unused;
+      std::string unused_note;
+      const std::shared_ptr<Integrator> twin = make_stepper(info, unused, unused_note);
+      State trial = state_;
+      try {
+        twin->step(*model_, trial, 1);
+      } catch (const SimulationError&) {
+        // It can step this model but diverges from this state: the switch goes ahead, and the
+        // step in the frame pauses and shows it.
+      }
+    }
+  } catch (const InvalidArgument& e) {
+    throw InvalidArgument(refused + e.what() + staying);
+  }
+  release_grab();
+  method_cursor_ = index;
+  use_stepper(std::move(stepper), &info, settings);
+  message_ = "method: " + method_label() + note;
+  if (info.pbd) message_ += material_message(*model_, *info.pbd);
 }
 
 void Viewer::release_grab() {
@@ -458,13 +567,15 @@ void Viewer::mouse_button(int button, bool pressed, double x, double y, bool shi
     drag_button_ = -1;
     return;
   }
-  if (button == 0 && !shift && pbd_) {  // grabbing: PbdStepper's grabs
+  if (button == 0 && !shift) {  // grabbing: PbdStepper's grabs
     const Ray ray = camera_.ray(x, y);
     Vec3 lo, hi;
     context_->renderer->bounds(lo, hi);
     // Near a silhouette or on a chain, the nearest particle within 2 % of the scene's size.
     const Pick pick = pick_particle(*model_, state_, ray.origin, ray.direction, 0.02 * (hi - lo).norm());
-    if (pick.particle >= 0) {
+    if (pick.particle >= 0 && !pbd_) {
+      message_ = "grab: position-based methods only (" + method_name() + " is not one)";
+    } else if (pick.particle >= 0) {
       release_grab();
       drag_point_ = state_.x.col(pick.particle);
       grab_handle_ = pbd_->grab(*model_, state_, pick.particle, drag_point_, options_.grab_compliance);
@@ -517,17 +628,24 @@ void Viewer::key(int k) {
     case GLFW_KEY_M:
     case GLFW_KEY_1: case GLFW_KEY_2: case GLFW_KEY_3: case GLFW_KEY_4: case GLFW_KEY_5:
     case GLFW_KEY_6: case GLFW_KEY_7: case GLFW_KEY_8: case GLFW_KEY_9:
-      if (!pbd_) {
-        message_ = "method keys off: " + stepper_->name() + " is not a built-in position-based method";
+      if (!switchable_) {
+        message_ = "method keys off: " + stepper_->name() + " is not a built-in method";
         break;
       }
-      if (k != GLFW_KEY_M) {  // the n-th position-based method of the registry's list
-        const std::vector<Method> variants = pbd_variants();
-        if (const std::size_t n = k - GLFW_KEY_1; n < variants.size()) set_method(variants[n]);
-      } else {  // the next one
-        const std::vector<Method> variants = pbd_variants();
-        const auto at = std::find(variants.begin(), variants.end(), settings_.method);
-        set_method(at == variants.end() || at + 1 == variants.end() ? variants.front() : *(at + 1));
+      {
+        // m: the registry's next method, after the one last asked for (refused or not), so that
+        // a method that cannot step this model is passed over by the next press. 1 to 9: the n-th.
+        const std::size_t n = methods().size();
+        const std::size_t next = k == GLFW_KEY_M ? (method_cursor_ + 1) % n : static_cast<std::size_t>(k - GLFW_KEY_1);
+        if (next >= n) break;
+        method_cursor_ = next;
+        try {
+          set_method(methods()[next]);
+        } catch (const Error& e) {  // never through GLFW's callbacks: the overlay says it
+          message_ = e.what();
+          if (message_.rfind("viewer: ", 0) == 0) message_.erase(0, 8);
+          std::fprintf(stderr, "csb: %s\n", message_.c_str());
+        }
       }
       break;
     case GLFW_KEY_C: {
@@ -609,24 +727,45 @@ void Viewer::build_overlay() {
                                  ImGuiWindowFlags_NoNav | ImGuiWindowFlags_NoMove;
   if (ImGui::Begin("csb", nullptr, flags)) {
     const Real dt = dt_;
-    const std::string method = pbd_ ? method_name(settings_.method) : stepper_->name();
+    const std::string method = method_label();
     ImGui::Text("%s%s", method.c_str(), paused_ ? "   [paused]" : "");
     ImGui::Text("%.1f fps   %.2f ms/frame", stats_.fps, stats_.frame_ms);
     ImGui::Text("%.3f ms/step  (%d step%s/frame, dt %.4g s)", stats_.step_ms, steps_per_frame_,
                 steps_per_frame_ == 1 ? "" : "s", dt);
-    if (pbd_)
+    if (pbd_) {
       ImGui::Text("%d substep%s x %d iteration%s", settings_.substeps, settings_.substeps == 1 ? "" : "s",
                   settings_.iterations, settings_.iterations == 1 ? "" : "s");
-    else
-      ImGui::TextDisabled("grab and method keys off: %s is not a built-in position-based method", method.c_str());
+    } else if (method_) {
+      const int s = method_options_.substeps, i = method_options_.iterations;
+      if (method_->iterates)
+        ImGui::Text("%d substep%s x %d iteration%s", s, s == 1 ? "" : "s", i, i == 1 ? "" : "s");
+      else
+        ImGui::Text("%d substep%s", s, s == 1 ? "" : "s");
+      ImGui::TextDisabled("grab: position-based methods only");
+    } else {
+      ImGui::TextDisabled("grab and method keys off: %s is not a built-in method", method.c_str());
+    }
     ImGui::Text("t = %.3f s   %d particles   %d constraints", state_.t, model_->num_particles(),
                 model_->num_constraints());
     ImGui::Text("energy %.5g J (kinetic %.4g, gravity %.4g, elastic %.4g)",
                 stats_.kinetic + stats_.gravitational + stats_.elastic, stats_.kinetic, stats_.gravitational,
                 stats_.elastic);
     if (held_particle_ >= 0) ImGui::Text("holding particle %d", held_particle_);
-    if (!message_.empty()) ImGui::TextWrapped("%s", message_.c_str());
-    ImGui::TextDisabled("space pause  . step  r reset  w wire  p points  m/1/2/3 method");
+    if (!message_.empty()) ImGui::TextWrapped("%s", overlay_text(message_).c_str());
+    if (switchable_) {  // the methods the keys choose among, four a line, the current one marked
+      const auto& list = methods();
+      std::string line;
+      for (std::size_t i = 0; i < list.size(); ++i) {
+        const std::string key = i < 9 ? std::to_string(i + 1) + " " : "m ";
+        const std::string entry = &list[i] == method_ ? "[" + key + list[i].name + "]" : key + list[i].name;
+        line += (line.empty() ? "" : "  ") + entry;
+        if (i % 4 == 3 || i + 1 == list.size()) {
+          ImGui::TextDisabled("%s", line.c_str());
+          line.clear();
+        }
+      }
+    }
+    ImGui::TextDisabled("space pause  . step  r reset  w wire  p points  m/1-9 method");
   }
   ImGui::End();
 }

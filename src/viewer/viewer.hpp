@@ -6,15 +6,17 @@
 // (PbdStepper::grab / move_grab / release); the left button elsewhere orbits, the right or middle
 // button (or shift + left) pans, the wheel zooms. Keys:
 //   space pause/run      . or → one step      r reset       w wireframe      p particles
-//   m next method (the registry's position-based variants: PBD → XPBD → Jakobsen)   1 2 3 ... the n-th
+//   m next method (every method of the registry, methods(), in its order)   1 2 ... 9 the n-th
 //   o overlay      g grid      c save a screenshot      f frame the scene      q/escape quit
-// The overlay (Dear ImGui) shows fps, ms per step, substeps × iterations, the method, energies
-// and the simulated time.
+// The overlay (Dear ImGui) shows fps, ms per step, substeps × iterations, the method and the
+// methods the keys choose among, energies and the simulated time.
 //
 // The viewer steps any Integrator (integrator.hpp): a built-in position-based stepper, a
-// force-based one, or a user's method (from Python through the binding's trampoline). Grabbing
-// and the method keys act through PbdStepper's grabs and settings, so they work when the method
-// is a PbdStepper; with any other method they are off, and the overlay says so.
+// force-based or implicit one, or a user's method (from Python through the binding's trampoline).
+// The method keys switch among the registry's methods when the viewer knows the settings to make
+// them from (dt, substeps, iterations, gravity): a PbdStepper's, or ViewerOptions::method_options
+// for another built-in; with a user's own method they are off, and the overlay says so. Grabbing
+// acts through PbdStepper's grabs, so it works while the method is a PbdStepper.
 //
 // Every frame advances the simulation by `frame_time` of simulated time (whole steps of the
 // stepper's dt), so at 60 frames per second and frame_time = 1/60 s it runs in real time. The
@@ -23,6 +25,7 @@
 #pragma once
 
 #include "csb/integrator.hpp"
+#include "csb/methods/registry.hpp"
 #include "csb/pbd.hpp"
 #include "viewer/camera.hpp"
 #include "viewer/renderer.hpp"
@@ -30,6 +33,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -57,6 +61,11 @@ struct ViewerOptions {
   // m/s², for the overlay's gravitational energy when the method is not a PbdStepper (whose
   // settings have their own gravity).
   Vec3 gravity = Vec3(0, -9.81, 0);
+  // The settings the method keys make the registry's methods from (dt in s, substeps, iterations,
+  // gravity in m/s²; make_method) when the stepper given is not a PbdStepper, whose settings say
+  // them otherwise. Set it only for a built-in stepper (its dt() as dt): the viewer then finds its
+  // method in the registry by its name(). Unset for another stepper: the method keys are off.
+  std::optional<MethodOptions> method_options;
 };
 
 // What the overlay shows, measured over the last frames.
@@ -87,7 +96,8 @@ class Viewer {
  public:
   // Copies the model and state (reset returns to them) and steps them with `stepper` (kept, and
   // shared with the caller). A PbdStepper's settings are what the method switch and reset start
-  // from (they make a fresh PbdStepper); any other method is stepped as it is, reset keeping it.
+  // from (they make a fresh PbdStepper); any other method is stepped as it is, reset keeping it,
+  // and the method switch works when options.method_options says its settings.
   // Opens the window or the offscreen context; throws csb::Error saying what is missing (no
   // display, no OpenGL 3.3) if it cannot, InvalidArgument for a stepper whose dt() is not > 0.
   Viewer(const Model& model, const State& state, std::shared_ptr<Integrator> stepper,
@@ -129,13 +139,28 @@ class Viewer {
   bool paused() const { return paused_; }
   void single_step();  // one step of dt, also while paused
   void reset();        // the model and state given at construction; the camera stays
-  // The method switch (PbdStepper only: InvalidArgument naming the method stepped otherwise).
-  void set_method(Method method);
+  // The method switch, among every registered method (methods()). A position-based variant is
+  // made from the PbdSettings given (switching back restores them), the stepper given is taken
+  // back for its own method, any other method is made by make_method from the settings given
+  // (PbdSettings' or options.method_options' dt, substeps, iterations and gravity). The method
+  // is tried on a copy of the state first: InvalidArgument saying why, with the method and the
+  // state unchanged, when it cannot step this model (its constructor or its first step refuses:
+  // hard constraints, colliders, ...), or when the switch is off (a user's own method).
+  void set_method(const MethodInfo& info);
+  void set_method(const std::string& name) { set_method(csb::method_info(name)); }
+  void set_method(Method method) { set_method(csb::method_info(method)); }
+  // The registered method being stepped, or null for a user's own.
+  const MethodInfo* current_method() const { return method_; }
+  // Its name ("pbd", "small-steps", "backward-euler", ...), or the stepper's name() for a user's.
+  std::string method_name() const { return method_ ? method_->name : stepper_->name(); }
   Method method() const { return settings_.method; }  // meaningful when position_based()
-  // Whether the method is a PbdStepper: grabbing and the method switch work only then.
+  // Whether the method keys work (the viewer knows the settings to make the methods from).
+  bool method_switch() const { return switchable_; }
+  // Whether the method is a PbdStepper: grabbing works only then.
   bool position_based() const { return pbd_ != nullptr; }
   // The overlay's last notice: a method switch (with what the method cannot read of the
-  // model's material, material.hpp), a screenshot written, a simulation error.
+  // model's material, material.hpp), a method that cannot step the model, a screenshot written,
+  // a simulation error.
   const std::string& message() const { return message_; }
   DrawOptions& draw_options() { return draw_; }
   void set_overlay(bool on) { options_.overlay = on; }
@@ -164,16 +189,29 @@ class Viewer {
   void update_energy();
   void release_grab();
   void require_open() const;
+  // A new stepper of `info` (the stepper given for its own method), its PbdSettings in `settings`
+  // when it is a PbdStepper, and what the overlay says of it in `note`.
+  std::shared_ptr<Integrator> make_stepper(const MethodInfo& info, PbdSettings& settings, std::string& note) const;
+  void use_stepper(std::shared_ptr<Integrator> stepper, const MethodInfo* info, const PbdSettings& settings);
+  std::string method_label() const;  // "XPBD: Macklin, Müller and Chentanez 2016", or a user's name()
 
   std::unique_ptr<Context> context_;
   ViewerOptions options_;
   DrawOptions draw_;
   std::shared_ptr<const Model> initial_model_, model_;
   State initial_state_, state_;
-  PbdSettings settings_;
-  PbdSettings initial_settings_;
+  PbdSettings settings_;          // stepper_'s, when it is a PbdStepper
+  PbdSettings initial_settings_;  // those given, when has_settings_
+  bool has_settings_ = false;     // PbdSettings were given: the position-based variants start from them
   std::shared_ptr<Integrator> stepper_;
   PbdStepper* pbd_ = nullptr;  // stepper_ as a PbdStepper, or null
+  // The method switch.
+  std::shared_ptr<Integrator> given_;       // the stepper given, when it is not a PbdStepper
+  const MethodInfo* given_method_ = nullptr;  // its registered method, if it is a built-in
+  const MethodInfo* method_ = nullptr;      // stepper_'s registered method, or null (a user's)
+  bool switchable_ = false;                 // the method keys work
+  MethodOptions method_options_;            // what make_method makes the other methods from
+  std::size_t method_cursor_ = 0;           // methods()'s index the m key goes on from
   Real dt_ = 0;                // s, stepper_->dt()
   Vec3 gravity_ = Vec3::Zero();  // m/s², for the energies
   Camera camera_;
