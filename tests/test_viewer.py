@@ -379,6 +379,19 @@ def test_a_method_given_by_name_or_as_a_stepper_at_start(viewer_on, tmp_path):
     assert v.stepper is given
     v.frame()
     assert v.state.step == 2
+    # A scene whose solver is not position-based: its stepper, the keys from its settings.
+    path = tmp_path / "implicit.toml"
+    path.write_text(SOFT_CLOTH.replace('method = "pbd"', 'method = "backward-euler"'))
+    v = viewer_on(csb.load_scene(path), frame_time=sc.solver.dt)
+    scenes = v.stepper
+    assert v.method_switch and v.method == "backward-euler" and not v.position_based
+    v.key("1")
+    assert v.method == "pbd" and (v.settings.substeps, v.settings.iterations) == (20, 5)
+    v.frame()
+    v.method = "backward-euler"
+    assert v.stepper is scenes
+    v.frame()
+    assert v.state.step == 2 and np.isfinite(np.array(v.state.x)).all()
 
 
 def test_a_diverging_method_pauses_with_its_error(viewer_on, tmp_path):
