@@ -282,6 +282,7 @@ void bind_plugin(py::module_& m);  // after bind_integrator
 void bind_reference(py::module_& m);
 void bind_implicit(py::module_& m);  // after bind_integrator and bind_reference
 void bind_vbd(py::module_& m);  // after bind_implicit (its residual type)
+void bind_projective(py::module_& m);  // after bind_implicit
 void bind_metrics(py::module_& m);
 void bind_kernels(py::module_& m);
 

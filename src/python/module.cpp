@@ -79,6 +79,7 @@ PYBIND11_MODULE(_core, m) {
   bind_reference(m);
   bind_implicit(m);
   bind_vbd(m);
+  bind_projective(m);
   bind_metrics(m);
   bind_kernels(m);
 #ifdef CSB_HAS_VIEWER

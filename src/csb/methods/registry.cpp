@@ -21,6 +21,7 @@ const std::vector<MethodInfo>& methods() {
       backward_euler_method(),
       vbd_method(),
       implicit_euler_method(),
+      projective_dynamics_method(),
   };
   return list;
 }

@@ -106,5 +106,6 @@ MethodInfo jakobsen_method();     // jakobsen.cpp
 MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
 MethodInfo backward_euler_method(), implicit_euler_method();  // backward_euler.cpp
 MethodInfo vbd_method();           // vbd/module.cpp
+MethodInfo projective_dynamics_method();  // projective_dynamics/module.cpp
 
 }  // namespace csb
