@@ -622,7 +622,11 @@ def test_the_cpp_viewer_opens_a_mesh_file(tmp_path):
                         "--pin", "0", "--offscreen", "2", "--out", tmp_path / "be", "--size", "200x150"],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and "wrote 2 frames" in r.stdout, r.stderr
-    # ... which refuses the default hard stretch, saying why.
+    # ... and small steps, a set-up of XPBD rather than a variant, from the sub-steps given, ...
+    r = subprocess.run([exe, mesh, "--method", "small-steps", "--substeps", "4", "--offscreen", "1", "--out",
+                        tmp_path / "ss", "--size", "200x150"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "wrote 1 frames" in r.stdout, r.stderr
+    # ... but backward Euler refuses the default hard stretch, saying why.
     r = subprocess.run([exe, mesh, "--method", "backward-euler", "--no-ground", "--pin", "0", "--offscreen", "1",
                         "--out", tmp_path / "hard"],
                        capture_output=True, text=True, timeout=120)

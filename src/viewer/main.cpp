@@ -90,7 +90,7 @@ int main(int argc, char** argv) {
   double mass = 1, stretch = 1, stretch_compliance = 0, bending = 0.1, bending_compliance = 1;
   bool ground = true;
   PbdSettings settings;
-  const MethodInfo* other_method = nullptr;  // --method that is not position-based
+  const MethodInfo* other_method = nullptr;  // --method that is not a position-based variant
   viewer::ViewerOptions options;
   std::int64_t offscreen_frames = 0, every = 1;
   for (int i = 1; i < argc; ++i) {
@@ -117,9 +117,8 @@ int main(int argc, char** argv) {
       } catch (const InvalidArgument& e) {
         fail(std::string("--method: ") + e.what());
       }
-      if (info->pbd) {  // as PbdSettings: the position-based variants switch back to them
+      if (info->pbd && &method_info(*info->pbd) == info) {  // a variant: PbdSettings, which switching back restores
         settings.method = *info->pbd;
-        if (!info->iterates) settings.iterations = 1;  // small steps: one iteration a sub-step
         if (settings.method == Method::Jakobsen) settings.front_end = FrontEnd::Verlet;
         other_method = nullptr;
       } else {  // made from the settings below when the viewer starts (Viewer::set_method)
