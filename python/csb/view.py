@@ -14,10 +14,11 @@ the scene, ``c`` screenshot, ``q`` quit.
 The method keys go through every built-in method, :func:`csb.methods` in its order (the overlay
 lists them): the position-based variants are made from the scene's solver settings (switching
 back restores them), the others with :func:`csb.make_integrator` from its dt, substeps,
-iterations and gravity. The switch keeps the state. A method that cannot step the model (the
-implicit ones refuse constraints of compliance 0 and colliders) is not switched to: the overlay
-says why and the method stays; a method that diverges pauses the viewer with its error. Grabbing
-with the mouse works with the position-based methods only.
+iterations and gravity. The switch keeps the state. A method that cannot step the model (one
+that models constraints as springs refuses those of compliance 0; some refuse colliders) is not
+switched to: the overlay says why, the method stays and ``m`` goes on past it; a method that
+diverges pauses the viewer with its error. Grabbing with the mouse works with the
+position-based methods only.
 """
 
 from __future__ import annotations
@@ -75,9 +76,8 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
     not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`,
     any built-in method's name or alias (:func:`csb.methods`: 'pbd', 'xpbd', 'jakobsen'/'verlet',
     'symplectic-euler', 'backward-euler', ...), replaces the scene's, made from the scene's solver
-    settings as the method keys make it: a method that cannot step the scene's model (one that
-    reads compliance, given constraints of compliance 0, say) is a :class:`csb.ParameterError`
-    saying why. `stepper`, any csb.Integrator (a built-in or a user's own method), steps the scene
+    settings as the method keys make it: a method that cannot step the scene's model (a spring
+    model given constraints of compliance 0, say) is a :class:`csb.ParameterError` saying why. `stepper`, any csb.Integrator (a built-in or a user's own method), steps the scene
     instead of its solver: the method keys then work from a built-in's settings (its dt, and its
     substeps or the solver's) and are off for a user's own; grabbing works with a PbdStepper only.
     `options` go to :class:`csb._core.Viewer` (overlay, wireframe, particles, paused, frame_time,
