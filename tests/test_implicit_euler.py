@@ -217,7 +217,7 @@ def test_residual_of_a_converged_step_is_zero_and_of_xpbd_falls_with_iterations(
 def test_the_registered_method():
     info = csb.method_info("backward-euler")
     assert info.reads == "compliance" and not info.iterates and info.aliases == []
-    assert [k.name for k in info.settings] == ["rtol", "max_iterations"]
+    assert [k.name for k in info.settings] == ["rtol", "max_iterations", "contact_stiffness"]
     made = csb.make_integrator("backward-euler", 0.01, gravity=(0, -9.81, 0))
     assert isinstance(made, csb.BackwardEuler) and made.name() == "backward-euler" and made.dt() == 0.01
     model = every_type()
@@ -264,10 +264,12 @@ def test_bad_input_names_the_parameter():
     with_floor = csb.ModelBuilder()
     inst = with_floor.add_mesh(csb.cloth_grid(1.0, 1.0, 3, 3), mass=0.1, stretch_compliance=1e-4)
     with_floor.pin(inst.first_particle)
-    with_floor.add_plane(point=[0, -2, 0])
+    with_floor.enable_self_collision(inst.group, 0.005)
     with_floor = with_floor.build()
-    with pytest.raises(csb.ParameterError, match="no contact.*1 collider"):
+    with pytest.raises(csb.ParameterError, match="contacts with colliders, not self-collision"):
         csb.BackwardEuler(dt=0.01).step(with_floor, with_floor.initial_state())
+    with pytest.raises(csb.ParameterError, match="contact_stiffness must be a finite stiffness > 0"):
+        csb.BackwardEuler(dt=0.01, contact_stiffness=0.0)
     with pytest.raises(csb.SimulationError, match="max_iterations|Newton's residual"):
         csb.BackwardEuler(dt=0.01, max_iterations=1, rtol=1e-15).step(spring_cloth(6), spring_cloth(6).initial_state())
 

@@ -33,6 +33,8 @@ Real norm2(const std::vector<Real>& r) {
   return std::sqrt(s);
 }
 
+Vec3 slot_position(const Real* x, Index slot) { return Vec3(x[3 * slot], x[3 * slot + 1], x[3 * slot + 2]); }
+
 void check_dt(Real dt) {
   if (!(dt > 0) || !std::isfinite(dt)) throw InvalidArgument("dt must be a finite time step > 0 s, got " + str(dt));
 }
@@ -67,7 +69,22 @@ Real IncrementalPotential::energy(const Real* x) const {
     for (int k = 0; k < 3; ++k) d2 += (x[3 * s + k] - x_tilde_[3 * s + k]) * (x[3 * s + k] - x_tilde_[3 * s + k]);
     inertia += net_.mass(static_cast<Index>(s)) * d2;
   }
-  return inertia / (2 * dt_ * dt_) + net_.potential(x);
+  Real contact = 0;
+  for (std::size_t c = 0; contacts_ && c < contact_slot_.size(); ++c) {
+    const Real C = contacts_->violation(c, slot_position(x, contact_slot_[c]));
+    contact += contacts_->stiffness(c) * C * C;
+  }
+  return inertia / (2 * dt_ * dt_) + net_.potential(x) + contact / 2;
+}
+
+void IncrementalPotential::set_contacts(const PenaltyContacts* contacts) {
+  contacts_ = contacts;
+  contact_slot_.clear();
+  if (!contacts) return;
+  const auto& dyn = net_.dynamic_particles();
+  std::vector<Index> slot_of(static_cast<std::size_t>(*std::max_element(dyn.begin(), dyn.end()) + 1), -1);
+  for (std::size_t s = 0; s < dyn.size(); ++s) slot_of[static_cast<std::size_t>(dyn[s])] = static_cast<Index>(s);
+  for (const Contact& k : contacts->contacts()) contact_slot_.push_back(slot_of[static_cast<std::size_t>(k.particle)]);
 }
 
 void IncrementalPotential::gradient(const Real* x, Real* r) const {
@@ -76,12 +93,25 @@ void IncrementalPotential::gradient(const Real* x, Real* r) const {
   net_.add_potential_forces(x, f.data());
   const Real ih2 = 1 / (dt_ * dt_);
   for (std::size_t i = 0; i < n3; ++i) r[i] = net_.mass(static_cast<Index>(i / 3)) * (x[i] - x_tilde_[i]) * ih2 - f[i];
+  for (std::size_t c = 0; contacts_ && c < contact_slot_.size(); ++c) {  // + k min(C, 0) n
+    const Index s = contact_slot_[c];
+    const Real kc = contacts_->stiffness(c) * contacts_->violation(c, slot_position(x, s));
+    for (int k = 0; k < 3; ++k) r[3 * s + k] += kc * contacts_->contacts()[c].normal[k];
+  }
 }
 
 void IncrementalPotential::hessian_entries(const Real* x, bool definite, SpringNetwork::Stiffness& work) const {
   const auto n3 = static_cast<Eigen::Index>(x_tilde_.size());
   net_.stiffness(x, definite, work);
   const Real ih2 = 1 / (dt_ * dt_);
+  for (std::size_t c = 0; contacts_ && c < contact_slot_.size(); ++c) {  // k n nᵀ while C < 0
+    const Index s = contact_slot_[c];
+    if (!(contacts_->violation(c, slot_position(x, s)) < 0)) continue;
+    const Vec3& n = contacts_->contacts()[c].normal;
+    for (int a = 0; a < 3; ++a)
+      for (int b = 0; b < 3; ++b)
+        if (n[a] * n[b] != 0) work.entries.emplace_back(3 * s + a, 3 * s + b, contacts_->stiffness(c) * n[a] * n[b]);
+  }
   for (Eigen::Index i = 0; i < n3; ++i) work.entries.emplace_back(i, i, net_.mass(static_cast<Index>(i / 3)) * ih2);
 }
 
@@ -96,6 +126,8 @@ void IncrementalPotential::hessian(const Real* x, bool definite, Eigen::SparseMa
 void IncrementalPotential::scales(const Real* x, Real& force_scale, Real& rounding) const {
   constexpr Real eps = std::numeric_limits<Real>::epsilon();
   net_.force_scale(x, force_scale, rounding);
+  for (std::size_t c = 0; contacts_ && c < contact_slot_.size(); ++c)
+    force_scale = std::max(force_scale, -contacts_->stiffness(c) * contacts_->violation(c, slot_position(x, contact_slot_[c])));
   const Real g = gravity_.norm(), ih2 = 1 / (dt_ * dt_);
   const std::size_t n = x_tilde_.size() / 3;
   for (std::size_t s = 0; s < n; ++s) {
@@ -323,6 +355,9 @@ BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings
     throw InvalidArgument("cg_iterations must be >= 1, got " + std::to_string(settings_.cg_iterations));
   if (!(settings_.cg_tolerance >= 0 && settings_.cg_tolerance < 1))
     throw InvalidArgument("cg_tolerance must be in [0, 1), got " + str(settings_.cg_tolerance));
+  if (!(settings_.contact_stiffness > 0) || !std::isfinite(settings_.contact_stiffness))
+    throw InvalidArgument("contact_stiffness must be a finite stiffness > 0 (in units of m/h²), got " +
+                          str(settings_.contact_stiffness));
   if (settings_.newton_iterations == 0) {
     if (settings_.linear_solver != BackwardEulerSettings::Linear::Direct)
       throw InvalidArgument("the converged form (newton_iterations = 0) solves directly; conjugate gradients are "
@@ -342,14 +377,12 @@ void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t s
                           std::to_string(np));
   if (!state.x.allFinite() || !state.v.allFinite())
     throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
-  // E has no contact term: a model with colliders or self-collision would pass through them.
+  // Self-collision is not part of E: a cloth would pass through itself.
   const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
                                          [](Real h) { return h > 0; });
-  if (!model.colliders.empty() || self_collides)
-    throw InvalidArgument("backward Euler models no contact, but the model has " +
-                          (model.colliders.empty() ? std::string("self-collision")
-                                                   : std::to_string(model.colliders.size()) + " collider(s)") +
-                          ": the same-step reference is for models without colliders and self-collision");
+  if (self_collides)
+    throw InvalidArgument(name() + " models contacts with colliders, not self-collision, but the model has "
+                          "self-collision (a group's self_collision_thickness > 0)");
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t step = 0; step < steps; ++step) {
     if (step > 0 && interrupt && interrupt())
@@ -372,13 +405,33 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
   const bool budgeted = settings_.newton_iterations > 0;
   const bool cg = budgeted && settings_.linear_solver == BackwardEulerSettings::Linear::ConjugateGradient;
   {
-    const IncrementalPotential P(model, state, state, h, settings_.gravity);
+    IncrementalPotential P(model, state, state, h, settings_.gravity);
     const auto& dyn = P.network().dynamic_particles();
     const std::size_t n3 = 3 * dyn.size();
-    std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
-    if (settings_.initial_guess == BackwardEulerSettings::Guess::Previous)
+    const Positions x_start = model.colliders.empty() ? Positions() : state.x;
+    if (!model.colliders.empty()) {  // the step's contacts, from xⁿ towards x̃
+      Positions x_tilde = state.x;
       for (std::size_t s = 0; s < dyn.size(); ++s)
-        for (int k = 0; k < 3; ++k) x[3 * s + k] = state.x(k, dyn[s]);
+        for (int k = 0; k < 3; ++k) x_tilde(k, dyn[s]) = P.inertial_positions()[3 * s + k];
+      contacts_.generate(model, state.x, x_tilde, h, settings_.contact_stiffness);
+      P.set_contacts(&contacts_);
+    }
+    std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
+    if (settings_.initial_guess == BackwardEulerSettings::Guess::Previous) {
+      // From xⁿ, except a particle whose prediction x̃ is past a contact's plane: it starts at x̃,
+      // where its contact is active, so that the first Newton step's quadratic model holds the
+      // contact (from xⁿ the penalty is flat, and a short budget would leave the particle where
+      // the line search stopped it, short of the plane, with no contact force to bounce or rub).
+      std::vector<char> touching(static_cast<std::size_t>(np), 0);
+      for (std::size_t c = 0; c < contacts_.contacts().size() && !model.colliders.empty(); ++c) {
+        const Index i = contacts_.contacts()[c].particle;
+        const auto s = static_cast<std::size_t>(std::lower_bound(dyn.begin(), dyn.end(), i) - dyn.begin());  // increasing
+        if (contacts_.violation(c, Vec3(x[3 * s], x[3 * s + 1], x[3 * s + 2])) < 0) touching[static_cast<std::size_t>(i)] = 1;
+      }
+      for (std::size_t s = 0; s < dyn.size(); ++s)
+        if (!touching[static_cast<std::size_t>(dyn[s])])
+          for (int k = 0; k < 3; ++k) x[3 * s + k] = state.x(k, dyn[s]);
+    }
     BackwardEulerStats st;
     Workspace& ws = *workspace_;
     const Eigen::SparseMatrix<Real>& H = ws.H;
@@ -492,6 +545,7 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
       }
     for (Index i = 0; i < np; ++i)
       if (!(model.inv_mass[i] > 0)) state.v.col(i).setZero();
+    if (!model.colliders.empty()) contacts_.finish(model, x_start, state, h, settings_.gravity);
     total_iterations_ += st.newton_iterations;
     max_residual_ = std::max(max_residual_, st.residual);
     last_ = std::move(st);

@@ -40,6 +40,7 @@
 // unconverged step, only for a non-finite one.
 #pragma once
 
+#include "csb/collision/penalty.hpp"
 #include "csb/integrator.hpp"
 #include "csb/reference.hpp"
 #include "csb/use_guard.hpp"
@@ -65,6 +66,9 @@ struct BackwardEulerSettings {
   bool line_search = true;           // Armijo backtracking on E; false: full Newton steps (budgeted form only)
   enum class Guess { Inertia, Previous };
   Guess initial_guess = Guess::Inertia;  // Newton starts from x̃ or from xⁿ (Baraff and Witkin 1998)
+  // Contacts with the colliders as a penalty (collision/penalty.hpp): κ, the contact stiffness in
+  // units of each particle's m/h² (dimensionless), > 0.
+  Real contact_stiffness = PenaltyContacts::kDefaultStiffness;
 };
 
 // What the last step's Newton solve did.
@@ -91,6 +95,8 @@ class IncrementalPotential {
   Index num_dynamic() const { return net_.num_dynamic(); }
   Real dt() const { return dt_; }
   const std::vector<Real>& inertial_positions() const { return x_tilde_; }  // x̃, m, 3 num_dynamic()
+  // Adds the contacts' penalty to E (kept by pointer: `contacts` must outlive the potential's use).
+  void set_contacts(const PenaltyContacts* contacts);
 
   Real energy(const Real* x) const;                  // J
   void gradient(const Real* x, Real* r) const;       // N, 3 num_dynamic()
@@ -107,6 +113,8 @@ class IncrementalPotential {
   Real dt_;
   Vec3 gravity_;
   std::vector<Real> x_tilde_;
+  const PenaltyContacts* contacts_ = nullptr;
+  std::vector<Index> contact_slot_;  // the slot of each contact's particle
 };
 
 struct Residual {
@@ -134,8 +142,9 @@ class BackwardEulerStepper final : public Integrator {
   const UseGuard& use_guard() const { return use_; }
   // Each step solved to convergence; SimulationError if Newton does not converge in
   // max_iterations, the state left at the end of the last completed step (budgeted form: each
-  // step ends after its budget; SimulationError only for a non-finite residual). E has no contact term:
-  // a model with colliders or self-collision is an InvalidArgument. One thread at a time
+  // step ends after its budget; SimulationError only for a non-finite residual). Contacts with
+  // colliders are a penalty in E (collision/penalty.hpp); self-collision is not modelled, and a
+  // model with it is an InvalidArgument. One thread at a time
   // (use_guard.hpp): a second thread stepping the same stepper meanwhile gets ConcurrentUse.
   //
   // What a step keeps for the next (the workspace below) changes its cost, never its bits: each
@@ -150,6 +159,7 @@ class BackwardEulerStepper final : public Integrator {
 
  private:
   void solve_one(const Model& model, State& state, Real h);
+  PenaltyContacts contacts_;
 
   // The Newton matrix's storage and assembly, and the sparse LDLᵀ's symbolic analysis (AMD
   // order, elimination tree) of each sparsity pattern it has had, kept across Newton iterations

@@ -114,7 +114,8 @@ void bind_implicit(py::module_& m) {
       "by the sparse LDLᵀ.")
       .def(py::init([](double dt, IntArg substeps, py::handle gravity, double rtol, IntArg max_iterations,
                        IntArg newton_iterations, const std::string& linear_solver, IntArg cg_iterations,
-                       double cg_tolerance, bool line_search, const std::string& initial_guess) {
+                       double cg_tolerance, bool line_search, const std::string& initial_guess,
+                       double contact_stiffness) {
              BackwardEulerSettings s;
              s.dt = dt;
              s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
@@ -131,18 +132,20 @@ void bind_implicit(py::module_& m) {
              if (initial_guess == "inertia") s.initial_guess = BackwardEulerSettings::Guess::Inertia;
              else if (initial_guess == "previous") s.initial_guess = BackwardEulerSettings::Guess::Previous;
              else throw InvalidArgument("initial_guess must be 'inertia' or 'previous', got '" + initial_guess + "'");
+             s.contact_stiffness = contact_stiffness;
              return BackwardEulerStepper(s);
            }),
            py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("gravity") = std::vector<double>{0, -9.81, 0},
            py::arg("rtol") = 1e-9, py::arg("max_iterations") = 100, py::arg("newton_iterations") = 0,
            py::arg("linear_solver") = "direct", py::arg("cg_iterations") = 20, py::arg("cg_tolerance") = 1e-4,
-           py::arg("line_search") = true, py::arg("initial_guess") = "inertia",
+           py::arg("line_search") = true, py::arg("initial_guess") = "inertia", py::arg("contact_stiffness") = 1e4,
            "dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: "
            "the largest residual component at which a step stops, relative to the step's force scale, on top of the "
            "rounding floor. max_iterations: Newton iterations per step of the converged form. newton_iterations: 0 "
            "to convergence, n > 0 the budgeted form. linear_solver: 'direct' or 'cg' (budgeted form). cg_iterations, "
            "cg_tolerance: CG's budget per Newton iteration and its relative residual for stopping early. line_search: "
-           "Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃) or 'previous' (xⁿ).")
+           "Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃) or 'previous' (xⁿ). "
+           "contact_stiffness: κ, contacts with colliders as a penalty of stiffness κ m/h² (N/m).")
       .def("step", [](BackwardEulerStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
         step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64), interrupt);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1, py::arg("interrupt") = py::none(),

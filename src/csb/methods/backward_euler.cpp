@@ -20,12 +20,14 @@ MethodInfo backward_euler_method() {
   m.settings = {
       {"rtol", "1e-9", "the largest residual component at which a step stops, relative to the step's force scale, > 0"},
       {"max_iterations", "100", "Newton iterations per step before a SimulationError, >= 1"},
+      {"contact_stiffness", "1e4", "κ: contacts with colliders as a penalty of stiffness κ m/h² (N/m), > 0"},
   };
   m.make = [](const MethodOptions& o) -> std::unique_ptr<Integrator> {
     BackwardEulerSettings s;
     s.dt = o.dt, s.substeps = o.substeps, s.gravity = o.gravity;
     s.rtol = o.settings.number("rtol", s.rtol, 0, 1);
     s.max_iterations = static_cast<int>(o.settings.integer("max_iterations", s.max_iterations, 1, 1'000'000));
+    s.contact_stiffness = o.settings.number("contact_stiffness", s.contact_stiffness, 1e-300, 1e300);
     return std::make_unique<BackwardEulerStepper>(s);
   };
   return m;
@@ -46,6 +48,7 @@ MethodInfo implicit_euler_method() {
       {"initial_guess", "'previous'", "where Newton starts: 'previous' (xⁿ, Baraff and Witkin's linearisation) or "
                                       "'inertia' (x̃ = xⁿ + h vⁿ + h² g)"},
       {"rtol", "1e-9", "a step stops before its budget once the residual is below rtol times its force scale, > 0"},
+      {"contact_stiffness", "1e4", "κ: contacts with colliders as a penalty of stiffness κ m/h² (N/m), > 0"},
   };
   m.make = [](const MethodOptions& o) -> std::unique_ptr<Integrator> {
     BackwardEulerSettings s;
@@ -61,6 +64,7 @@ MethodInfo implicit_euler_method() {
                           ? BackwardEulerSettings::Guess::Previous
                           : BackwardEulerSettings::Guess::Inertia;
     s.rtol = o.settings.number("rtol", s.rtol, 0, 1);
+    s.contact_stiffness = o.settings.number("contact_stiffness", s.contact_stiffness, 1e-300, 1e300);
     return std::make_unique<BackwardEulerStepper>(s);
   };
   return m;
