@@ -215,6 +215,11 @@ def test_bad_models_and_states_are_named():
     s.x[5, 1] = np.nan
     with pytest.raises(csb.ParameterError, match="non-finite"):
         csb.VertexBlockDescent().step(model, s)
+    s = model.initial_state()
+    s.v[5] = [1e307, 0, 0]  # x̃ = x + h v: springs of 1.7e305 m, whose forces overflow
+    with pytest.raises(csb.SimulationError, match=r"VBD: step 0: particle \d+ met a non-finite force"):
+        csb.VertexBlockDescent().step(model, s)
+    assert s.v[5, 0] == 1e307 and s.step == 0  # left at the start of the step
     other = cloth(5).initial_state()
     with pytest.raises(csb.ParameterError, match="particles"):
         csb.VertexBlockDescent().step(model, other)

@@ -8,7 +8,9 @@
 #include "csb/reference.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <limits>
 #include <functional>
@@ -63,6 +65,25 @@ std::vector<Index> colour_vertices(const std::vector<Index>& start, const std::v
     colour[v] = c;
   }
   return colour;
+}
+
+// Cores not busy with other runnable tasks now (/proc/loadavg's running count, the caller and
+// csb's idle spinning team threads not counted), at least 1; all of them where it is unreadable.
+int free_cores() {
+  static const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+#if defined(__linux__)
+  std::FILE* f = std::fopen("/proc/loadavg", "r");
+  if (!f) return cores;
+  double l1, l5, l15;
+  int running = 1, total = 0;
+  const int got = std::fscanf(f, "%lf %lf %lf %d/%d", &l1, &l5, &l15, &running, &total);
+  std::fclose(f);
+  if (got != 5) return cores;
+  running -= Team::idle_spinning();
+  return std::max(1, std::min(cores, cores - (running - 1)));
+#else
+  return cores;
+#endif
 }
 
 void check_settings(const VbdSettings& s) {
@@ -267,12 +288,20 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
   if (plan.history && !(state.x == plan.left.x && state.v == plan.left.v)) plan.history = false;
 
   // Threads: as the position-based stepper's parts, one per 512 dynamic particles, at most 8
-  // and the cores (automatic); the bits do not depend on the count.
+  // and the free cores (automatic); the bits do not depend on the count. The team's threads spin
+  // at the colours' barriers only while each has a free core (csb/solver/team.hpp: a spinner
+  // sharing its core starves the thread it waits for), else they sleep; CSB_WAIT=spin or sleep
+  // fixes the choice.
   const Index dynamic = static_cast<Index>(plan.order.size());
-  static const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  const int free = free_cores();
   threads_used_ = settings_.threads > 0 ? settings_.threads
-                                        : std::max(1, std::min({cores, static_cast<int>(dynamic / kParticlesPerPart),
+                                        : std::max(1, std::min({free, static_cast<int>(dynamic / kParticlesPerPart),
                                                                 static_cast<int>(kMaxParts)}));
+  static const std::string wait = [] {
+    const char* v = std::getenv("CSB_WAIT");
+    return std::string(v ? v : "");
+  }();
+  spin_ = wait == "spin" || (wait != "sleep" && threads_used_ <= free);
 
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t s = 0; s < steps; ++s) {
@@ -494,6 +523,16 @@ void VbdStepper::substep(const Model& model, State& state, Plan& plan, Real h) {
         plan.balloon_s1[b] = plan.balloon_s2[b] = 0;
       }
   };
+  // The first vertex update (in the sweeps' order) whose force or stiffness became non-finite:
+  // the smallest key (sweep, colour, place in the colour order), the same on any thread count.
+  const std::int64_t none = std::numeric_limits<std::int64_t>::max();
+  std::atomic<std::int64_t> first_failure{none};
+  const auto failed = [&](int it, Index k, Index o) {
+    const std::int64_t key = (static_cast<std::int64_t>(it - 1) * colours + k) * np + o;
+    std::int64_t seen = first_failure.load(std::memory_order_relaxed);
+    while (key < seen && !first_failure.compare_exchange_weak(seen, key, std::memory_order_relaxed)) {
+    }
+  };
   const auto job = [&](int t) {
     Real omega = 1;
     for (int it = 1; it <= iterations; ++it) {
@@ -511,6 +550,12 @@ void VbdStepper::substep(const Model& model, State& state, Plan& plan, Real h) {
           Mat3 H;
           const bool in_balloon = plan.balloon_of[i] >= 0;
           block(i, plan.inc, f, H, in_balloon ? &gb : nullptr);
+          if (!(f.allFinite() && H.allFinite() && (!in_balloon || gb.allFinite()))) {
+            failed(it, k, o);  // no update: the step is refused after the sweeps
+            gb.setZero();
+            f.setZero();
+            H.setIdentity();
+          }
           if (!solve3(H, f, dx)) dx.setZero();
           if (in_balloon) {
             Vec3 w;
@@ -566,14 +611,16 @@ void VbdStepper::substep(const Model& model, State& state, Plan& plan, Real h) {
       }
     }
   };
-  static const bool sleep = [] {
-    const char* v = std::getenv("CSB_WAIT");
-    return v && std::string(v) == "sleep";
-  }();
-  static const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
   // A reference wrapper: std::function holds it without allocating.
-  team.run(threads, !sleep && threads <= cores, std::function<void(int)>(std::ref(job)));
+  team.run(threads, spin_, std::function<void(int)>(std::ref(job)));
 
+  if (const std::int64_t key = first_failure.load(); key != none) {
+    const Index particle = plan.order[static_cast<std::size_t>(key % np)];
+    throw SimulationError("VBD: step " + std::to_string(state.step) + ": particle " + std::to_string(particle) +
+                          " met a non-finite force or stiffness in sweep " +
+                          std::to_string(key / (static_cast<std::int64_t>(colours) * np) + 1) +
+                          " (its constraints' values overflow); the state is left at the end of the last step");
+  }
   // The first non-finite position, then the velocities v = (x - xⁿ)/h.
   for (const Index i : plan.order)
     for (int e = 0; e < 3; ++e)

@@ -111,6 +111,7 @@ class VbdStepper final : public Integrator {
   TeamHandle team_;
   UseGuard use_;
   int threads_used_ = 1;
+  bool spin_ = false;  // the team's threads may spin at the barriers (free cores for each)
 };
 
 }  // namespace csb
