@@ -7,6 +7,7 @@
 #include "csb/reference.hpp"
 #include "csb/solver/team.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <Eigen/SparseCholesky>
 
 #include <algorithm>
@@ -98,6 +99,7 @@ struct ProjectiveDynamicsStepper::Cache {
     Real coeff;  // N/m
   };
   std::vector<Coupling> couplings;
+  Eigen::SparseMatrix<Real> L;   // N/m, kept for the spectral radius' L-inner products
   Llt llt;
 
   void build(const Model& model, Real h_);
@@ -262,7 +264,7 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
 
   // L = M/h² + Σ w AᵀA over the unknowns.
   for (Index s = 0; s < nd; ++s) entries.emplace_back(s, s, mass[s] / (h * h));
-  Eigen::SparseMatrix<Real> L(nd, nd);
+  L.resize(nd, nd);
   L.setFromTriplets(entries.begin(), entries.end());
   llt.compute(L);
   if (llt.info() != Eigen::Success)
@@ -380,6 +382,48 @@ void centred_contribution(const Real* p, int k, Real w, Real* out) {
   for (int e = 0; e < 3; ++e) mean[e] /= k;
   for (int j = 0; j < k; ++j)
     for (int e = 0; e < 3; ++e) out[3 * j + e] = w * (p[3 * j + e] - mean[e]);
+}
+
+using Block = Eigen::Matrix<Real, Eigen::Dynamic, 3>;
+
+// <a, b>_L = Σ_e a_eᵀ L b_e over the three coordinates (Lb given).
+Real l_dot(const Block& a, const Block& lb) { return (a.array() * lb.array()).sum(); }
+
+// The largest Ritz value of the plain iteration's linearisation G from its successive updates
+// d[k + 1] = G d[k] (Rayleigh-Ritz on their Krylov space). G = I - γ L⁻¹H is self-adjoint in
+// the L-inner product (L G = L - γ H is symmetric: a closest-point projection's derivative is
+// symmetric, the Gauss-Newton projection's nearly so), so its Ritz values lie within its spectrum:
+// the largest tends to the spectral radius from below, far faster than the ratio of update norms
+// does (Lanczos against the power method), and does not overshoot it where the iteration is
+// linear. Basis: d[first .. m - 1],
+// L-orthonormalised by modified Gram-Schmidt (a nearly dependent one dropped), the images
+// d[first + 1 .. m] carried along by the same combinations.
+Real largest_ritz_value(const std::vector<Block>& d, std::size_t first, const Eigen::SparseMatrix<Real>& L) {
+  std::vector<Block> v, g, lv;
+  for (std::size_t k = first; k + 1 < d.size(); ++k) {
+    Block vk = d[k], gk = d[k + 1];
+    Block lk = L * vk;
+    const Real n0 = std::sqrt(std::max(Real(0), l_dot(vk, lk)));
+    for (std::size_t j = 0; j < v.size(); ++j) {
+      const Real c = l_dot(vk, lv[j]);
+      vk -= c * v[j];
+      gk -= c * g[j];
+      lk -= c * lv[j];
+    }
+    const Real n = std::sqrt(std::max(Real(0), l_dot(vk, lk)));
+    if (!(n > 1e-8 * n0)) continue;
+    v.push_back(vk / n);
+    g.push_back(gk / n);
+    lv.push_back(lk / n);
+  }
+  if (v.empty()) return 0;
+  const Eigen::Index m = static_cast<Eigen::Index>(v.size());
+  Eigen::MatrixXd T(m, m);
+  for (Eigen::Index i = 0; i < m; ++i)
+    for (Eigen::Index j = 0; j < m; ++j) T(i, j) = l_dot(g[static_cast<std::size_t>(j)], lv[static_cast<std::size_t>(i)]);
+  const Eigen::MatrixXd Ts = (T + T.transpose()) / 2;
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(Ts, Eigen::EigenvaluesOnly);
+  return eig.info() == Eigen::Success ? eig.eigenvalues()(m - 1) : 0;
 }
 
 }  // namespace
@@ -548,7 +592,7 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
 
   // Chebyshev state (Wang 2015, Algorithm 1).
   Real omega = 1, rho = S.chebyshev ? S.spectral_radius : 0;
-  std::vector<Real> update_norm;
+  std::vector<Block> updates;  // the plain iterations' q⁽ᵏ⁺¹⁾ - q⁽ᵏ⁾, for measuring ρ
   const Real gamma = S.relaxation;
   std::string failure;
 
@@ -558,8 +602,8 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
       const int Sd = S.chebyshev_delay;
       if (it == Sd && S.spectral_radius == 0) {
         // ρ measured from the relaxed plain iterations' update norms (the header's comment).
-        const Real a = update_norm[static_cast<std::size_t>(Sd - 1)], b = update_norm[static_cast<std::size_t>(Sd - 2)];
-        const Real mu = b > 0 ? a / b : 0;
+        // (the first update, from x̃, is the least linear: left out when there are enough)
+        const Real mu = largest_ritz_value(updates, Sd >= 4 ? 1 : 0, C.L);
         const Real r = 1 - (1 - mu) / gamma;
         rho = (r > 0 && r < 1) ? r : 0;
       }
@@ -568,7 +612,7 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
       else omega = 4 / (4 - rho * rho * omega);
       // q⁽ᵏ⁺¹⁾ = ω (γ (q̂ - q⁽ᵏ⁾) + q⁽ᵏ⁾ - q⁽ᵏ⁻¹⁾) + q⁽ᵏ⁻¹⁾
       Eigen::Matrix<Real, Eigen::Dynamic, 3> next = omega * (gamma * (q_hat - q) + q - q_prev) + q_prev;
-      if (it < Sd) update_norm.push_back((next - q).norm());
+      if (it < Sd && S.spectral_radius == 0) updates.push_back(next - q);
       q_prev.swap(q);
       q.swap(next);
     } else {

@@ -43,12 +43,15 @@
 //   q⁽ᵏ⁺¹⁾ = ω (γ (q̂ - q⁽ᵏ⁾) + q⁽ᵏ⁾ - q⁽ᵏ⁻¹⁾) + q⁽ᵏ⁻¹⁾,
 //
 // S the delay, γ the under-relaxation, ρ the spectral radius of the plain iteration. ρ is a setting
-// or, when it is 0 (the default), measured each sub-step from the S plain iterations before the
-// acceleration starts: their update norms d_k = |q⁽ᵏ⁺¹⁾ - q⁽ᵏ⁾| shrink by the relaxed iteration's
-// rate μ ≈ d_{S-1}/d_{S-2}, and ρ = 1 - (1 - μ)/γ undoes the relaxation (a linear iteration's ρ is
-// where its update norms' ratio tends, as in the power method; after S iterations the ratio still
-// sees the faster modes and so underestimates ρ, the side Wang finds safe: too large a ρ makes the
-// iteration oscillate). A measurement outside (0, 1) leaves that sub-step unaccelerated (ω = 1).
+// or, when it is 0 (the default), measured each sub-step from the S plain (relaxed) iterations
+// before the acceleration starts: their updates d_k = q⁽ᵏ⁺¹⁾ - q⁽ᵏ⁾ follow d_{k+1} ≈ G d_k with G
+// the relaxed iteration's linearisation, self-adjoint in the inner product of L; the largest Ritz
+// value μ of G on the updates' Krylov space (Rayleigh-Ritz, as Lanczos estimates an extreme
+// eigenvalue) approaches G's spectral radius from below, much faster than the ratio of update
+// norms (the power method) does, and ρ = 1 - (1 - μ)/γ undoes the relaxation. Below the true
+// value (where the iteration is linear) is the side Wang finds safe: too large a ρ makes the
+// iteration oscillate. A measurement
+// outside (0, 1) leaves that sub-step unaccelerated (ω = 1).
 //
 // Threads: the local step's constraints are split in fixed chunks that the threads take; each
 // constraint writes its own slots of the right-hand side, which each particle then gathers in a
