@@ -155,6 +155,41 @@ def test_bit_identical_across_runs_and_thread_counts(name):
         assert np.array_equal(s.x, results[0].x) and np.array_equal(s.v, results[0].v)
 
 
+def test_the_adaptive_guess_keeps_its_history_only_for_the_state_it_left():
+    """Ten steps in one call or in ten calls are the same bits (the state each call gets is the one
+    the last left, so the previous sub-step's acceleration is used). A fresh stepper given the
+    state after five steps has no history and starts from x̃, as does the stepper itself when the
+    state was changed meanwhile: the two agree, and differ from the continued run."""
+    model = cloth(8)
+    start = thrown(model)
+    one, many = copy_state(model, start), copy_state(model, start)
+    a, b = csb.VertexBlockDescent(dt=H, iterations=5), csb.VertexBlockDescent(dt=H, iterations=5)
+    a.step(model, one, 10)
+    for _ in range(10):
+        b.step(model, many)
+    assert np.array_equal(one.x, many.x) and np.array_equal(one.v, many.v)
+    mid = copy_state(model, start)
+    c = csb.VertexBlockDescent(dt=H, iterations=5)
+    c.step(model, mid, 5)
+    continued, fresh, touched = copy_state(model, mid), copy_state(model, mid), copy_state(model, mid)
+    c.step(model, continued)
+    csb.VertexBlockDescent(dt=H, iterations=5).step(model, fresh)
+    d = csb.VertexBlockDescent(dt=H, iterations=5)
+    d.step(model, copy_state(model, start), 5)
+    d.step(model, touched)  # its own history was of another state object with the same bits: kept
+    assert np.array_equal(touched.x, continued.x)
+    changed = copy_state(model, mid)
+    changed.v[3, 0] += 1e-12
+    d2 = csb.VertexBlockDescent(dt=H, iterations=5)
+    d2.step(model, copy_state(model, start), 5)
+    d2.step(model, changed)
+    fresh_changed = copy_state(model, mid)
+    fresh_changed.v[3, 0] += 1e-12
+    csb.VertexBlockDescent(dt=H, iterations=5).step(model, fresh_changed)
+    assert np.array_equal(changed.x, fresh_changed.x)
+    assert not np.array_equal(fresh.x, continued.x)
+
+
 def test_make_integrator_is_the_class_and_lists_its_settings():
     info = csb.method_info("vbd")
     assert csb.method_info("vertex-block-descent").name == "vbd"
