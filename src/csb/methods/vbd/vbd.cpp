@@ -292,16 +292,19 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
   // at the colours' barriers only while each has a free core (csb/solver/team.hpp: a spinner
   // sharing its core starves the thread it waits for), else they sleep; CSB_WAIT=spin or sleep
   // fixes the choice.
-  const Index dynamic = static_cast<Index>(plan.order.size());
-  const int free = free_cores();
-  threads_used_ = settings_.threads > 0 ? settings_.threads
-                                        : std::max(1, std::min({free, static_cast<int>(dynamic / kParticlesPerPart),
-                                                                static_cast<int>(kMaxParts)}));
-  static const std::string wait = [] {
-    const char* v = std::getenv("CSB_WAIT");
-    return std::string(v ? v : "");
-  }();
-  spin_ = wait == "spin" || (wait != "sleep" && threads_used_ <= free);
+  const int parts = static_cast<int>(std::min<Index>(static_cast<Index>(plan.order.size()) / kParticlesPerPart, kMaxParts));
+  if (settings_.threads == 1 || (settings_.threads == 0 && parts <= 1)) {
+    threads_used_ = 1;  // (no reading of the load: ~10 µs, much of a small model's step)
+    spin_ = false;
+  } else {
+    const int free = free_cores();
+    threads_used_ = settings_.threads > 0 ? settings_.threads : std::max(1, std::min(free, parts));
+    static const std::string wait = [] {
+      const char* v = std::getenv("CSB_WAIT");
+      return std::string(v ? v : "");
+    }();
+    spin_ = wait == "spin" || (wait != "sleep" && threads_used_ <= free);
+  }
 
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t s = 0; s < steps; ++s) {
