@@ -417,7 +417,7 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
       P.set_contacts(&contacts_);
     }
     std::vector<Real> x = P.inertial_positions(), r(n3), dx(n3), trial(n3), rt(n3), rhs(n3);
-    if (settings_.initial_guess == BackwardEulerSettings::Guess::Previous) {
+    if (settings_.initial_guess != BackwardEulerSettings::Guess::Inertia) {
       // From xⁿ, except a particle whose prediction x̃ is past a contact's plane: it starts at x̃,
       // where its contact is active, so that the first Newton step's quadratic model holds the
       // contact (from xⁿ the penalty is flat, and a short budget would leave the particle where
@@ -431,6 +431,10 @@ void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {
       for (std::size_t s = 0; s < dyn.size(); ++s)
         if (!touching[static_cast<std::size_t>(dyn[s])])
           for (int k = 0; k < 3; ++k) x[3 * s + k] = state.x(k, dyn[s]);
+      // Lower: whichever of the two starts has the lower E (Newton descends E from its start).
+      if (settings_.initial_guess == BackwardEulerSettings::Guess::Lower &&
+          !(P.energy(x.data()) < P.energy(P.inertial_positions().data())))
+        x = P.inertial_positions();
     }
     BackwardEulerStats st;
     Workspace& ws = *workspace_;

@@ -29,7 +29,9 @@
 //
 // The budgeted form (method "implicit-euler", Baraff and Witkin 1998's real-time practice): a
 // fixed number of Newton iterations per step (newton_iterations > 0; one is Baraff and Witkin's
-// linearised step when started from xⁿ, initial_guess = Previous), each a linear solve by
+// linearised step when started from xⁿ, initial_guess = Previous, and solved directly; the method
+// starts from the lower of x̃ and xⁿ by default, methods/backward_euler.cpp says why), each a
+// linear solve by
 // conjugate gradients preconditioned by the inverse 3x3 diagonal blocks of H, with a fixed budget
 // of cg_iterations (stopping early once the CG residual has fallen by cg_tolerance), or by the
 // sparse LDLᵀ. CG needs H positive definite: it takes the Gauss-Newton form (the projection to
@@ -64,8 +66,10 @@ struct BackwardEulerSettings {
   int cg_iterations = 20;            // ConjugateGradient: iterations per Newton step, >= 1
   Real cg_tolerance = 1e-4;          // ConjugateGradient: stop once |residual| <= this |r0|, in [0, 1)
   bool line_search = true;           // Armijo backtracking on E; false: full Newton steps (budgeted form only)
-  enum class Guess { Inertia, Previous };
-  Guess initial_guess = Guess::Inertia;  // Newton starts from x̃ or from xⁿ (Baraff and Witkin 1998)
+  // Where Newton starts: x̃, xⁿ (Baraff and Witkin 1998; a particle whose prediction is past a
+  // contact plane starts at x̃), or the one of the two with the lower E.
+  enum class Guess { Inertia, Previous, Lower };
+  Guess initial_guess = Guess::Inertia;
   // Contacts with the colliders as a penalty (collision/penalty.hpp): κ, the contact stiffness in
   // units of each particle's m/h² (dimensionless), > 0.
   Real contact_stiffness = PenaltyContacts::kDefaultStiffness;

@@ -131,7 +131,8 @@ void bind_implicit(py::module_& m) {
              s.line_search = line_search;
              if (initial_guess == "inertia") s.initial_guess = BackwardEulerSettings::Guess::Inertia;
              else if (initial_guess == "previous") s.initial_guess = BackwardEulerSettings::Guess::Previous;
-             else throw InvalidArgument("initial_guess must be 'inertia' or 'previous', got '" + initial_guess + "'");
+             else if (initial_guess == "lower") s.initial_guess = BackwardEulerSettings::Guess::Lower;
+             else throw InvalidArgument("initial_guess must be 'inertia', 'previous' or 'lower', got '" + initial_guess + "'");
              s.contact_stiffness = contact_stiffness;
              return BackwardEulerStepper(s);
            }),
@@ -144,7 +145,8 @@ void bind_implicit(py::module_& m) {
            "rounding floor. max_iterations: Newton iterations per step of the converged form. newton_iterations: 0 "
            "to convergence, n > 0 the budgeted form. linear_solver: 'direct' or 'cg' (budgeted form). cg_iterations, "
            "cg_tolerance: CG's budget per Newton iteration and its relative residual for stopping early. line_search: "
-           "Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃) or 'previous' (xⁿ). "
+           "Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃), 'previous' (xⁿ) or 'lower' (the "
+           "one with the lower incremental potential). "
            "contact_stiffness: κ, contacts with colliders as a penalty of stiffness κ m/h² (N/m).")
       .def("step", [](BackwardEulerStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
         step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64), interrupt);
