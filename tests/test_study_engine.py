@@ -100,6 +100,28 @@ def test_other_schema_errors_name_the_key(tmp_path):
             load_study(write(tmp_path, text))
 
 
+def test_a_built_in_methods_own_settings_reach_its_cells(tmp_path):
+    """A [[method]]'s settings (csb.method_info(name).settings) are part of its cells' definition,
+    reach the stepper, and are checked when the file is read; a method with a `threads` setting
+    runs on one thread unless the file says otherwise (its cost is one core's)."""
+    text = QUICK + ('\n[[method]]\nname = "projective-dynamics"\nlabel = "pd-chebyshev"\ndt = 0.01\n'
+                    'iterations = 20\nsettings = { chebyshev = true }\n')
+    study = load_study(write(tmp_path, text))
+    cell = [c for c in study.cells() if c.method == "pd-chebyshev"][0]
+    assert cell.definition["method"] == dict(name="projective-dynamics", settings=dict(chebyshev=True))
+    from csb.studies.study.cells import _make_stepper
+    made = _make_stepper(cell.definition, cell.context, cell.params, 0.01, (0, -9.81, 0))
+    assert made.chebyshev and made.threads == 1
+    # no settings: the definition (and the key of every existing cell) is as before
+    assert [c for c in study.cells() if c.method == "xpbd"][0].definition["method"] == dict(name="xpbd")
+    for bad, message in [("settings = { chebyshev = 1.5 }", r"method\[3\].settings: setting 'chebyshev' must be true or false"),
+                         ("settings = { chebyshevv = true }", r"method\[3\].settings: method 'projective-dynamics' has no "
+                                                              r"setting 'chebyshevv'"),
+                         ("settings = 3", r"method\[3\].settings: must be a table of the method's own settings")]:
+        with pytest.raises(StudyError, match=message):
+            load_study(write(tmp_path, text.replace("settings = { chebyshev = true }", bad)))
+
+
 def test_cells_are_the_product_of_scenes_methods_and_grids(tmp_path):
     text = QUICK + '\n[[scene]]\nscene = "chain"\n'
     study = load_study(write(tmp_path, text))

@@ -199,7 +199,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def view_options(p: argparse.ArgumentParser) -> None:
         p.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene")
-        p.add_argument("--method", choices=_core.pbd_variant_names(aliases=True), help="override the scene's method")
+        p.add_argument("--method", choices=[n for m in _core.methods() for n in (m.name, *m.aliases)],
+                       help="override the scene's method (any of csb.methods())")
         p.add_argument("--wireframe", action="store_true", help="draw the distance constraints")
         p.add_argument("--particles", action="store_true", help="draw every particle")
         p.add_argument("--yaw", type=float, help="camera yaw, rad (0 looks along -z)")

@@ -65,8 +65,11 @@ def _make_stepper(definition: dict[str, Any], context: dict[str, Any], params: d
                   gravity) -> _core.Integrator:
     method = definition["method"]
     if "name" in method:
+        settings = dict(method.get("settings", {}))
+        if "threads" not in settings and any(k.name == "threads" for k in _core.method_info(method["name"]).settings):
+            settings["threads"] = 1  # one thread: the cost is one core's
         s = _core.make_integrator(method["name"], dt, substeps=params.get("substeps", 1),
-                                  iterations=params.get("iterations", 10), gravity=gravity)
+                                  iterations=params.get("iterations", 10), gravity=gravity, **settings)
         if isinstance(s, _core.PbdStepper):  # one thread: the cost is one core's
             st = s.settings
             settings = {n: getattr(st, n) for n in ("method", "dt", "substeps", "iterations", "gravity", "damping",

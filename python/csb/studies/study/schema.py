@@ -370,6 +370,17 @@ def _read_method(source: _Source, data: Any, k: int, base: Path) -> MethodDef:
                 raise t.error("iterations", f"{name} does not iterate: give substeps (or dt) instead")
             if infos[name].iterates:
                 grid["iterations"] = its or (10,)
+            settings = t.raw("settings", {})
+            if not isinstance(settings, dict) or not all(isinstance(v, (bool, int, float, str))
+                                                         for v in settings.values()):
+                raise t.error("settings", f"must be a table of the method's own settings (booleans, numbers, "
+                                          f"strings; csb.method_info({name!r}).settings), got {settings!r}")
+            if settings:
+                try:
+                    _core.make_integrator(name, float(grid["dt"][0]), **settings)
+                except _core.ParameterError as e:
+                    raise t.error("settings", str(e)) from None
+                definition["settings"] = dict(settings)
     elif t.has("plugin"):
         lib = Path(t.string("plugin"))
         path = lib if lib.is_absolute() else base / lib
