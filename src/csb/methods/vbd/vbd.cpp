@@ -287,12 +287,12 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
   // The adaptive initialisation's history holds only if this is the state the last step left.
   if (plan.history && !(state.x == plan.left.x && state.v == plan.left.v)) plan.history = false;
 
-  // Threads: as the position-based stepper's parts, one per 512 dynamic particles, at most 8
-  // and the free cores (automatic); the bits do not depend on the count. The team's threads spin
-  // at the colours' barriers only while each has a free core (csb/solver/team.hpp: a spinner
-  // sharing its core starves the thread it waits for), else they sleep; CSB_WAIT=spin or sleep
-  // fixes the choice.
-  const int parts = static_cast<int>(std::min<Index>(static_cast<Index>(plan.order.size()) / kParticlesPerPart, kMaxParts));
+  // Threads (automatic): as the position-based stepper, the free cores, at most the model's parts
+  // (Model::num_parts: one per 512 particles, at most 8); the bits do not depend on the count.
+  // The team's threads spin at the colours' barriers only while each has a free core
+  // (csb/solver/team.hpp: a spinner sharing its core starves the thread it waits for), else they
+  // sleep; CSB_WAIT=spin or sleep fixes the choice.
+  const int parts = static_cast<int>(std::max<Index>(1, model.num_parts));
   if (settings_.threads == 1 || (settings_.threads == 0 && parts <= 1)) {
     threads_used_ = 1;  // (no reading of the load: ~10 µs, much of a small model's step)
     spin_ = false;

@@ -69,7 +69,7 @@ struct VbdSettings {
   Vec3 gravity = Vec3(0, -9.81, 0);  // m/s²
   Initialization initialization = Initialization::Adaptive;
   Real acceleration = 0;             // ρ of the Chebyshev acceleration, dimensionless, in [0, 1); 0: off
-  int threads = 0;                   // threads of a colour's updates, >= 0; 0: automatic
+  int threads = 0;                   // threads of a colour's updates, >= 0; 0: automatic (free cores, at most Model::num_parts)
 };
 
 const char* initialization_name(VbdSettings::Initialization i);
