@@ -62,6 +62,8 @@ void bind_projective(py::module_& m) {
            "s, wall time of the latest factorisation")
       .def_property_readonly("spectral_radius_used", [](const PD& s) { return s.stats().spectral_radius; },
            "ρ the last sub-step's Chebyshev acceleration used (0: none)")
+      .def_property_readonly("measured_spectral_radius", [](const PD& s) { return s.stats().measured_spectral_radius; },
+           "the last measurement of ρ (spectral_radius 0), also when outside (0, 1) and so not used")
       .def_property_readonly("residual_history", [](const PD& s) {
         const auto& h = s.stats().residual_history;
         return std::vector<double>(h.begin(), h.end());

@@ -46,7 +46,7 @@
 // or, when it is 0 (the default), measured each sub-step from the S plain (relaxed) iterations
 // before the acceleration starts: their updates d_k = q⁽ᵏ⁺¹⁾ - q⁽ᵏ⁾ follow d_{k+1} ≈ G d_k with G
 // the relaxed iteration's linearisation, self-adjoint in the inner product of L; the largest Ritz
-// value μ of G on the updates' Krylov space (Rayleigh-Ritz, as Lanczos estimates an extreme
+// value μ < 1 of G on the updates' Krylov space (Rayleigh-Ritz, as Lanczos estimates an extreme
 // eigenvalue) approaches G's spectral radius from below, much faster than the ratio of update
 // norms (the power method) does, and ρ = 1 - (1 - μ)/γ undoes the relaxation. Below the true
 // value (where the iteration is linear) is the side Wang finds safe: too large a ρ makes the
@@ -88,6 +88,7 @@ struct ProjectiveDynamicsStats {
   double factorization_time = 0;    // s, wall time of all of them
   double last_factorization_time = 0;  // s, wall time of the latest
   Real spectral_radius = 0;         // ρ the last sub-step used (0: not accelerated)
+  Real measured_spectral_radius = 0;  // the last measurement of ρ, used or not (spectral_radius 0)
   int threads_used = 1;             // of the last step's local steps
   // N, the largest backward-Euler residual component of the last sub-step: at its start
   // (x = xⁿ + h vⁿ + h² g, before any iteration) and after each iteration (record_residuals only).
