@@ -16,6 +16,11 @@
 #include <functional>
 #include <thread>
 
+#if defined(__linux__)
+#include <fcntl.h>
+#include <unistd.h>
+#endif
+
 namespace csb {
 
 using detail::str;
@@ -72,13 +77,16 @@ std::vector<Index> colour_vertices(const std::vector<Index>& start, const std::v
 int free_cores() {
   static const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
 #if defined(__linux__)
-  std::FILE* f = std::fopen("/proc/loadavg", "r");
-  if (!f) return cores;
+  char text[128];  // read with system calls into the stack: a step allocates nothing
+  const int fd = ::open("/proc/loadavg", O_RDONLY);
+  if (fd < 0) return cores;
+  const ssize_t n = ::read(fd, text, sizeof(text) - 1);
+  ::close(fd);
+  if (n <= 0) return cores;
+  text[n] = 0;
   double l1, l5, l15;
   int running = 1, total = 0;
-  const int got = std::fscanf(f, "%lf %lf %lf %d/%d", &l1, &l5, &l15, &running, &total);
-  std::fclose(f);
-  if (got != 5) return cores;
+  if (std::sscanf(text, "%lf %lf %lf %d/%d", &l1, &l5, &l15, &running, &total) != 5) return cores;
   running -= Team::idle_spinning();
   return std::max(1, std::min(cores, cores - (running - 1)));
 #else
