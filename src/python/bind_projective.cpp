@@ -11,8 +11,8 @@ void bind_projective(py::module_& m) {
       "Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step "
       "minimises backward Euler's incremental potential with every constraint's potential made projective, by "
       "`iterations` local projections and global solves with a matrix factored once per model and sub-step length. "
-      "Reads compliance: exact for distance constraints and attachments, first order for bending, volumes and "
-      "tethers. Refuses hard constraints, balloons, colliders and self-collision.")
+      "Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, "
+      "balloons and tethers. Refuses hard constraints, colliders and self-collision.")
       .def(py::init([](double dt, IntArg substeps, IntArg iterations, py::handle gravity, bool chebyshev,
                        double spectral_radius, IntArg chebyshev_delay, double relaxation, IntArg threads,
                        bool record_residuals) {

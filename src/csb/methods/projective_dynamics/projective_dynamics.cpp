@@ -7,6 +7,7 @@
 #include "csb/reference.hpp"
 #include "csb/solver/team.hpp"
 
+#include <Eigen/Dense>
 #include <Eigen/Eigenvalues>
 #include <Eigen/SparseCholesky>
 
@@ -87,6 +88,20 @@ struct ProjectiveDynamicsStepper::Cache {
     Index first_slot = 0;
   };
   std::vector<Family> families;
+  // Balloons: the centring operator over a whole surface makes L dense there, but only by a
+  // rank-one term per balloon: L = L_s + U D Uᵀ with L_s sparse (the rest, and w_b on the
+  // diagonal of balloon b's unknowns), U's column b the indicator of b's unknowns and
+  // D_bb = -w_b/n_b. L_s is factored; L⁻¹ by the Woodbury identity,
+  // L⁻¹ = L_s⁻¹ - W (D⁻¹ + UᵀW)⁻¹ Wᵀ, W = L_s⁻¹ U.
+  struct Balloon {
+    Index first_slot = 0;
+    Real w = 0;       // N/m, |∇V|²/α at rest
+    Real target = 0;  // m³, pressure × rest volume
+  };
+  std::vector<Balloon> balloons;
+  std::vector<Index> iota;  // 0, 1, 2, ...: a balloon's own numbering of its particles
+  Eigen::MatrixXd U, W;     // nd x balloons
+  Eigen::PartialPivLU<Eigen::MatrixXd> capacitance;  // D⁻¹ + UᵀW
   Index first_attachment = 0, first_bending = 0, first_volume = 0;  // slot offsets
   Index num_slots = 0;
   Index num_fixed_terms = 0;     // distance + attachments + bending + volumes
@@ -232,6 +247,38 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
     slot += k * m;
     families.push_back(std::move(f));
   }
+  // balloons: w = |∇V|²/α at rest; the diagonal part of w AᵀA into L_s, the rank-one part below
+  const BalloonBatch& bb = model.balloons;
+  balloons.clear();
+  Index largest = 0;
+  for (Index c = 0; c < bb.size(); ++c) {
+    const Index nb = bb.num_particles(c);
+    const Index* parts = bb.particles.data() + bb.particle_offsets[c];
+    std::vector<Vec3> grad(static_cast<std::size_t>(nb));
+    enclosed_volume_gradient(X.data(), parts, nb, bb.triangles.data() + bb.triangle_offsets[c], bb.num_triangles(c),
+                             grad.data());
+    Real g2 = 0;
+    for (const Vec3& g : grad) g2 += g.squaredNorm();
+    if (!(g2 > 0))
+      throw InvalidArgument("balloon constraint " + std::to_string(c) + " has no volume gradient at rest: Projective "
+                            "Dynamics weighs it by |∇V|² at rest");
+    Balloon B;
+    B.first_slot = slot;
+    B.w = g2 / bb.compliance[c];
+    B.target = bb.pressure[c] * bb.rest_volume[c];
+    for (Index i = 0; i < nb; ++i) {
+      const Index si = slot_of[parts[i]];
+      if (si < 0) continue;
+      entries.emplace_back(si, si, B.w);
+      for (Index j = 0; j < nb; ++j)  // (AᵀA)_ij = -1/n_b towards the pinned ones
+        if (slot_of[parts[j]] < 0) couplings.push_back({si, parts[j], -B.w / nb});
+    }
+    slot += nb;
+    largest = std::max(largest, nb);
+    balloons.push_back(B);
+  }
+  iota.resize(static_cast<std::size_t>(largest));
+  for (Index i = 0; i < largest; ++i) iota[i] = i;
   num_slots = slot;
 
   // The gather CSR: each unknown's slots in increasing order.
@@ -249,6 +296,8 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
       const Index* parts = f.batch->particle_data();
       for (Index e = 0; e < f.arity * f.batch->size(); ++e) slot_particle[s++] = parts[e];
     }
+    for (Index c = 0; c < bb.size(); ++c)
+      for (Index o = bb.particle_offsets[c]; o < bb.particle_offsets[c + 1]; ++o) slot_particle[s++] = bb.particles[o];
   }
   for (Index s = 0; s < num_slots; ++s)
     if (slot_of[slot_particle[s]] >= 0) ++gather_start[slot_of[slot_particle[s]] + 1];
@@ -270,6 +319,22 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
   if (llt.info() != Eigen::Success)
     throw SimulationError("projective dynamics: the global matrix M/h² + Σ w AᵀA (h = " + str(h) +
                           " s) could not be factored (not positive definite)");
+  const Index nbal = bb.size();
+  if (nbal > 0) {
+    U = Eigen::MatrixXd::Zero(nd, nbal);
+    Eigen::MatrixXd Cap = Eigen::MatrixXd::Zero(nbal, nbal);
+    for (Index c = 0; c < nbal; ++c) {
+      for (Index o = bb.particle_offsets[c]; o < bb.particle_offsets[c + 1]; ++o)
+        if (slot_of[bb.particles[o]] >= 0) U(slot_of[bb.particles[o]], c) = 1;
+      Cap(c, c) = -static_cast<Real>(bb.num_particles(c)) / balloons[c].w;  // D⁻¹
+    }
+    W = llt.solve(U);
+    Cap += U.transpose() * W;
+    capacitance.compute(Cap);
+  } else {
+    U.resize(0, 0);
+    W.resize(0, 0);
+  }
 }
 
 // ------------------------------------------------------------------------------ the stepper
@@ -304,10 +369,6 @@ void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int6
     throw InvalidArgument("Projective Dynamics models no contact yet, but the model has " +
                           (model.colliders.empty() ? std::string("self-collision")
                                                    : std::to_string(model.colliders.size()) + " collider(s)"));
-  if (model.balloons.size() > 0)
-    throw InvalidArgument("balloon constraint 0 couples its whole surface: Projective Dynamics' global matrix would be "
-                          "dense over it, and csb's Projective Dynamics does not model balloons (the model has " +
-                          std::to_string(model.balloons.size()) + ")");
   const Real h = settings_.dt / settings_.substeps;
   if (steps == 0) return;
   if (!cache_ || cache_->model_id != model.id || cache_->h != h) {
@@ -486,7 +547,8 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
 
   // Tasks of the local step: chunks of the fixed-form terms, then one per family batch.
   const Index fixed_tasks = (C.num_fixed_terms + kTermsPerTask - 1) / kTermsPerTask;
-  const Index local_tasks = fixed_tasks + static_cast<Index>(C.families.size());
+  const Index family_tasks = static_cast<Index>(C.families.size());
+  const Index local_tasks = fixed_tasks + family_tasks + static_cast<Index>(C.balloons.size());
   const Index gather_tasks = (nd + kParticlesPerTask - 1) / kParticlesPerTask;
   const Index nd_dist = model.distance.size(), nd_att = model.attachments.size(), nd_bend = model.bending.size();
 
@@ -586,6 +648,29 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
                            slots.data() + 3 * static_cast<std::size_t>(f.first_slot + c * k));
   };
 
+  // A balloon: its surface's centred positions projected onto V = target by Gauss-Newton steps.
+  auto local_balloon = [&](Index c) {
+    const BalloonBatch& bb = model.balloons;
+    const Cache::Balloon& B = C.balloons[static_cast<std::size_t>(c)];
+    const Index nb = bb.num_particles(c), nt = bb.num_triangles(c);
+    const Triangle* tris = bb.triangles.data() + bb.triangle_offsets[c];
+    std::vector<Real> y(3 * static_cast<std::size_t>(nb));
+    std::vector<Vec3> g(static_cast<std::size_t>(nb));
+    centre(xf.data(), bb.particles.data() + bb.particle_offsets[c], static_cast<int>(nb), y.data());
+    Real cv = enclosed_volume_gradient(y.data(), C.iota.data(), nb, tris, nt, g.data()) - B.target;
+    const Real c0 = std::abs(cv);
+    for (int step = 0; step < kProjectionSteps && std::abs(cv) > kProjectionTolerance * c0; ++step) {
+      Real g2 = 0;
+      for (const Vec3& gi : g) g2 += gi.squaredNorm();
+      if (!(g2 > 0)) break;
+      const Real sc = cv / g2;
+      for (Index i = 0; i < nb; ++i)
+        for (int e = 0; e < 3; ++e) y[3 * i + e] -= sc * g[i][e];
+      cv = enclosed_volume_gradient(y.data(), C.iota.data(), nb, tris, nt, g.data()) - B.target;
+    }
+    centred_contribution(y.data(), static_cast<int>(nb), B.w, slots.data() + 3 * static_cast<std::size_t>(B.first_slot));
+  };
+
   auto gather = [&](Index t) {
     const Index lo = t * kParticlesPerTask, hi = std::min(nd, lo + kParticlesPerTask);
     for (Index s = lo; s < hi; ++s)
@@ -604,6 +689,10 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
 
   auto global_and_accelerate = [&](int it) {
     q_hat = C.llt.solve(rhs);
+    if (C.U.cols() > 0) {  // Woodbury: the balloons' rank-one terms
+      const Eigen::MatrixXd corr = C.capacitance.solve(C.U.transpose() * q_hat);
+      q_hat -= C.W * corr;
+    }
     if (S.chebyshev) {
       const int Sd = S.chebyshev_delay;
       if (it == Sd && S.spectral_radius == 0) {
@@ -650,6 +739,7 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
     for (int it = 0; it < S.iterations && failure.empty(); ++it) {
       for (Index t = 0; t < fixed_tasks; ++t) local_fixed(t);
       for (const Cache::Family& f : C.families) local_family(f);
+      for (Index c = 0; c < static_cast<Index>(C.balloons.size()); ++c) local_balloon(c);
       for (Index t = 0; t < gather_tasks; ++t) gather(t);
       global_and_accelerate(it);
     }
@@ -661,7 +751,8 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
       for (int it = 0; it < S.iterations; ++it) {
         for (int task; (task = team.take(phase)) < local_tasks;) {
           if (task < fixed_tasks) local_fixed(task);
-          else local_family(C.families[static_cast<std::size_t>(task - fixed_tasks)]);
+          else if (task < fixed_tasks + family_tasks) local_family(C.families[static_cast<std::size_t>(task - fixed_tasks)]);
+          else local_balloon(task - fixed_tasks - family_tasks);
         }
         team.barrier();
         if (t == 0) team.reset(phase);

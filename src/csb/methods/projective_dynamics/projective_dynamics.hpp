@@ -22,7 +22,7 @@
 //     (w/2)|e - p|² = (|e| - L)²/(2α): backward Euler's spring exactly. An inequality (sense +1:
 //     |e| >= L, -1: |e| <= L) projects to p = e while satisfied (no force at that iterate).
 //   attachment: A = the particle's selection, p = the target, w = 1/α: exact.
-//   bending (C = θ - θ0), tet volume (C = V - V0) and the constraint families (FamilyBatch): A =
+//   bending (C = θ - θ0), tet volume (C = V - V0), balloons and the constraint families: A =
 //     the centring operator on the constraint's particles (y_i = x_i - mean x, translation
 //     invariant, AᵀA = A), p = a point of {C = 0} near the centred positions y, reached by
 //     Gauss-Newton steps with equal weights, y ← y - C ∇C/|∇C|² (at most kProjectionSteps, until
@@ -31,8 +31,9 @@
 //     this is first order only. The projective energy differs from C²/(2α) by the factor
 //     |∇C(rest)|²/|∇C(x)|² and by terms of higher order in C, so PD's converged step is close to,
 //     not equal to, backward Euler's on models with bending, volumes or families.
-//   balloons: one constraint over a whole surface; its centring operator makes L dense over the
-//     surface: refused (InvalidArgument naming the balloon).
+//   balloons (C = V - pressure V0 over a closed surface): the generic form over the surface's
+//     particles. Its AᵀA = I - 11ᵀ/n is dense over the surface, but the dense part is rank one per
+//     balloon: L = L_s + U D Uᵀ, L_s sparse and factored, L⁻¹ applied by the Woodbury identity.
 // Hard constraints (α = 0: no finite weight), colliders and self-collision (no contact term) are
 // refused, as BackwardEulerStepper does.
 //
@@ -107,8 +108,8 @@ class ProjectiveDynamicsStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const ProjectiveDynamicsSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
-  // InvalidArgument for a model PD cannot step (hard constraints, balloons, colliders,
-  // self-collision, nothing that moves) or a state of another size or not finite; SimulationError
+  // InvalidArgument for a model PD cannot step (hard constraints, colliders, self-collision,
+  // nothing that moves) or a state of another size or not finite; SimulationError
   // naming the step when a position becomes non-finite, the state left at the end of the last
   // completed step. One thread at a time (use_guard.hpp).
   void step(const Model& model, State& state, std::int64_t steps = 1,
