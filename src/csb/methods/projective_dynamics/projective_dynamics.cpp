@@ -101,6 +101,7 @@ struct ProjectiveDynamicsStepper::Cache {
   std::vector<Balloon> balloons;
   std::vector<Index> iota;  // 0, 1, 2, ...: a balloon's own numbering of its particles
   Eigen::MatrixXd U, W;     // nd x balloons
+  Eigen::VectorXd D;        // N/m, -w_b/n_b per balloon
   Eigen::PartialPivLU<Eigen::MatrixXd> capacitance;  // D⁻¹ + UᵀW
   Index first_attachment = 0, first_bending = 0, first_volume = 0;  // slot offsets
   Index num_slots = 0;
@@ -114,7 +115,7 @@ struct ProjectiveDynamicsStepper::Cache {
     Real coeff;  // N/m
   };
   std::vector<Coupling> couplings;
-  Eigen::SparseMatrix<Real> L;   // N/m, kept for the spectral radius' L-inner products
+  Eigen::SparseMatrix<Real> L;   // N/m, L_s below (L itself without balloons)
   Llt llt;
 
   void build(const Model& model, Real h_);
@@ -322,11 +323,13 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
   const Index nbal = bb.size();
   if (nbal > 0) {
     U = Eigen::MatrixXd::Zero(nd, nbal);
+    D.resize(nbal);
     Eigen::MatrixXd Cap = Eigen::MatrixXd::Zero(nbal, nbal);
     for (Index c = 0; c < nbal; ++c) {
       for (Index o = bb.particle_offsets[c]; o < bb.particle_offsets[c + 1]; ++o)
         if (slot_of[bb.particles[o]] >= 0) U(slot_of[bb.particles[o]], c) = 1;
-      Cap(c, c) = -static_cast<Real>(bb.num_particles(c)) / balloons[c].w;  // D⁻¹
+      D(c) = -balloons[c].w / static_cast<Real>(bb.num_particles(c));
+      Cap(c, c) = 1 / D(c);
     }
     W = llt.solve(U);
     Cap += U.transpose() * W;
@@ -334,6 +337,7 @@ void ProjectiveDynamicsStepper::Cache::build(const Model& model, Real h_) {
   } else {
     U.resize(0, 0);
     W.resize(0, 0);
+    D.resize(0);
   }
 }
 
@@ -456,17 +460,18 @@ Real l_dot(const Block& a, const Block& lb) { return (a.array() * lb.array()).su
 // symmetric, the Gauss-Newton projection's nearly so), so its Ritz values lie within its spectrum:
 // the largest tends to the spectral radius from below, far faster than the ratio of update norms
 // does (Lanczos against the power method), and does not overshoot it where the iteration is
-// linear. Basis: d[first .. m - 1],
-// L-orthonormalised by modified Gram-Schmidt (a nearly dependent one dropped), the images
-// d[first + 1 .. m] carried along by the same combinations. Returns the largest Ritz value below
+// linear. Basis: d[first .. m - 1], L-orthonormalised by modified Gram-Schmidt (a nearly
+// dependent one dropped), the images d[first + 1 .. m] carried along by the same combinations
+// (G is linear). Returns the largest Ritz value below
 // 1: one above comes from unilateral constraints (tethers, inequalities) switching between slack
 // and taut during those iterations, a non-smooth change the linear model does not describe (on a
 // 32x32 cloth with tethers, half the sub-steps had one; the largest below it still accelerates).
-Real largest_ritz_value(const std::vector<Block>& d, std::size_t first, const Eigen::SparseMatrix<Real>& L) {
+template <class ApplyL>
+Real largest_ritz_value(const std::vector<Block>& d, std::size_t first, ApplyL&& apply_l) {
   std::vector<Block> v, g, lv;
   for (std::size_t k = first; k + 1 < d.size(); ++k) {
     Block vk = d[k], gk = d[k + 1];
-    Block lk = L * vk;
+    Block lk = apply_l(vk);
     const Real n0 = std::sqrt(std::max(Real(0), l_dot(vk, lk)));
     for (std::size_t j = 0; j < v.size(); ++j) {
       const Real c = l_dot(vk, lv[j]);
@@ -698,7 +703,11 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
       if (it == Sd && S.spectral_radius == 0) {
         // ρ measured from the relaxed plain iterations' update norms (the header's comment).
         // (the first update, from x̃, is the least linear: left out when there are enough)
-        const Real mu = largest_ritz_value(updates, Sd >= 4 ? 1 : 0, C.L);
+        const Real mu = largest_ritz_value(updates, Sd >= 4 ? 1 : 0, [&C](const Block& v) {
+          Block lv = C.L * v;  // L v = L_s v + U D Uᵀ v
+          if (C.U.cols() > 0) lv += C.U * (C.D.asDiagonal() * (C.U.transpose() * v));
+          return lv;
+        });
         const Real r = 1 - (1 - mu) / gamma;
         stats_.measured_spectral_radius = r;
         rho = (r > 0 && r < 1) ? r : 0;
