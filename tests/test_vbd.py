@@ -263,6 +263,16 @@ def test_bad_models_and_states_are_named():
         csb.VertexBlockDescent().residual(model)
 
 
+def test_an_interrupt_leaves_the_state_at_the_end_of_a_step():
+    model = cloth(4)
+    s = model.initial_state()
+    with pytest.raises(csb.Error, match="interrupted after 1 of 3 steps"):
+        csb.VertexBlockDescent().step(model, s, 3, interrupt=lambda: True)
+    ref = model.initial_state()
+    csb.VertexBlockDescent().step(model, ref)
+    assert s.step == 1 and np.array_equal(s.x, ref.x) and np.array_equal(s.v, ref.v)
+
+
 def test_pinned_particles_stay_put_and_a_long_cloth_run_stays_bounded():
     """A 16 x 16 cloth (stretch 1e-6 m/N, bending 1e-3 1/(N m)) hanging from two corners, 600 steps
     of 1/60 s with one sub-step and 10 sweeps: the pins never move (exactly, zero velocity), every
