@@ -246,6 +246,12 @@ def test_bad_models_and_states_are_named():
     walled = b.build()
     with pytest.raises(csb.ParameterError, match="VBD models no contact yet, but the model has 2 collider"):
         csb.VertexBlockDescent().step(walled, walled.initial_state())
+    b = csb.ModelBuilder()
+    sheet = b.add_mesh(csb.cloth_grid(1.0, 1.0, 3, 3), mass=0.1, stretch_compliance=1e-4)
+    b.enable_self_collision(sheet.group, 0.01)
+    folding = b.build()
+    with pytest.raises(csb.ParameterError, match="VBD models no contact yet, but the model has self-collision"):
+        csb.VertexBlockDescent().step(folding, folding.initial_state())
     model = cloth(4)
     s = model.initial_state()
     s.x[5, 1] = np.nan
