@@ -407,7 +407,7 @@ void Block::operator()(Index i, const std::vector<Incidence>& inc, Vec3& f, Mat3
         const Real C = wrap_angle(theta - b.rest_angle[c]);
         const Real k = 1 / b.compliance[c];
         f -= (k * C) * gi;
-        H += k * (gi * gi.transpose());  // Gauss-Newton: C ∇²θ dropped (§3.4), PSD
+        H += k * (gi * gi.transpose());  // Gauss-Newton: C ∇²θ dropped, PSD
         break;
       }
       case kVolume: {

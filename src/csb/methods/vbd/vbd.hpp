@@ -7,7 +7,7 @@
 // over every compliant constraint csb models (distance springs, their inequalities only while
 // violated, dihedral bending, tet volumes, balloons, attachments, the constraint families), the
 // same E as IncrementalPotential. One block is one vertex: with the other vertices held, vertex i
-// takes one Newton step on E (the paper's Eq. 4-6),
+// takes one Newton step on E,
 //
 //   f_i = -m_i/h² (x_i - x̃_i) - Σ_{j∋i} (C_j/α_j) ∇_i C_j,   H_i = m_i/h² I + Σ_{j∋i} H_ij,
 //   x_i += H_i⁻¹ f_i,
@@ -15,15 +15,16 @@
 // H_ij positive semi-definite: a spring's exact 3x3 block with its geometric term clamped at 0,
 // k (n nᵀ + max(0, C/l)(I - n nᵀ)); every other constraint's Gauss-Newton block ∇_iC ∇_iCᵀ/α,
 // which is the exact block for tet volumes and balloons (V is linear in any single vertex, so
-// ∂²V/∂x_i² = 0) and for bending the positive semi-definite projection the paper uses (§3.4:
-// the curvature term C ∇²C dropped). A vertex whose det(H_i) is below 1e-30 of its diagonal's
-// cube is skipped (the paper's safeguard; H_i ⪰ m_i/h² I makes it unreachable for finite
-// positions). `iterations` sweeps over all vertices per sub-step.
+// ∂²V/∂x_i² = 0) and for bending its positive semi-definite part (the curvature term C ∇²θ
+// dropped). A vertex whose det(H_i) is below 1e-30 of its diagonal's cube is skipped (the
+// paper's safeguard; H_i ⪰ m_i/h² I makes it unreachable for finite positions); a non-finite
+// f_i or H_i (constraint values that overflow) is a SimulationError. `iterations` sweeps over
+// all vertices per sub-step.
 //
-// Vertices are swept colour by colour (§3.5): no two vertices of a colour share a constraint
-// (greedy first-fit on the vertex graph of every batch, deterministic), so a colour's vertices
-// update at once on the team's threads, each writing only itself and reading only vertices of
-// other colours: the bits do not depend on the thread count.
+// Vertices are swept colour by colour, as the paper's parallel sweep: no two vertices of a colour
+// share a constraint (greedy first-fit on the vertex graph of every batch, deterministic), so a
+// colour's vertices update at once on the team's threads, each writing only itself and reading
+// only vertices of other colours: the bits do not depend on the thread count.
 //
 // Balloons (one constraint over a whole surface) are not in the colouring's graph, only their
 // triangles' edges are: the vertices of one colour are then never in one triangle, so V is affine
