@@ -1,6 +1,7 @@
 #include "csb/collision/penalty.hpp"
 
 #include <algorithm>
+#include <limits>
 
 namespace csb {
 
@@ -40,6 +41,24 @@ void PenaltyContacts::finish(const Model& model, const Positions& x_start, State
     Contact& k = contacts_[c];
     k.normal_correction = -kappa_ * violation(c, state.x.col(k.particle));
   }
+  rub_and_bounce(model, x_start, state, h, gravity);
+}
+
+void PenaltyContacts::finish_projected(const Model& model, const Positions& x_start, const Positions& x_tilde,
+                                       State& state, Real h, const Vec3& gravity) {
+  if (contacts_.empty()) return;
+  constexpr Real eps = std::numeric_limits<Real>::epsilon();
+  for (Contact& k : contacts_) {
+    const Vec3 p = state.x.col(k.particle);
+    const Real C = (p - k.point).dot(k.normal) - k.thickness;
+    const bool on_plane = C <= 8 * eps * (p.norm() + k.point.norm() + k.thickness);  // projected onto it
+    k.normal_correction = on_plane ? std::max<Real>(0, (p - x_tilde.col(k.particle)).dot(k.normal)) : 0;
+  }
+  rub_and_bounce(model, x_start, state, h, gravity);
+}
+
+void PenaltyContacts::rub_and_bounce(const Model& model, const Positions& x_start, State& state, Real h,
+                                     const Vec3& gravity) {
   for (const Contact& k : contacts_) {  // Coulomb friction on the step's displacement
     const Real d = k.normal_correction;
     const ContactMaterial& m = model.colliders[k.collider].material;
@@ -64,6 +83,16 @@ void PenaltyContacts::finish(const Model& model, const Positions& x_start, State
       target = std::max(vn, -model.colliders[k.collider].material.restitution * k.approach_speed);
     if (target != vn) state.v.col(i) += (target - vn) * k.normal;
   }
+}
+
+bool PenaltyContacts::push_out(const Collider& collider, Real r, Real* p) {
+  if (collider.kind == ColliderKind::Mesh) return false;
+  const Vec3 x(p[0], p[1], p[2]);
+  if (!(signed_distance(collider, x) < r)) return false;
+  const SurfacePoint q = closest_surface_point(collider, x);
+  const Vec3 out = q.point + r * q.normal;
+  for (int e = 0; e < 3; ++e) p[e] = out[e];
+  return true;
 }
 
 Real PenaltyContacts::max_penetration(const Positions& x) const {

@@ -20,6 +20,11 @@
 // pipeline's do (contacts.cpp): the normal correction a contact made is its force times h²/m,
 // κ |C| at the end of the step (Coulomb at the position level, Macklin et al. 2014 Eq. 24);
 // restitution reflects an impact's approach speed with e (Müller et al. 2020 §3.6's threshold).
+//
+// Projective Dynamics, whose global matrix is constant, takes the contacts by projection instead:
+// after each global solve, a particle past a contact's plane is moved onto it (the practice of
+// Liu et al. 2013's and Bouaziz et al. 2014's implementations for collisions), so the step ends
+// outside the colliders; finish_projected() then measures each contact's normal correction.
 #pragma once
 
 #include "csb/collision/collision.hpp"
@@ -54,6 +59,25 @@ class PenaltyContacts {
   // reflects the normal velocity of an impact with the collider's restitution.
   void finish(const Model& model, const Positions& x_start, State& state, Real h, const Vec3& gravity);
 
+  // For a method that holds its particles out of the contacts' planes by projection instead of
+  // the penalty (Projective Dynamics): moves p (m, 3 values) onto contact c's plane if it is past
+  // it. And finish() for such a method: the normal correction of a contact whose particle ended on
+  // its plane is how far the particle ended above its inertial prediction x̃ along n (for a lone
+  // particle, exactly the push of the position-based pipeline's projection).
+  void project(std::size_t c, Real* p) const {
+    const Contact& k = contacts_[c];
+    const Real C = (Vec3(p[0], p[1], p[2]) - k.point).dot(k.normal) - k.thickness;
+    if (C < 0)
+      for (int e = 0; e < 3; ++e) p[e] -= C * k.normal[e];
+  }
+  void finish_projected(const Model& model, const Positions& x_start, const Positions& x_tilde, State& state, Real h,
+                        const Vec3& gravity);
+  // The static fallback of a projecting method's iterations: a particle that its neighbours
+  // dragged inside an analytic collider (one the sub-step's contacts did not foresee: its
+  // prediction was beyond the margin) is moved to the nearest surface point plus its thickness r
+  // (m). A mesh sheet has no inside and is left to the contacts. Returns whether p moved.
+  static bool push_out(const Collider& collider, Real r, Real* p);
+
   // The largest distance a particle ends past its contact plane (m, 0 when none does).
   Real max_penetration(const Positions& x) const;
 
@@ -61,6 +85,8 @@ class PenaltyContacts {
   std::vector<Contact> contacts_;
   std::vector<Real> stiffness_;
   std::vector<Real> margin_;
+  // Friction and restitution from the contacts' normal corrections.
+  void rub_and_bounce(const Model& model, const Positions& x_start, State& state, Real h, const Vec3& gravity);
   std::vector<std::uint32_t> stamps_;
   std::uint32_t stamp_ = 0;
   Real kappa_ = kDefaultStiffness;

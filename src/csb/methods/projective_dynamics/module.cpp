@@ -2,8 +2,8 @@
 // acceleration (projective_dynamics.hpp): backward Euler's step with every constraint's potential
 // replaced by a projective one, solved by local projections and a prefactored global solve. It
 // reads each constraint's compliance (exactly a spring's potential for distance constraints and
-// attachments, to first order for bending, volumes, balloons and the families) and refuses hard
-// constraints and contact.
+// attachments, to first order for bending, volumes, balloons and the families), holds contacts with
+// the colliders by projection, and refuses hard constraints and self-collision.
 #include "csb/methods/projective_dynamics/projective_dynamics.hpp"
 #include "csb/methods/registry.hpp"
 

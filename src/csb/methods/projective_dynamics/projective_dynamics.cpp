@@ -369,10 +369,9 @@ void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int6
     throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
   const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
                                          [](Real t) { return t > 0; });
-  if (!model.colliders.empty() || self_collides)
-    throw InvalidArgument("Projective Dynamics models no contact yet, but the model has " +
-                          (model.colliders.empty() ? std::string("self-collision")
-                                                   : std::to_string(model.colliders.size()) + " collider(s)"));
+  if (self_collides)
+    throw InvalidArgument("Projective Dynamics models contacts with colliders, not self-collision, but the model has "
+                          "self-collision (a group's self_collision_thickness > 0)");
   const Real h = settings_.dt / settings_.substeps;
   if (steps == 0) return;
   if (!cache_ || cache_->model_id != model.id || cache_->h != h) {
@@ -518,6 +517,19 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
   for (const Cache::Coupling& c : C.couplings)
     for (int e = 0; e < 3; ++e) b0(c.s, e) -= c.coeff * state.x(e, c.pinned);
   q_prev = q;
+
+  // The sub-step's contacts, from xⁿ towards x̃, and the slots of their particles.
+  const bool touching = !model.colliders.empty();
+  Positions x_start, x_tilde;
+  std::vector<Index> contact_slot;
+  if (touching) {
+    x_start = state.x;
+    x_tilde = state.x;
+    for (Index s = 0; s < nd; ++s)
+      for (int e = 0; e < 3; ++e) x_tilde(e, C.dynamic[s]) = q(s, e);
+    contacts_.generate(model, x_start, x_tilde, h, PenaltyContacts::kDefaultStiffness);
+    for (const Contact& k : contacts_.contacts()) contact_slot.push_back(C.slot_of[static_cast<std::size_t>(k.particle)]);
+  }
 
   // All particles' positions (3 n): the pinned ones where the state has them.
   std::vector<Real> xf(3 * static_cast<std::size_t>(n));
@@ -723,6 +735,17 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
     } else {
       q.swap(q_hat);
     }
+    for (std::size_t c = 0; c < contact_slot.size(); ++c) {  // onto the contacts' planes
+      Real p[3] = {q(contact_slot[c], 0), q(contact_slot[c], 1), q(contact_slot[c], 2)};
+      contacts_.project(c, p);
+      for (int e = 0; e < 3; ++e) q(contact_slot[c], e) = p[e];
+    }
+    for (Index s = 0; touching && s < nd; ++s)  // and out of any collider the contacts did not foresee
+      for (const Collider& col : model.colliders) {
+        Real p[3] = {q(s, 0), q(s, 1), q(s, 2)};
+        if (PenaltyContacts::push_out(col, model.thickness[C.dynamic[s]], p))
+          for (int e = 0; e < 3; ++e) q(s, e) = p[e];
+      }
     for (Index s = 0; s < nd; ++s)
       if (!(std::isfinite(q(s, 0)) && std::isfinite(q(s, 1)) && std::isfinite(q(s, 2)))) {
         std::ostringstream msg;
@@ -790,6 +813,7 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
     }
   for (Index i = 0; i < n; ++i)
     if (!(model.inv_mass[i] > 0)) state.v.col(i).setZero();
+  if (touching) contacts_.finish_projected(model, x_start, x_tilde, state, h, S.gravity);
 }
 
 }  // namespace csb

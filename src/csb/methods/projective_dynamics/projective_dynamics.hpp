@@ -34,8 +34,12 @@
 //   balloons (C = V - pressure V0 over a closed surface): the generic form over the surface's
 //     particles. Its AᵀA = I - 11ᵀ/n is dense over the surface, but the dense part is rank one per
 //     balloon: L = L_s + U D Uᵀ, L_s sparse and factored, L⁻¹ applied by the Woodbury identity.
-// Hard constraints (α = 0: no finite weight), colliders and self-collision (no contact term) are
-// refused, as BackwardEulerStepper does.
+// Contacts with the colliders are generated once per sub-step as the implicit methods' are
+// (collision/penalty.hpp) and held by projection: after each global solve a particle past its
+// contact's plane is moved onto it, and one inside an analytic collider that no contact foresaw
+// (dragged there by its neighbours) out to its surface, so the constant matrix stays factored;
+// friction and restitution follow the step (PenaltyContacts::finish_projected). Hard constraints (α = 0: no
+// finite weight) and self-collision are refused, as BackwardEulerStepper does.
 //
 // Chebyshev (Wang 2015, Eq. 11-12 and his Algorithm 1 for PD with a direct global solve): with
 // q̂ the plain iteration's result from q⁽ᵏ⁾,
@@ -59,6 +63,8 @@
 // fixed order (a CSR built with the factorisation). The global solve is serial. The result does
 // not depend on the thread count.
 #pragma once
+
+#include "csb/collision/penalty.hpp"
 
 #include "csb/integrator.hpp"
 #include "csb/solver/team.hpp"
@@ -108,8 +114,8 @@ class ProjectiveDynamicsStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const ProjectiveDynamicsSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
-  // InvalidArgument for a model PD cannot step (hard constraints, colliders, self-collision,
-  // nothing that moves) or a state of another size or not finite; SimulationError
+  // InvalidArgument for a model PD cannot step (hard constraints, self-collision, nothing that
+  // moves) or a state of another size or not finite; SimulationError
   // naming the step when a position becomes non-finite, the state left at the end of the last
   // completed step. One thread at a time (use_guard.hpp).
   void step(const Model& model, State& state, std::int64_t steps = 1,
@@ -126,6 +132,7 @@ class ProjectiveDynamicsStepper final : public Integrator {
   TeamHandle team_;  // the local step's threads
   UseGuard use_;
   ProjectiveDynamicsStats stats_;
+  PenaltyContacts contacts_;  // the sub-step's contacts with the colliders
 };
 
 }  // namespace csb
