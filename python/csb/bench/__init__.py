@@ -14,6 +14,7 @@ from __future__ import annotations
 import dataclasses
 import statistics
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any, Sequence
 
@@ -215,7 +216,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
 # What the coloured sweep and the reference cost: ms per frame and frames per second of 128x128 and
 # 256x256 cloths, projections per second by constraint type, one against two threads (also beside a
 # busy core), cost per particle from 1k to 1M particles, memory, a 1024x1024 cloth, the reference's KLU cost.
-COST_PARTS = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu")
+COST_PARTS = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu", "methods")
 
 
 def make_stepper(sim: Simulation, *, substeps: int, iterations: int, threads: int = 0, ordering: str = "coloured",
@@ -592,6 +593,15 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
         print("\nA 1024x1024 cloth (about a million particles), built and stepped in a fresh interpreter")
         out["big"] = big_cloth()
         print(format_big_cloth(out["big"]))
+    if "methods" in parts:
+        print("\nEvery method on one compliant cloth (cloth_grid's n x n, 1 m, 0.2 kg/m², stretch 1e-4 m/N, bending "
+              "1000 1/(N m), 2 pinned corners), dt = 1/60 s, one thread: ms per step at 10 iterations, and at the "
+              f"fewest iterations (of {_LADDER[0]}, {_LADDER[1]}, {_LADDER[2]}, ... {_LADDER[-1]}) whose step's "
+              f"backward-Euler residual is within {EQUAL_ERROR:g} of the step's force scale, from the same moving "
+              "state (implicit Euler: Newton iterations of 20 PCG iterations; PBD reads stiffness 1, and has no "
+              "residual of this material)")
+        out["methods"] = method_table(rounds=rounds)
+        print(format_method_table(out["methods"]))
     if "klu" in parts:
         print("\nReference integrator (CVODE BDF + KLU, analytic sparse Jacobian) against problem size: compliant "
               "stretch and shear (1e-3 m/N), 0.02 s simulated")
@@ -643,4 +653,118 @@ def format_frame_times(rows: list[dict[str, Any]]) -> str:
     for r in rows:
         lines.append(f"{r['n']:>4}x{r['n']:<4} {r['triangles']:>9} {r['width']:>4}x{r['height']:<5} "
                      f"{r['frame_ms']:>9.2f} {r['fps']:>6.1f} {r['draw_ms']:>13.2f} {r['step_ms']:>8.2f}")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------------
+# Every method at equal iterations and at equal error
+
+# The methods of the table: (label, registered name, its own settings).
+METHOD_ROWS = (("PBD", "pbd", {}), ("XPBD", "xpbd", {}), ("VBD", "vbd", {}),
+               ("Projective Dynamics", "projective-dynamics", {}),
+               ("PD + Chebyshev", "projective-dynamics", {"chebyshev": True}),
+               ("implicit Euler (Newton-PCG)", "implicit-euler", {}))
+# Iteration counts tried for the equal-error column, about 1.4x apart, and the error all must
+# reach: the largest backward-Euler residual component over the step's force scale (the largest
+# of m|g|, the constraint forces and the inertia; csb.backward_euler_residual).
+_LADDER = (1, 2, 3, 4, 5, 7, 10, 14, 20, 28, 40, 56, 80, 113, 160, 226, 320, 452, 640)
+EQUAL_ERROR = 1e-2
+
+
+def compliant_cloth(n: int) -> _core.Model:
+    """cloth_grid's cloth at n x n with a compliant stretch (1e-4 m/N) that every method reads."""
+    b = ModelBuilder()
+    inst = b.add_mesh(_core.cloth_grid(1.0, 1.0, n, n), density=0.2, stretch_stiffness=1.0, stretch_compliance=1e-4,
+                      bending_stiffness=0.1, bending_compliance=1000.0)
+    b.pin(inst.nearest([-0.5, 0.0, -0.5]))
+    b.pin(inst.nearest([0.5, 0.0, -0.5]))
+    return b.build()
+
+
+def _one_thread(name: str, iterations: int, settings: dict) -> _core.Integrator:
+    extra = dict(settings)
+    if name in _core.pbd_variant_names():
+        return _core.PbdStepper(method=name, dt=1 / 60, iterations=iterations, threads=1)
+    if any(k.name == "threads" for k in _core.method_info(name).settings):
+        extra["threads"] = 1
+    return _core.make_integrator(name, 1 / 60, iterations=iterations, **extra)
+
+
+def _copy_state(model, state):
+    s = model.initial_state()
+    s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
+    return s
+
+
+def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int = 5) -> list[dict]:
+    """Per cloth size and method: ms per step at 10 iterations, the backward-Euler residual of one
+    step from a moving state (the cloth after 30 steps of XPBD from rest) over the step's force
+    scale, and the fewest iterations of _LADDER whose step's is within EQUAL_ERROR, with its ms
+    per step (None: not within 640). Median of `rounds` rounds of `steps` steps each, the methods
+    taking turns within a round."""
+    rows = []
+    g = (0.0, -9.81, 0.0)
+    for n in sizes:
+        model = compliant_cloth(n)
+        moving = model.initial_state()
+        _core.PbdStepper(method="xpbd", dt=1 / 60, iterations=10).step(model, moving, 30)
+
+        def residual(name, iterations, settings):
+            s = _copy_state(model, moving)
+            _one_thread(name, iterations, settings).step(model, s)
+            r = _core.backward_euler_residual(model, moving, s, 1 / 60, g)
+            return r.max / r.scale
+
+        target = EQUAL_ERROR
+        plan = []
+        for label, name, settings in METHOD_ROWS:
+            at_ten = residual(name, 10, settings) if label != "PBD" else float("nan")
+            needed = None
+            if label != "PBD":
+                for it in _LADDER:
+                    if residual(name, it, settings) <= target:
+                        needed = it
+                        break
+            plan.append(dict(label=label, name=name, settings=settings, residual_10=at_ten, iterations_equal=needed))
+        # time the two settings of every method, taking turns within each round
+        steppers = {}
+        for p in plan:
+            for key, it in (("ten", 10), ("equal", p["iterations_equal"])):
+                if it is not None:
+                    stepper = _one_thread(p["name"], it, p["settings"])
+                    state = _copy_state(model, moving)
+                    with warnings.catch_warnings():  # PBD makes the compliant stretch rigid, as the header says
+                        warnings.simplefilter("ignore", _core.MaterialWarning)
+                        stepper.step(model, state, 2)
+                    steppers[(p["label"], key)] = (stepper, state, [])
+        for _ in range(rounds):
+            for stepper, state, times in steppers.values():
+                t0 = time.perf_counter()
+                stepper.step(model, state, steps)
+                times.append((time.perf_counter() - t0) / steps * 1e3)
+        for p in plan:
+            ten = steppers[(p["label"], "ten")][2]
+            eq = steppers.get((p["label"], "equal"), (None, None, []))[2]
+            rows.append(dict(n=n, particles=model.num_particles, method=p["label"], ms_10=statistics.median(ten),
+                             spread_10=(min(ten), max(ten)), residual_10=p["residual_10"], target=target,
+                             iterations_equal=p["iterations_equal"],
+                             ms_equal=statistics.median(eq) if eq else float("nan"),
+                             spread_equal=(min(eq), max(eq)) if eq else (float("nan"), float("nan"))))
+    return rows
+
+
+def format_method_table(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'method':>28} {'ms/step @10':>12} {'(min-max)':>15} {'residual/scale @10':>18} "
+            f"{'its to ' + format(EQUAL_ERROR, 'g'):>12} {'ms/step':>9} {'(min-max)':>15}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        its = f"> {_LADDER[-1]}" if r["iterations_equal"] is None else str(r["iterations_equal"])
+        if r["method"] == "PBD":
+            its = "n/a"
+        eq = "" if np.isnan(r["ms_equal"]) else f"{r['ms_equal']:.3f}"
+        eqs = "" if np.isnan(r["ms_equal"]) else f"({r['spread_equal'][0]:.3f}-{r['spread_equal'][1]:.3f})"
+        res = "" if np.isnan(r["residual_10"]) else f"{r['residual_10']:.3g}"
+        ten = f"({r['spread_10'][0]:.3f}-{r['spread_10'][1]:.3f})"
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['method']:>28} {r['ms_10']:>12.3f} "
+                     f"{ten:>15} {res:>18} {its:>12} {eq:>9} {eqs:>15}")
     return "\n".join(lines)
