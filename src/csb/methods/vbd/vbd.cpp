@@ -120,6 +120,8 @@ struct VbdStepper::Plan {
   // family's C (size) and ∇C (size x arity x 3) at the start of the colour.
   std::vector<std::vector<char>> family_in_colour;
   std::vector<std::vector<Real>> family_c, family_grad;
+  std::vector<char> family_unilateral;  // per family, read once (FamilyBatch::info is virtual)
+  std::vector<int> family_arity;
   // Balloons: each particle's balloon (-1: none), each balloon's C at the start of a colour and
   // the Sherman-Morrison sums of the colour.
   std::vector<Index> balloon_of;
@@ -278,6 +280,10 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
         if (p->balloon_of[i] >= 0) p->balloon_in_colour[static_cast<std::size_t>(k) * bb.size() + p->balloon_of[i]] = 1;
       }
     p->family_c.resize(model.families.size());
+    for (const auto& f : model.families) {
+      p->family_unilateral.push_back(f->info().unilateral ? 1 : 0);
+      p->family_arity.push_back(f->info().arity);
+    }
     p->family_grad.resize(model.families.size());
     for (std::size_t f = 0; f < model.families.size(); ++f) {
       p->family_c[f].assign(static_cast<std::size_t>(model.families[f]->size()), 0.0);
@@ -429,12 +435,11 @@ void Block::operator()(Index i, const std::vector<Incidence>& inc, Vec3& f, Mat3
         break;
       }
       case kFamily: {
-        const FamilyBatch& fb = *model.families[q.family];
         const Real C = plan.family_c[q.family][c];
-        const bool unilateral = fb.info().unilateral;
-        if (unilateral && !(C > 0)) break;  // slack: no force, no stiffness
-        const Real alpha = fb.compliance[c];
-        const Real* gp = plan.family_grad[q.family].data() + (static_cast<std::size_t>(c) * fb.info().arity + q.slot) * 3;
+        if (plan.family_unilateral[q.family] && !(C > 0)) break;  // slack: no force, no stiffness
+        const Real alpha = model.families[q.family]->compliance[c];
+        const Real* gp =
+            plan.family_grad[q.family].data() + (static_cast<std::size_t>(c) * plan.family_arity[q.family] + q.slot) * 3;
         const Vec3 gi(gp[0], gp[1], gp[2]);
         f -= (C / alpha) * gi;
         H += (gi * gi.transpose()) / alpha;  // Gauss-Newton (the family's curvature dropped), PSD
