@@ -63,7 +63,7 @@ struct BackwardEulerSettings {
   int newton_iterations = 0;         // >= 0
   enum class Linear { Direct, ConjugateGradient };
   Linear linear_solver = Linear::Direct;  // the converged form always solves directly
-  int cg_iterations = 20;            // ConjugateGradient: iterations per Newton step, >= 1
+  int cg_iterations = 100;           // ConjugateGradient: iterations per Newton step, >= 1
   Real cg_tolerance = 1e-4;          // ConjugateGradient: stop once |residual| <= this |r0|, in [0, 1)
   bool line_search = true;           // Armijo backtracking on E; false: full Newton steps (budgeted form only)
   // Where Newton starts: x̃, xⁿ (Baraff and Witkin 1998; a particle whose prediction is past a

@@ -138,7 +138,7 @@ void bind_implicit(py::module_& m) {
            }),
            py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("gravity") = std::vector<double>{0, -9.81, 0},
            py::arg("rtol") = 1e-9, py::arg("max_iterations") = 100, py::arg("newton_iterations") = 0,
-           py::arg("linear_solver") = "direct", py::arg("cg_iterations") = 20, py::arg("cg_tolerance") = 1e-4,
+           py::arg("linear_solver") = "direct", py::arg("cg_iterations") = 100, py::arg("cg_tolerance") = 1e-4,
            py::arg("line_search") = true, py::arg("initial_guess") = "inertia", py::arg("contact_stiffness") = 1e4,
            "dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: "
            "the largest residual component at which a step stops, relative to the step's force scale, on top of the "

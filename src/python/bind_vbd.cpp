@@ -9,9 +9,10 @@ void bind_vbd(py::module_& m) {
       "Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024): each sub-step minimises the backward Euler step's "
       "incremental potential over every compliant constraint by `iterations` sweeps of per-vertex Newton steps, "
       "colour by colour (a colour's vertices share no constraint and update in parallel). Reads compliance; "
-      "refuses hard constraints, colliders and self-collision.")
+      "takes contacts with colliders as a penalty; refuses hard constraints and self-collision.")
       .def(py::init([](double dt, IntArg substeps, IntArg iterations, py::handle gravity,
-                       const std::string& initialization, double acceleration, IntArg threads) {
+                       const std::string& initialization, double acceleration, IntArg threads,
+                       double contact_stiffness) {
              VbdSettings s;
              s.dt = dt;
              s.substeps = in_range<int>(substeps, "substeps", 1, kMaxSubsteps);
@@ -20,14 +21,17 @@ void bind_vbd(py::module_& m) {
              s.initialization = parse_initialization(initialization);
              s.acceleration = acceleration;
              s.threads = in_range<int>(threads, "threads", 0, kMaxThreads);
+             s.contact_stiffness = contact_stiffness;
              return VbdStepper(s);
            }),
            py::kw_only(), py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1, py::arg("iterations") = 10,
            py::arg("gravity") = std::vector<double>{0, -9.81, 0}, py::arg("initialization") = "adaptive",
            py::arg("acceleration") = 0.0, py::arg("threads") = 0,
+           py::arg("contact_stiffness") = 1e4,
            "dt: s, the time a step advances, in `substeps` sub-steps. iterations: VBD sweeps over all vertices per "
            "sub-step. gravity: m/s². initialization: 'adaptive', 'inertia' or 'previous'. acceleration: ρ of the "
-           "Chebyshev acceleration in [0, 1), 0 off. threads: 0 automatic; the result does not depend on it.")
+           "Chebyshev acceleration in [0, 1), 0 off. threads: 0 automatic; the result does not depend on it. "
+           "contact_stiffness: κ, contacts with colliders as a penalty of stiffness κ m/h² (N/m).")
       .def("step", [](VbdStepper& s, const Model& model, State& state, IntArg steps_arg, py::object interrupt) {
         step_interruptibly(s, model, state, in_range<std::int64_t>(steps_arg, "steps", 0, kMaxInt64), interrupt);
       }, py::arg("model"), py::arg("state"), py::arg("steps") = 1, py::arg("interrupt") = py::none(),

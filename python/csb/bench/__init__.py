@@ -598,7 +598,7 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
               "1000 1/(N m), 2 pinned corners), dt = 1/60 s, one thread: ms per step at 10 iterations, and at the "
               f"fewest iterations (of {_LADDER[0]}, {_LADDER[1]}, {_LADDER[2]}, ... {_LADDER[-1]}) whose step's "
               f"backward-Euler residual is within {EQUAL_ERROR:g} of the step's force scale, from the same moving "
-              "state (implicit Euler: Newton iterations of 20 PCG iterations; PBD reads stiffness 1, and has no "
+              "state (implicit Euler: Newton iterations of at most 100 PCG iterations; PBD reads stiffness 1, and has no "
               "residual of this material)")
         out["methods"] = method_table(rounds=rounds)
         print(format_method_table(out["methods"]))

@@ -1,7 +1,7 @@
 // csb — Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024; csb/methods/vbd/vbd.hpp): block
 // coordinate descent, vertex by vertex and colour by colour, on the backward Euler step's
-// incremental potential. It reads each constraint's compliance as the potential C²/(2α) and
-// refuses hard constraints.
+// incremental potential. It reads each constraint's compliance as the potential C²/(2α), takes
+// contacts with the colliders as a penalty, and refuses hard constraints and self-collision.
 #include "csb/methods/registry.hpp"
 #include "csb/methods/vbd/vbd.hpp"
 
@@ -22,6 +22,7 @@ MethodInfo vbd_method() {
       {"acceleration", "0.0",
        "ρ of the Chebyshev acceleration over the sweeps, dimensionless, in [0, 1); 0: off"},
       {"threads", "0", "threads of a colour's vertex updates, >= 0; 0: automatic; the result does not depend on it"},
+      {"contact_stiffness", "1e4", "κ: contacts with colliders as a penalty of stiffness κ m/h² (N/m), > 0"},
   };
   m.make = [](const MethodOptions& o) -> std::unique_ptr<Integrator> {
     VbdSettings s;
@@ -31,6 +32,7 @@ MethodInfo vbd_method() {
                                                               {"adaptive", "inertia", "previous"}));
     s.acceleration = o.settings.number("acceleration", 0.0, 0.0, 1.0);
     s.threads = static_cast<int>(o.settings.integer("threads", 0, 0, 1024));
+    s.contact_stiffness = o.settings.number("contact_stiffness", s.contact_stiffness, 1e-300, 1e300);
     return std::make_unique<VbdStepper>(s);  // refuses acceleration 1 (ρ < 1)
   };
   return m;

@@ -103,6 +103,9 @@ void check_settings(const VbdSettings& s) {
   if (!(s.acceleration >= 0 && s.acceleration < 1))
     throw InvalidArgument("acceleration must be a spectral radius in [0, 1) (0: off), got " + str(s.acceleration));
   if (s.threads < 0) throw InvalidArgument("threads must be >= 0 (0: automatic), got " + std::to_string(s.threads));
+  if (!(s.contact_stiffness > 0) || !std::isfinite(s.contact_stiffness))
+    throw InvalidArgument("contact_stiffness must be a finite stiffness > 0 (in units of m/h²), got " +
+                          str(s.contact_stiffness));
 }
 
 }  // namespace
@@ -130,6 +133,11 @@ struct VbdStepper::Plan {
   std::vector<Real> u, w, g;  // 3 np: D⁻¹f, D⁻¹∇V, ∇V of a balloon's vertices
   // A sub-step's arrays, 3 np (all particles; the pinned ones' entries unused).
   std::vector<Real> x, x_tilde, prev1, prev2;  // x⁽ⁿ⁻¹⁾ and x⁽ⁿ⁻²⁾: the acceleration's
+  // The sub-step's contacts with the colliders (a penalty, collision/penalty.hpp) and each
+  // particle's, contact_start[i] .. [i + 1] (generated particle by particle, so in order).
+  PenaltyContacts contacts;
+  std::vector<Index> contact_start;
+  Positions contact_from, contact_to;  // xⁿ and x̃ for the generation
   State sub_start;  // the state at the start of the last sub-step
   State left;       // the state the last step left
   State rollback;   // the state at the start of the step being taken
@@ -161,11 +169,9 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
     throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
   const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
                                          [](Real t) { return t > 0; });
-  if (!model.colliders.empty() || self_collides)
-    throw InvalidArgument("VBD models no contact yet, but the model has " +
-                          (model.colliders.empty() ? std::string("self-collision")
-                                                   : std::to_string(model.colliders.size()) + " collider(s)") +
-                          ": its incremental potential has no contact term");
+  if (self_collides)
+    throw InvalidArgument("VBD models contacts with colliders, not self-collision, but the model has self-collision "
+                          "(a group's self_collision_thickness > 0): its incremental potential has no self-contact term");
 
   if (!plan_ || plan_->model_id != model.id) {
     // The spring network's constructor refuses a hard constraint (naming it) and a model with
@@ -385,6 +391,16 @@ void Block::operator()(Index i, const std::vector<Incidence>& inc, Vec3& f, Mat3
   f = -(m * ih2) * (xi - xt);
   H = (m * ih2) * Mat3::Identity();
   Vec3 gb = Vec3::Zero();
+  if (!plan.contact_start.empty())
+    for (Index c = plan.contact_start[i]; c < plan.contact_start[i + 1]; ++c) {  // (k/2) min(C, 0)²
+      const auto cc = static_cast<std::size_t>(c);
+      const Real C = plan.contacts.violation(cc, xi);
+      if (!(C < 0)) continue;
+      const Vec3& n = plan.contacts.contacts()[cc].normal;
+      const Real k = plan.contacts.stiffness(cc);
+      f -= (k * C) * n;
+      H += k * (n * n.transpose());  // exact: C is linear in x_i
+    }
   for (Index e = plan.inc_start[i]; e < plan.inc_start[i + 1]; ++e) {
     const Incidence& q = inc[e];
     const Index c = q.index;
@@ -514,6 +530,17 @@ void VbdStepper::substep(const Model& model, State& state, Plan& plan, Real h) {
   plan.sub_start.v = state.v;
   plan.sub_start.t = state.t;
   plan.sub_start.step = state.step;
+  plan.contact_start.clear();
+  if (!model.colliders.empty()) {  // the sub-step's contacts, from xⁿ towards x̃
+    plan.contact_from = state.x;
+    plan.contact_to = state.x;
+    for (const Index i : plan.order)
+      for (int k = 0; k < 3; ++k) plan.contact_to(k, i) = plan.x_tilde[3 * i + k];
+    plan.contacts.generate(model, plan.contact_from, plan.contact_to, h, settings_.contact_stiffness);
+    plan.contact_start.assign(static_cast<std::size_t>(np) + 1, 0);
+    for (const Contact& c : plan.contacts.contacts()) ++plan.contact_start[static_cast<std::size_t>(c.particle) + 1];
+    for (Index i = 0; i < np; ++i) plan.contact_start[i + 1] += plan.contact_start[i];
+  }
   std::copy(plan.x.begin(), plan.x.end(), plan.prev1.begin());
 
   const Index colours = static_cast<Index>(plan.colour_offsets.size()) - 1;
@@ -650,6 +677,7 @@ void VbdStepper::substep(const Model& model, State& state, Plan& plan, Real h) {
     }
   for (Index i = 0; i < np; ++i)
     if (!(model.inv_mass[i] > 0)) state.v.col(i).setZero();
+  if (!plan.contact_start.empty()) plan.contacts.finish(model, plan.contact_from, state, h, settings_.gravity);
   plan.history = true;
   plan.h = h;
 }

@@ -47,9 +47,13 @@
 // with ρ the estimated spectral radius (`acceleration`; 0: off).
 //
 // vⁿ⁺¹ = (x - xⁿ)/h; pinned particles (inverse mass 0) stay where the state has them, at zero
-// velocity. E has no contact: a model with colliders or self-collision is refused.
+// velocity. Contacts with the colliders are the implicit methods' penalty (collision/penalty.hpp),
+// generated once per sub-step from xⁿ towards x̃: each adds (k/2) min(C, 0)² to its vertex's block,
+// k n nᵀ to its Hessian while active (the paper's penalty contact), with friction and restitution
+// after the sub-step. Self-collision is refused.
 #pragma once
 
+#include "csb/collision/penalty.hpp"
 #include "csb/integrator.hpp"
 #include "csb/implicit_euler.hpp"
 #include "csb/solver/team.hpp"
@@ -71,6 +75,8 @@ struct VbdSettings {
   Initialization initialization = Initialization::Adaptive;
   Real acceleration = 0;             // ρ of the Chebyshev acceleration, dimensionless, in [0, 1); 0: off
   int threads = 0;                   // threads of a colour's updates, >= 0; 0: automatic (free cores, at most Model::num_parts)
+  // κ: contacts with colliders as a penalty of stiffness κ m/h² (collision/penalty.hpp), > 0.
+  Real contact_stiffness = PenaltyContacts::kDefaultStiffness;
 };
 
 const char* initialization_name(VbdSettings::Initialization i);
@@ -90,7 +96,7 @@ class VbdStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const VbdSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
-  // Throws InvalidArgument for a hard constraint, a collider or self-collision, a particle in two
+  // Throws InvalidArgument for a hard constraint, self-collision, a particle in two
   // balloons, states of the wrong size or non-finite; SimulationError naming the step and the
   // particle when a position becomes non-finite (the state left at the end of the last step).
   void step(const Model& model, State& state, std::int64_t steps = 1,
