@@ -136,8 +136,8 @@ def test_the_interface_and_the_registry():
     assert issubclass(csb.PbdStepper, csb.Integrator) and issubclass(csb.ForceStepper, csb.Integrator)
     assert issubclass(BackwardEulerStepper, csb.Integrator)
     names = [m.name for m in csb.methods()]
-    assert names == ["pbd", "xpbd", "small-steps", "jakobsen", "explicit-euler", "symplectic-euler",
-                     "velocity-verlet", "backward-euler"]
+    assert names == ["pbd", "xpbd", "small-steps", "jakobsen", "vbd", "projective-dynamics", "implicit-euler",
+                     "backward-euler", "explicit-euler", "symplectic-euler", "velocity-verlet"]
     info = {m.name: m for m in csb.methods()}
     assert info["xpbd"].reads == "compliance" and info["pbd"].reads == "stiffness" and info["pbd"].iterates
     assert not info["small-steps"].iterates and "Macklin" in info["xpbd"].source and info["xpbd"].label == "XPBD"

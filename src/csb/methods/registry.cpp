@@ -15,13 +15,13 @@ const std::vector<MethodInfo>& methods() {
       xpbd_method(),
       small_steps_method(),
       jakobsen_method(),
+      vbd_method(),
+      projective_dynamics_method(),
+      implicit_euler_method(),
+      backward_euler_method(),
       explicit_euler_method(),
       symplectic_euler_method(),
       velocity_verlet_method(),
-      backward_euler_method(),
-      vbd_method(),
-      implicit_euler_method(),
-      projective_dynamics_method(),
   };
   return list;
 }

@@ -98,14 +98,14 @@ ForceIntegrator force_integrator(const std::string& name);
 const MethodInfo& method_info(Method method);
 const MethodInfo& method_info(ForceIntegrator integrator);
 
-// The method modules (one file each in this folder).
-MethodInfo pbd_method();          // pbd.cpp
-MethodInfo xpbd_method();         // xpbd.cpp
-MethodInfo small_steps_method();  // small_steps.cpp
-MethodInfo jakobsen_method();     // jakobsen.cpp
-MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
-MethodInfo backward_euler_method(), implicit_euler_method();  // backward_euler.cpp
-MethodInfo vbd_method();           // vbd/module.cpp
+// The method modules (one file or folder each in this folder), in the list's order.
+MethodInfo pbd_method();                  // pbd.cpp
+MethodInfo xpbd_method();                 // xpbd.cpp
+MethodInfo small_steps_method();          // small_steps.cpp
+MethodInfo jakobsen_method();             // jakobsen.cpp
+MethodInfo vbd_method();                  // vbd/module.cpp
 MethodInfo projective_dynamics_method();  // projective_dynamics/module.cpp
+MethodInfo implicit_euler_method(), backward_euler_method();  // backward_euler.cpp
+MethodInfo explicit_euler_method(), symplectic_euler_method(), velocity_verlet_method();  // force.cpp
 
 }  // namespace csb
