@@ -14,7 +14,7 @@ import numpy
 import numpy.typing
 import typing
 from . import kernels
-__all__: list[str] = ['AccuracyWarning', 'BackwardEuler', 'BackwardEulerResidual', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'IncrementalPotential', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'Plugin', 'PluginIntegrator', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'Viewer', 'backward_euler_residual', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'load_plugin', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
+__all__: list[str] = ['AccuracyWarning', 'BackwardEuler', 'BackwardEulerResidual', 'Camera', 'ConcurrentUseError', 'Error', 'ForceStepper', 'IncrementalPotential', 'Integrator', 'MAX_COLOURS', 'MAX_INDEX', 'MAX_ITERATIONS', 'MAX_SUBSTEPS', 'MAX_THREADS', 'MIN_COLOUR_SIZE', 'MIN_TASK_COLOUR_SIZE', 'MaterialWarning', 'Mesh', 'MeshError', 'MethodInfo', 'Model', 'ModelBuilder', 'ParameterError', 'PbdSettings', 'PbdStepper', 'Pick', 'Plugin', 'PluginIntegrator', 'ProjectiveDynamics', 'SettingInfo', 'SimulationError', 'SpringNetwork', 'State', 'TetMesh', 'VertexBlockDescent', 'Viewer', 'backward_euler_residual', 'balloon_volumes', 'benchmark_dispatch', 'benchmark_jacobian', 'benchmark_plain_distance', 'bending_violations', 'build_info', 'chain', 'check_obj', 'cloth_grid', 'colour_constraints', 'corrected_stiffness', 'distance_violations', 'elastic_energy', 'kernels', 'load_plugin', 'lumped_measure', 'make_integrator', 'measure', 'method_info', 'methods', 'pbd_variant_names', 'pendulum', 'pick_particle', 'readable_extensions', 'save_mesh', 'tear', 'tet_box', 'topology', 'volume_violations']
 class Mesh:
     """
     A triangle (and/or line) mesh before it enters the particle pool; metres.
@@ -356,6 +356,25 @@ class Integrator:
         """
         Advances state by `steps` steps of dt.
         """
+class SettingInfo:
+    """
+    One of a method's own settings: make_integrator's keyword, a scene's [solver.settings] key.
+    """
+    def __repr__(self) -> str:
+        ...
+    @property
+    def default(self) -> str:
+        """
+        as a scene file writes it
+        """
+    @property
+    def description(self) -> str:
+        """
+        what it is, its unit and range
+        """
+    @property
+    def name(self) -> str:
+        ...
 class MethodInfo:
     """
     A method csb can step with, as listed by csb.methods().
@@ -391,6 +410,11 @@ class MethodInfo:
     def reads(self) -> str:
         """
         what it reads of a constraint's material: 'stiffness' or 'compliance'
+        """
+    @property
+    def settings(self) -> list[SettingInfo]:
+        """
+        its own settings, beyond dt, substeps, iterations and gravity
         """
     @property
     def source(self) -> str:
@@ -678,15 +702,20 @@ class IncrementalPotential:
         """
 class BackwardEuler(Integrator):
     """
-    Backward Euler over every compliant constraint (distance, bending, volume, balloons, attachments, tethers and the other families), each step's incremental potential minimised by Newton's method (sparse LDLᵀ, Armijo line search, Gauss-Newton where the Hessian is indefinite) to convergence: the same-step reference.
+    Implicit (backward) Euler over every compliant constraint (distance, bending, volume, balloons, attachments, tethers and the other families), each step's incremental potential minimised by Newton's method (Baraff and Witkin 1998). newton_iterations = 0 (the default, method 'backward-euler'): to convergence (sparse LDLᵀ, Armijo line search, Gauss-Newton where the Hessian is indefinite), the same-step reference. newton_iterations = n > 0 (method 'implicit-euler'): the budgeted form, at most n Newton iterations per step, each solved by block-Jacobi preconditioned conjugate gradients on a fixed budget (the Gauss-Newton Hessian) or by the sparse LDLᵀ.
     """
-    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, gravity: typing.Any = [0.0, -9.81, 0.0], rtol: typing.SupportsFloat | typing.SupportsIndex = 1e-09, max_iterations: int = 100) -> None:
+    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, gravity: typing.Any = [0.0, -9.81, 0.0], rtol: typing.SupportsFloat | typing.SupportsIndex = 1e-09, max_iterations: int = 100, newton_iterations: int = 0, linear_solver: str = 'direct', cg_iterations: int = 100, cg_tolerance: typing.SupportsFloat | typing.SupportsIndex = 0.0001, line_search: bool = True, initial_guess: str = 'inertia', contact_stiffness: typing.SupportsFloat | typing.SupportsIndex = 10000.0) -> None:
         """
-        dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: the largest residual component at which a step stops, relative to the step's force scale, on top of the rounding floor. max_iterations: Newton iterations per step.
+        dt: s, the time a step advances, in `substeps` backward Euler steps of dt/substeps. gravity: m/s². rtol: the largest residual component at which a step stops, relative to the step's force scale, on top of the rounding floor. max_iterations: Newton iterations per step of the converged form. newton_iterations: 0 to convergence, n > 0 the budgeted form. linear_solver: 'direct' or 'cg' (budgeted form). cg_iterations, cg_tolerance: CG's budget per Newton iteration and its relative residual for stopping early. line_search: Armijo backtracking (the converged form needs it). initial_guess: 'inertia' (x̃), 'previous' (xⁿ) or 'lower' (the one with the lower incremental potential). contact_stiffness: κ, contacts with colliders as a penalty of stiffness κ m/h² (N/m).
         """
     def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
         """
         Advances state by `steps` steps of dt (the GIL released meanwhile; `interrupt`, a callable asked between steps, returning True stops it, the state left at the end of the last completed step).
+        """
+    @property
+    def cg_iterations(self) -> int:
+        """
+        conjugate-gradient iterations of the last step, in all (budgeted form with linear_solver 'cg')
         """
     @property
     def definiteness_fixes(self) -> int:
@@ -705,6 +734,9 @@ class BackwardEuler(Integrator):
         """
     @property
     def line_search_halvings(self) -> int:
+        ...
+    @property
+    def linear_solver(self) -> str:
         ...
     @property
     def max_iterations(self) -> int:
@@ -744,6 +776,134 @@ class BackwardEuler(Integrator):
     def total_iterations(self) -> int:
         """
         Newton iterations, all steps
+        """
+class VertexBlockDescent(Integrator):
+    """
+    Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024): each sub-step minimises the backward Euler step's incremental potential over every compliant constraint by `iterations` sweeps of per-vertex Newton steps, colour by colour (a colour's vertices share no constraint and update in parallel). Reads compliance; takes contacts with colliders as a penalty; refuses hard constraints and self-collision.
+    """
+    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], initialization: str = 'adaptive', acceleration: typing.SupportsFloat | typing.SupportsIndex = 0.0, threads: int = 0, contact_stiffness: typing.SupportsFloat | typing.SupportsIndex = 10000.0) -> None:
+        """
+        dt: s, the time a step advances, in `substeps` sub-steps. iterations: VBD sweeps over all vertices per sub-step. gravity: m/s². initialization: 'adaptive', 'inertia' or 'previous'. acceleration: ρ of the Chebyshev acceleration in [0, 1), 0 off. threads: 0 automatic; the result does not depend on it. contact_stiffness: κ, contacts with colliders as a penalty of stiffness κ m/h² (N/m).
+        """
+    def residual(self, model: Model) -> BackwardEulerResidual:
+        """
+        The backward-Euler residual (csb.BackwardEulerResidual, N) of the last sub-step taken on `model`: what the sweeps left of ∇E; computed when asked.
+        """
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
+        """
+        Advances state by `steps` steps of dt (the GIL released meanwhile).
+        """
+    @property
+    def acceleration(self) -> float:
+        ...
+    @property
+    def gravity(self) -> numpy.ndarray:
+        """
+        m/s²
+        """
+    @property
+    def initialization(self) -> str:
+        ...
+    @property
+    def iterations(self) -> int:
+        ...
+    @property
+    def num_colours(self) -> int:
+        """
+        vertex colours of the last model stepped
+        """
+    @property
+    def substeps(self) -> int:
+        ...
+    @property
+    def threads(self) -> int:
+        """
+        as set (0: automatic)
+        """
+    @property
+    def threads_used(self) -> int:
+        """
+        threads of the last step
+        """
+class ProjectiveDynamics(Integrator):
+    """
+    Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step minimises backward Euler's incremental potential with every constraint's potential made projective, by `iterations` local projections and global solves with a matrix factored once per model and sub-step length. Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, balloons and tethers. Refuses hard constraints, colliders and self-collision.
+    """
+    def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], chebyshev: bool = False, spectral_radius: typing.SupportsFloat | typing.SupportsIndex = 0.0, chebyshev_delay: int = 10, relaxation: typing.SupportsFloat | typing.SupportsIndex = 0.9, threads: int = 0, record_residuals: bool = False) -> None:
+        """
+        dt: s, the time a step advances, in `substeps` sub-steps. iterations: local/global iterations per sub-step. gravity: m/s². chebyshev: Wang 2015's acceleration, with spectral_radius ρ in (0, 1) (0: measured each sub-step), chebyshev_delay S plain iterations first and the under-relaxation `relaxation` γ in (0, 1]. threads: of the local step, 0 automatic; the result does not depend on it. record_residuals: keep the backward-Euler residual after each iteration of the last sub-step.
+        """
+    def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
+        """
+        Advances state by `steps` steps of dt (the GIL released meanwhile).
+        """
+    @property
+    def chebyshev(self) -> bool:
+        ...
+    @property
+    def chebyshev_delay(self) -> int:
+        ...
+    @property
+    def factorization_time(self) -> float:
+        """
+        s, wall time of all factorisations (the terms' set-up included)
+        """
+    @property
+    def factorizations(self) -> int:
+        """
+        factorisations of the global matrix so far (one per model and sub-step length)
+        """
+    @property
+    def gravity(self) -> numpy.ndarray:
+        """
+        m/s²
+        """
+    @property
+    def iterations(self) -> int:
+        ...
+    @property
+    def last_factorization_time(self) -> float:
+        """
+        s, wall time of the latest factorisation
+        """
+    @property
+    def measured_spectral_radius(self) -> float:
+        """
+        the last measurement of ρ (spectral_radius 0), also when outside (0, 1) and so not used
+        """
+    @property
+    def record_residuals(self) -> bool:
+        ...
+    @property
+    def relaxation(self) -> float:
+        ...
+    @property
+    def residual_history(self) -> list[float]:
+        """
+        N, with record_residuals: the largest backward-Euler residual component of the last sub-step at its start (x̃) and after each iteration (iterations + 1 values); empty otherwise
+        """
+    @property
+    def spectral_radius(self) -> float:
+        """
+        as set (0: measured each sub-step)
+        """
+    @property
+    def spectral_radius_used(self) -> float:
+        """
+        ρ the last sub-step's Chebyshev acceleration used (0: none)
+        """
+    @property
+    def substeps(self) -> int:
+        ...
+    @property
+    def threads(self) -> int:
+        """
+        as set (0: automatic)
+        """
+    @property
+    def threads_used(self) -> int:
+        """
+        threads of the last sub-step's local steps
         """
 class Camera:
     """
@@ -828,9 +988,9 @@ class Viewer:
     def __exit__(self, *args) -> None:
         ...
     @typing.overload
-    def __init__(self, model: Model, state: State, stepper: Integrator, *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot', gravity: typing.Any = None) -> None:
+    def __init__(self, model: Model, state: State, stepper: Integrator, *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot', gravity: typing.Any = None, substeps: typing.Any = None, iterations: typing.Any = None) -> None:
         """
-        Copies model and state (reset returns to them) and steps them with `stepper`, any csb.Integrator (a built-in, or a Python subclass: kept alive by the viewer). Grabbing and the method switch need a PbdStepper; with another method they are off. width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of the stepper's dt()). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none). gravity: m/s², for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). An exception the stepper raises (but csb.SimulationError from a built-in, which pauses and is shown) passes through frame(), run() and capture().
+        Copies model and state (reset returns to them) and steps them with `stepper`, any csb.Integrator (a built-in, or a Python subclass: kept alive by the viewer). Grabbing needs a PbdStepper. The method switch (the `method` property, the m and 1-9 keys) goes through csb.methods(): it works for a PbdStepper (made from its settings), and for a built-in stepper given `substeps` and `iterations`, the settings (with its dt() and `gravity`) the other methods are made with; without them, for a user's own method, it is off. width, height: pixels. offscreen: EGL, no window. frame_time: s of simulated time per frame (whole steps of the stepper's dt()). grab_compliance: m/N of the mouse's grab (0: kinematic). tear_max_strain: tearing after every step (0: none). gravity: m/s², for the overlay's energies when the stepper is not a PbdStepper (default (0, -9.81, 0)). csb.SimulationError (a diverging method) or csb.ParameterError (a model the method refuses) from a built-in pauses the viewer and is shown; any other exception the stepper raises passes through frame(), run() and capture().
         """
     @typing.overload
     def __init__(self, model: Model, state: State, settings: PbdSettings, *, width: int = 1280, height: int = 800, offscreen: bool = False, title: str = 'csb', samples: int = 4, vsync: bool = True, overlay: bool = True, wireframe: bool = False, particles: bool = False, grid: bool = True, paused: bool = False, frame_time: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, grab_compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_strain: typing.SupportsFloat | typing.SupportsIndex = 0.0, tear_max_per_step: int = 1, screenshot_prefix: str = 'csb-screenshot') -> None:
@@ -904,16 +1064,21 @@ class Viewer:
     @property
     def message(self) -> str:
         """
-        The overlay's last notice: a method switch (with what the method cannot read of the model's material), a screenshot written, a simulation error.
+        The overlay's last notice: a method switch (with what the method cannot read of the model's material), a method that cannot step the model, a screenshot written, a simulation error.
         """
     @property
     def method(self) -> str:
         """
-        The method's name. Set: a built-in position-based method ('pbd', 'xpbd', 'jakobsen'), when the viewer steps a PbdStepper (csb.ParameterError otherwise).
+        The method's name (csb.methods()' name, or a user's method's name()). Set: any registered method or alias ('pbd', 'xpbd', 'small-steps', 'symplectic-euler', 'backward-euler', ... see csb.methods()), from the same state; csb.ParameterError saying why, with the method and the state unchanged, when the method cannot step this model (hard constraints, colliders, ...) or the switch is off (a user's own method).
         """
     @method.setter
     def method(self, arg1: str) -> None:
         ...
+    @property
+    def method_switch(self) -> bool:
+        """
+        Whether the method switch works: the viewer knows the settings to make the methods from (a PbdStepper's, or the substeps and iterations given with a built-in).
+        """
     @property
     def model(self) -> Model:
         """
@@ -922,7 +1087,7 @@ class Viewer:
     @property
     def position_based(self) -> bool:
         """
-        Whether the method is a PbdStepper: grabbing and the method switch work only then.
+        Whether the method is a PbdStepper: grabbing works only then.
         """
     @property
     def settings(self) -> typing.Any:
@@ -1019,9 +1184,9 @@ def lumped_measure(mesh: Mesh) -> numpy.typing.NDArray[numpy.float64]:
     """
     Per vertex: a third of the adjacent triangle area (m²), or half the adjacent segment length (m).
     """
-def make_integrator(name: str, dt: typing.SupportsFloat | typing.SupportsIndex, *, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0]) -> Integrator:
+def make_integrator(name: str, dt: typing.SupportsFloat | typing.SupportsIndex, *, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], **kwargs) -> Integrator:
     """
-    The built-in method `name` (see csb.methods()) with step dt (s), `substeps` sub-steps per step, `iterations` constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); the other settings at their defaults. An unknown name is a csb.ParameterError (a ValueError) listing the known ones.
+    The built-in method `name` (see csb.methods()) with step dt (s), `substeps` sub-steps per step, `iterations` constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); a method's own settings as further keywords (csb.method_info(name).settings lists them), the others at their defaults. An unknown name or setting, or a setting out of range, is a csb.ParameterError (a ValueError) naming it.
     """
 def measure(model: Model, state: State, gravity: typing.Any) -> dict:
     ...
