@@ -100,6 +100,9 @@ def is_png(path: Path) -> bool:
         ("xpbd_claims.py", ["--quick"], ["xpbd_stiffness.csv", "xpbd_chain.csv", "xpbd_chain_frames.csv", "xpbd_cost.csv",
                                       "xpbd.png"]),
         ("small_steps.py", ["--quick"], ["small_steps.csv", "small_steps.png"]),
+        ("implicit_claims.py", ["--quick"], ["implicit_damping.csv", "implicit_newton.csv", "implicit_stability.csv",
+                                             "pd_convergence.csv", "pd_cost.csv", "vbd_xpbd.csv", "ratio_chains.csv",
+                                             "implicit_claims.png"]),
     ],
 )
 def test_study_scripts_write_their_csv_and_charts(tmp_path, script, args, outputs):
