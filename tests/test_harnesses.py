@@ -101,7 +101,8 @@ def is_png(path: Path) -> bool:
                                       "xpbd.png"]),
         ("small_steps.py", ["--quick"], ["small_steps.csv", "small_steps.png"]),
         ("implicit_claims.py", ["--quick"], ["implicit_damping.csv", "implicit_newton.csv", "implicit_stability.csv",
-                                             "pd_convergence.csv", "pd_cost.csv", "vbd_xpbd.csv", "ratio_chains.csv",
+                                             "pd_convergence.csv", "pd_cost.csv", "vbd_xpbd.csv", "vbd_acceleration.csv",
+                                             "ratio_chains.csv",
                                              "implicit_claims.png"]),
     ],
 )
