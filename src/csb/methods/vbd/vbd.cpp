@@ -1,6 +1,8 @@
 // csb — Vertex Block Descent (csb/methods/vbd/vbd.hpp).
 #include "csb/methods/vbd/vbd.hpp"
 
+#include "csb/atan2.hpp"
+
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
@@ -361,7 +363,7 @@ bool dihedral_slot(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, i
   const Real e2 = e.squaredNorm(), n1 = N1.squaredNorm(), n2 = N2.squaredNorm();
   if (!(e2 > 0 && n1 > 0 && n2 > 0)) return false;
   const Real elen = std::sqrt(e2);
-  theta = std::atan2(N1.cross(N2).dot(e), N1.dot(N2) * elen);
+  theta = atan2_rational(N1.cross(N2).dot(e), N1.dot(N2) * elen);  // csb's inlined atan2 (atan2.hpp), as the bending kernels
   switch (slot) {
     case 0: grad = -((c - b).dot(e) / elen * (N1 / n1) + (d - b).dot(e) / elen * (N2 / n2)); break;
     case 1: grad = (c - a).dot(e) / elen * (N1 / n1) + (d - a).dot(e) / elen * (N2 / n2); break;
