@@ -145,63 +145,11 @@ def test_the_converged_form_refuses_a_budget_setting():
 # ------------------------------------------------------------------------------ contacts
 
 
-def particle_on_plane(x0, v0=(0.0, 0.0, 0.0), *, mu: float = 0.0, e: float = 0.0):
-    """A 0.1 kg particle above the ground plane y = 0 (friction μs = μk = mu, restitution e)."""
-    b = csb.ModelBuilder()
-    g = b.add_group("p")
-    b.add_particle(x0, 0.1, g)
-    b.add_plane(point=[0, 0, 0], normal=[0, 1, 0], friction_static=mu, friction_kinetic=mu, restitution=e)
-    model = b.build()
-    s = model.initial_state()
-    s.v = np.array([v0], float)
-    return model, s
-
-
-@pytest.mark.parametrize("method", ["implicit-euler", "backward-euler"])
-def test_contact_rests_at_the_penalty_depth(method):
-    """At rest on the ground the penalty κ m/h² holds the weight m g: the particle sinks g h²/κ,
-    2.725e-7 m at h = 1/60 s and κ = 1e4 (collision/penalty.hpp), and does not move."""
-    model, s = particle_on_plane([0, 0.5, 0])
-    stepper = csb.make_integrator(method, 1 / 60, iterations=2)
-    for _ in range(120):
-        stepper.step(model, s)
-    assert s.x[0, 1] == pytest.approx(-9.81 / 3600 / 1e4, rel=1e-6)
-    assert np.all(s.v == 0)
-
-
-@pytest.mark.parametrize("method", ["implicit-euler", "backward-euler"])
-def test_coulomb_friction_stops_a_slide(method):
-    """A particle sliding at 2 m/s on ground of μk = 0.5 stops after v²/(2 μk g) = 0.4077 m. The
-    position-level friction removes μk g h² of the slide per sub-step of h = 1/600 s, so the
-    discrete stop lies within a sub-step's slide, v h = 3.3 mm (0.8 %), of the closed form."""
-    model, s = particle_on_plane([0, 0, 0], [2, 0, 0], mu=0.5)
-    stepper = csb.make_integrator(method, 1 / 60, substeps=10, iterations=2)
-    for _ in range(120):
-        stepper.step(model, s)
-    assert s.x[0, 0] == pytest.approx(4 / (2 * 0.5 * 9.81), abs=2 / 600)
-    assert np.all(s.v == 0)
-
-
-@pytest.mark.parametrize("method, iterations", [("implicit-euler", 2), ("backward-euler", 1)])
-def test_restitution_reflects_an_impact(method, iterations):
-    """Dropped from 1 m on ground of restitution e = 0.5, the particle bounces to e² = 0.25 m;
-    backward Euler's free flight loses g h t to the discretisation (h = 1/600 s): within 1 %."""
-    model, s = particle_on_plane([0, 1, 0], e=0.5)
-    stepper = csb.make_integrator(method, 1 / 60, substeps=10, iterations=iterations)
-    ys = []
-    for _ in range(90):
-        stepper.step(model, s)
-        ys.append(s.x[0, 1])
-    ys = np.array(ys)
-    landed = int(np.argmin(ys[:40]))
-    assert np.max(ys[landed:]) == pytest.approx(0.25, rel=0.01)
-
-
 def test_a_cloth_drapes_over_a_sphere_without_passing_through():
     """A 16 x 16 cloth (1 cm thick) dropped on a sphere, 2 s: the deepest any particle goes past the
     sphere's surface plus the thickness stays under the thickness with one Newton iteration per
-    step (3.7 mm measured: the 1.3 m/s landing is resolved by a single truncated CG solve) and
-    under 1 mm with three (0.475 mm measured)."""
+    step (2.1 mm measured: the 1.3 m/s landing is resolved by a single truncated CG solve) and
+    under 1 mm with three (0.27 mm measured)."""
     b = csb.ModelBuilder()
     b.add_mesh(csb.cloth_grid(1.0, 1.0, 16, 16), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
                bending_compliance=1.0, thickness=0.01)

@@ -142,6 +142,21 @@ void IncrementalPotential::scales(const Real* x, Real& force_scale, Real& roundi
   }
 }
 
+void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps) {
+  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  const Index np = model.num_particles();
+  if (state.x.cols() != np || state.v.cols() != np)
+    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " particles, the model " +
+                          std::to_string(np));
+  if (!state.x.allFinite() || !state.v.allFinite())
+    throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
+  if (std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
+                  [](Real h) { return h > 0; }))
+    throw InvalidArgument(method + " models contacts with colliders, not self-collision, but the model has "
+                          "self-collision (a group's self_collision_thickness > 0): its incremental potential has "
+                          "no self-contact term");
+}
+
 Residual backward_euler_residual(const Model& model, const State& previous, const State& next, Real dt,
                                  const Vec3& gravity) {
   const Index n = model.num_particles();
@@ -370,19 +385,7 @@ BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings
 void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t steps,
                                 const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "BackwardEuler.step");
-  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
-  const Index np = model.num_particles();
-  if (state.x.cols() != np || state.v.cols() != np)
-    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " particles, the model " +
-                          std::to_string(np));
-  if (!state.x.allFinite() || !state.v.allFinite())
-    throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
-  // Self-collision is not part of E: a cloth would pass through itself.
-  const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
-                                         [](Real h) { return h > 0; });
-  if (self_collides)
-    throw InvalidArgument(name() + " models contacts with colliders, not self-collision, but the model has "
-                          "self-collision (a group's self_collision_thickness > 0)");
+  check_implicit_step(name(), model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
   for (std::int64_t step = 0; step < steps; ++step) {
     if (step > 0 && interrupt && interrupt())

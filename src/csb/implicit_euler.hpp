@@ -121,6 +121,12 @@ class IncrementalPotential {
   std::vector<Index> contact_slot_;  // the slot of each contact's particle
 };
 
+// The checks every implicit method's step (implicit Euler, Projective Dynamics, VBD) makes before
+// it touches the state: steps >= 0, a state of the model's size and finite, and no self-collision
+// (the incremental potential has no self-contact term). InvalidArgument naming `method` and what
+// is wrong.
+void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps);
+
 struct Residual {
   Real norm = 0;     // N, 2-norm of the residual over the dynamic particles
   Real max = 0;      // N, its largest component

@@ -360,18 +360,7 @@ ProjectiveDynamicsStepper& ProjectiveDynamicsStepper::operator=(const Projective
 void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int64_t steps,
                                      const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "ProjectiveDynamics.step");
-  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
-  const Index np = model.num_particles();
-  if (state.x.cols() != np || state.v.cols() != np)
-    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " particles, the model " +
-                          std::to_string(np));
-  if (!state.x.allFinite() || !state.v.allFinite())
-    throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
-  const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
-                                         [](Real t) { return t > 0; });
-  if (self_collides)
-    throw InvalidArgument("Projective Dynamics models contacts with colliders, not self-collision, but the model has "
-                          "self-collision (a group's self_collision_thickness > 0)");
+  check_implicit_step("Projective Dynamics", model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
   if (steps == 0) return;
   if (!cache_ || cache_->model_id != model.id || cache_->h != h) {

@@ -162,18 +162,8 @@ Index VbdStepper::num_colours() const {
 
 void VbdStepper::step(const Model& model, State& state, std::int64_t steps, const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "VertexBlockDescent.step");
-  if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  check_implicit_step("VBD", model, state, steps);
   const Index np = model.num_particles();
-  if (state.x.cols() != np || state.v.cols() != np)
-    throw InvalidArgument("the state has " + std::to_string(state.x.cols()) + " particles, the model " +
-                          std::to_string(np));
-  if (!state.x.allFinite() || !state.v.allFinite())
-    throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
-  const bool self_collides = std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
-                                         [](Real t) { return t > 0; });
-  if (self_collides)
-    throw InvalidArgument("VBD models contacts with colliders, not self-collision, but the model has self-collision "
-                          "(a group's self_collision_thickness > 0): its incremental potential has no self-contact term");
 
   if (!plan_ || plan_->model_id != model.id) {
     // The spring network's constructor refuses a hard constraint (naming it) and a model with
