@@ -157,6 +157,24 @@ void check_implicit_step(const std::string& method, const Model& model, const St
                           "no self-contact term");
 }
 
+void run_implicit_steps(State& state, std::int64_t steps, int substeps, Real dt,
+                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep) {
+  for (std::int64_t step = 0; step < steps; ++step) {
+    if (step > 0 && interrupt && interrupt())
+      throw Interrupted("interrupted after " + std::to_string(step) + " of " + std::to_string(steps) +
+                        " steps (t = " + str(state.t) + " s): the state is left at the end of that step");
+    State start = state;
+    try {
+      for (int sub = 0; sub < substeps; ++sub) substep(sub);
+    } catch (...) {
+      state = std::move(start);
+      throw;
+    }
+    state.t = start.t + dt;
+    state.step = start.step + 1;
+  }
+}
+
 Residual backward_euler_residual(const Model& model, const State& previous, const State& next, Real dt,
                                  const Vec3& gravity) {
   const Index n = model.num_particles();
@@ -387,20 +405,8 @@ void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t s
   const UseGuard::Scope in_use(use_, "BackwardEuler.step");
   check_implicit_step(name(), model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
-  for (std::int64_t step = 0; step < steps; ++step) {
-    if (step > 0 && interrupt && interrupt())
-      throw Interrupted("interrupted after " + std::to_string(step) + " of " + std::to_string(steps) +
-                        " steps (t = " + str(state.t) + " s): the state is left at the end of that step");
-    State start = state;
-    try {
-      for (int sub = 0; sub < settings_.substeps; ++sub) solve_one(model, state, h);
-    } catch (...) {
-      state = std::move(start);
-      throw;
-    }
-    state.t = start.t + settings_.dt;
-    state.step = start.step + 1;
-  }
+  run_implicit_steps(state, steps, settings_.substeps, settings_.dt, interrupt,
+                     [&](int) { solve_one(model, state, h); });
 }
 
 void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {

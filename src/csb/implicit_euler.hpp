@@ -126,6 +126,11 @@ class IncrementalPotential {
 // (the incremental potential has no self-contact term). InvalidArgument naming `method` and what
 // is wrong.
 void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps);
+// `steps` steps of dt, each `substeps` calls of substep(sub); `interrupt`, asked between steps,
+// stops them with Interrupted (the state at the end of the last step); a step that throws leaves
+// the state where the step started.
+void run_implicit_steps(State& state, std::int64_t steps, int substeps, Real dt,
+                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep);
 
 struct Residual {
   Real norm = 0;     // N, 2-norm of the residual over the dynamic particles

@@ -378,20 +378,8 @@ void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int6
     stats_.factorization_time += stats_.last_factorization_time;
     ++stats_.factorizations;
   }
-  for (std::int64_t step = 0; step < steps; ++step) {
-    if (step > 0 && interrupt && interrupt())
-      throw Interrupted("interrupted after " + std::to_string(step) + " of " + std::to_string(steps) +
-                        " steps (t = " + str(state.t) + " s): the state is left at the end of that step");
-    State start = state;
-    try {
-      for (int sub = 0; sub < settings_.substeps; ++sub) solve_one(model, state, h, sub);
-    } catch (...) {
-      state = std::move(start);
-      throw;
-    }
-    state.t = start.t + settings_.dt;
-    state.step = start.step + 1;
-  }
+  run_implicit_steps(state, steps, settings_.substeps, settings_.dt, interrupt,
+                     [&](int sub) { solve_one(model, state, h, sub); });
 }
 
 namespace {
