@@ -95,10 +95,4 @@ bool PenaltyContacts::push_out(const Collider& collider, Real r, Real* p) {
   return true;
 }
 
-Real PenaltyContacts::max_penetration(const Positions& x) const {
-  Real worst = 0;
-  for (std::size_t c = 0; c < contacts_.size(); ++c) worst = std::max(worst, -violation(c, x.col(contacts_[c].particle)));
-  return worst;
-}
-
 }  // namespace csb

@@ -22,9 +22,9 @@
 // restitution reflects an impact's approach speed with e (Müller et al. 2020 §3.6's threshold).
 //
 // Projective Dynamics, whose global matrix is constant, takes the contacts by projection instead:
-// after each global solve, a particle past a contact's plane is moved onto it (the practice of
-// Liu et al. 2013's and Bouaziz et al. 2014's implementations for collisions), so the step ends
-// outside the colliders; finish_projected() then measures each contact's normal correction.
+// after each global solve, a particle past a contact's plane is moved onto it (adding the contacts
+// to the global matrix would refactor it whenever they change), so the step ends outside the
+// colliders; finish_projected() then measures each contact's normal correction.
 #pragma once
 
 #include "csb/collision/collision.hpp"
@@ -77,9 +77,6 @@ class PenaltyContacts {
   // prediction was beyond the margin) is moved to the nearest surface point plus its thickness r
   // (m). A mesh sheet has no inside and is left to the contacts. Returns whether p moved.
   static bool push_out(const Collider& collider, Real r, Real* p);
-
-  // The largest distance a particle ends past its contact plane (m, 0 when none does).
-  Real max_penetration(const Positions& x) const;
 
  private:
   std::vector<Contact> contacts_;
