@@ -31,15 +31,18 @@
 // fixed number of Newton iterations per step (newton_iterations > 0; one is Baraff and Witkin's
 // linearised step when started from xⁿ, initial_guess = Previous, and solved directly; the method
 // starts from the lower of x̃ and xⁿ by default, methods/backward_euler.cpp says why), each a
-// linear solve by
-// conjugate gradients preconditioned by the inverse 3x3 diagonal blocks of H, with a fixed budget
-// of cg_iterations (stopping early once the CG residual has fallen by cg_tolerance), or by the
-// sparse LDLᵀ. CG needs H positive definite: it takes the Gauss-Newton form (the projection to
+// linear solve by conjugate gradients preconditioned by the inverse 3x3 diagonal blocks of H, with
+// a fixed budget of cg_iterations (stopping early once the CG residual has fallen by
+// cg_tolerance), or by the sparse LDLᵀ. CG needs H positive definite: it takes the Gauss-Newton form (the projection to
 // positive semi-definite: a compressed spring's geometric term clamped at 0, the volumes',
 // bending's, balloons' and the families' curvature dropped; plus M/h², which makes it definite).
 // The line search is the same, and may be switched off (a full Newton step, as in real-time
 // codes). The step then ends after its budget, converged or not: no SimulationError for an
 // unconverged step, only for a non-finite one.
+//
+// Both forms take the contacts with colliders as a penalty in E (collision/penalty.hpp: the
+// position-based pipeline's contacts, (k/2) min(C, 0)² each, k = κ m/h²), with friction and
+// restitution after the step; self-collision is refused.
 #pragma once
 
 #include "csb/collision/penalty.hpp"
