@@ -827,7 +827,7 @@ class VertexBlockDescent(Integrator):
         """
 class ProjectiveDynamics(Integrator):
     """
-    Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step minimises backward Euler's incremental potential with every constraint's potential made projective, by `iterations` local projections and global solves with a matrix factored once per model and sub-step length. Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, balloons and tethers. Refuses hard constraints, colliders and self-collision.
+    Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step minimises backward Euler's incremental potential with every constraint's potential made projective, by `iterations` local projections and global solves with a matrix factored once per model and sub-step length. Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, balloons and tethers. Holds contacts with colliders by projection after each global solve; refuses hard constraints and self-collision.
     """
     def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], chebyshev: bool = False, spectral_radius: typing.SupportsFloat | typing.SupportsIndex = 0.0, chebyshev_delay: int = 10, relaxation: typing.SupportsFloat | typing.SupportsIndex = 0.9, threads: int = 0, record_residuals: bool = False) -> None:
         """
