@@ -68,19 +68,63 @@ def segments_cross_triangles(p0: np.ndarray, p1: np.ndarray, a: np.ndarray, b: n
     return opposite & inside
 
 
-def self_intersections(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> int:
-    """Edge-triangle pairs of one mesh (sharing no vertex) whose edge crosses the triangle."""
-    x = np.asarray(x)
+def candidate_pairs(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (edge, triangle) pairs of one mesh whose bounding boxes overlap and which share no
+    vertex, each once, in increasing (edge, triangle) order. Broad phase: a uniform grid of cells
+    twice the median edge length; each edge and triangle is listed in every cell its box touches,
+    so that the work grows with the pairs that are near, not with edges x triangles."""
+    x = np.asarray(x, float)
+    edges = np.asarray(edges, np.int64).reshape(-1, 2)
+    triangles = np.asarray(triangles, np.int64).reshape(-1, 3)
+    empty = np.zeros(0, np.int64)
+    if len(edges) == 0 or len(triangles) == 0:
+        return empty, empty
     lo_e = np.minimum(x[edges[:, 0]], x[edges[:, 1]])
     hi_e = np.maximum(x[edges[:, 0]], x[edges[:, 1]])
     tx = x[triangles]
     lo_t, hi_t = tx.min(axis=1), tx.max(axis=1)
-    overlap = np.all((lo_e[:, None, :] <= hi_t[None, :, :]) & (hi_e[:, None, :] >= lo_t[None, :, :]), axis=2)
-    shares = np.zeros_like(overlap)
+    length = np.linalg.norm(x[edges[:, 1]] - x[edges[:, 0]], axis=1)
+    cell = 2 * float(np.median(length))
+    if not cell > 0:
+        cell = max(float(np.max(hi_t - lo_t)), 1e-300)
+    origin = np.minimum(lo_e.min(axis=0), lo_t.min(axis=0))
+
+    def spread(lo, hi):
+        """(cell key, item) for every cell the boxes [lo, hi] touch."""
+        a = np.floor((lo - origin) / cell).astype(np.int64)
+        b = np.floor((hi - origin) / cell).astype(np.int64)
+        n = b - a + 1
+        count = n.prod(axis=1)
+        item = np.repeat(np.arange(len(lo)), count)
+        k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)  # index within the item's cells
+        ni, nj = n[item, 0], n[item, 1]
+        c = a[item] + np.stack([k % ni, (k // ni) % nj, k // (ni * nj)], axis=1)
+        key = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)  # hashed; false shares are filtered
+        return key, item
+
+    ke, ie = spread(lo_e, hi_e)
+    kt, it = spread(lo_t, hi_t)
+    order = np.argsort(kt, kind="stable")
+    kt, it = kt[order], it[order]
+    first = np.searchsorted(kt, ke, side="left")
+    last = np.searchsorted(kt, ke, side="right")
+    count = last - first
+    e = np.repeat(ie, count)
+    t = it[np.repeat(first, count) + np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)]
+    pair = np.unique(e * len(triangles) + t)
+    e, t = pair // len(triangles), pair % len(triangles)
+    keep = np.all((lo_e[e] <= hi_t[t]) & (hi_e[e] >= lo_t[t]), axis=1)
     for k in range(3):
         for j in range(2):
-            shares |= edges[:, j][:, None] == triangles[:, k][None, :]
-    ei, ti = np.nonzero(overlap & ~shares)
+            keep &= edges[e, j] != triangles[t, k]
+    return e[keep], t[keep]
+
+
+def self_intersections(x: np.ndarray, edges: np.ndarray, triangles: np.ndarray) -> int:
+    """Edge-triangle pairs of one mesh (sharing no vertex) whose edge crosses the triangle
+    (segments_cross_triangles on the pairs of candidate_pairs)."""
+    x = np.asarray(x)
+    ei, ti = candidate_pairs(x, edges, triangles)
     if len(ei) == 0:
         return 0
     hit = segments_cross_triangles(x[edges[ei, 0]], x[edges[ei, 1]], x[triangles[ti, 0]], x[triangles[ti, 1]],
