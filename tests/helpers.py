@@ -36,3 +36,13 @@ def cloth_model(n: int = 8, *, bending: float | None = 0.5, bending_compliance: 
         b.pin(inst.first_particle)
         b.pin(inst.first_particle + n - 1)
     return b.build()
+
+
+def cloth_over_sphere(n: int) -> csb.Model:
+    """An n x n cloth (1 m, 0.2 kg, stretch 1e-5 m/N, bending 1 1/(N m), 1 cm thick) above a sphere
+    of 0.3 m radius centred at (0, -0.4, 0), friction 0.4 / 0.3: the implicit methods' drape."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, n, n), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
+               bending_compliance=1.0, thickness=0.01)
+    b.add_sphere(center=[0, -0.4, 0], radius=0.3, friction_static=0.4, friction_kinetic=0.3)
+    return b.build()

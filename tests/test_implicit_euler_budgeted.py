@@ -10,6 +10,7 @@ import pytest
 
 import csb
 
+from helpers import cloth_over_sphere
 from test_implicit_euler import G, chain, copy_state, every_type, spring_cloth
 
 
@@ -150,11 +151,7 @@ def test_a_cloth_drapes_over_a_sphere_without_passing_through():
     sphere's surface plus the thickness stays under the thickness with one Newton iteration per
     step (2.1 mm measured: the 1.3 m/s landing is resolved by a single truncated CG solve) and
     under 1 mm with three (0.27 mm measured)."""
-    b = csb.ModelBuilder()
-    b.add_mesh(csb.cloth_grid(1.0, 1.0, 16, 16), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
-               bending_compliance=1.0, thickness=0.01)
-    b.add_sphere(center=[0, -0.4, 0], radius=0.3, friction_static=0.4, friction_kinetic=0.3)
-    model = b.build()
+    model = cloth_over_sphere(16)
     for iterations, bound in ((1, 0.01), (3, 1e-3)):
         s = model.initial_state()
         stepper = csb.make_integrator("implicit-euler", 1 / 60, iterations=iterations)

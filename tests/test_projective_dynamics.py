@@ -10,6 +10,8 @@ import pytest
 
 import csb
 
+from helpers import cloth_over_sphere
+
 DT = 1.0 / 60.0
 
 
@@ -296,11 +298,7 @@ def test_a_cloth_on_a_sphere_ends_every_step_outside_it():
     """A 12 x 12 cloth (1 cm thick) dropped on a sphere for 1 s, 10 iterations a step: no particle
     ends a step inside the sphere plus the thickness (the projection is exact; 1e-12 m covers the
     rounding of the normal's components), threads 1 and 2 give the same bits."""
-    b = csb.ModelBuilder()
-    b.add_mesh(csb.cloth_grid(1.0, 1.0, 12, 12), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
-               bending_compliance=1.0, thickness=0.01)
-    b.add_sphere(center=[0, -0.4, 0], radius=0.3, friction_static=0.4, friction_kinetic=0.3)
-    model = b.build()
+    model = cloth_over_sphere(12)
     ends = []
     for threads in (1, 2):
         s = model.initial_state()

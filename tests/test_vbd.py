@@ -10,6 +10,9 @@ import pytest
 
 import csb
 
+from helpers import cloth_over_sphere
+from test_implicit_euler import copy_state, every_type
+
 G = np.array([0.0, -9.81, 0.0])
 H = 1.0 / 60.0  # s
 
@@ -36,22 +39,6 @@ def tet_block() -> csb.Model:
     return b.build()
 
 
-def every_type() -> csb.Model:
-    """A 4 x 4 cloth (stretch, bending, two pins, tethers) and a box of 6 tets (edge springs,
-    volumes, a balloon over its surface) held by an attachment: every constraint type csb has."""
-    b = csb.ModelBuilder()
-    c = b.add_mesh(csb.cloth_grid(1.0, 1.0, 4, 4), mass=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
-                   bending_compliance=0.05)
-    b.pin(c.first_particle)
-    b.pin(c.first_particle + 3)
-    tm = csb.tet_box([0.4, 0.4, 0.4], [1, 1, 1], center=[0, -1, 0])
-    box = b.add_tet_mesh(tm, mass=1.0, stretch_compliance=1e-3, volume_compliance=1e-2)
-    b.add_balloon(np.asarray(tm.surface()) + box.first_particle, pressure=1.2, compliance=1e-2)
-    b.attach(box.first_particle, [0.0, -0.7, 0.0], compliance=1e-3)
-    b.add_tethers(mode="euclidean", max_stretch=1.0, compliance=1e-4)
-    return b.build()
-
-
 MODELS = {"cloth": cloth, "tet_block": tet_block, "every_type": every_type}
 
 
@@ -60,12 +47,6 @@ def thrown(model: csb.Model, seed: int = 3):
     s = model.initial_state()
     free = (np.asarray(model.inv_mass) > 0)[:, None]
     s.v = np.random.default_rng(seed).normal(0, 0.5, s.v.shape) * free
-    return s
-
-
-def copy_state(model: csb.Model, state):
-    s = model.initial_state()
-    s.x, s.v, s.t = np.array(state.x), np.array(state.v), state.t
     return s
 
 
@@ -303,11 +284,7 @@ def test_a_cloth_drapes_over_a_sphere_within_its_thickness():
     contacts are generated once per step from the prediction, and a particle its neighbours drag
     towards the sphere during the sweeps meets no contact), and threads 1 and 2 give the same
     bits."""
-    b = csb.ModelBuilder()
-    b.add_mesh(csb.cloth_grid(1.0, 1.0, 12, 12), mass=0.2, stretch_compliance=1e-5, bending_stiffness=1.0,
-               bending_compliance=1.0, thickness=0.01)
-    b.add_sphere(center=[0, -0.4, 0], radius=0.3, friction_static=0.4, friction_kinetic=0.3)
-    model = b.build()
+    model = cloth_over_sphere(12)
     ends = []
     for threads in (1, 2):
         s = model.initial_state()
