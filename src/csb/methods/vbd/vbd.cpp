@@ -1,8 +1,6 @@
 // csb — Vertex Block Descent (csb/methods/vbd/vbd.hpp).
 #include "csb/methods/vbd/vbd.hpp"
 
-#include "csb/atan2.hpp"
-
 #include "csb/constraints/bending.hpp"
 #include "csb/constraints/distance.hpp"
 #include "csb/constraints/volume.hpp"
@@ -343,26 +341,6 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
 
 namespace {
 
-// The signed dihedral angle θ (rad) across (a, b) and its gradient with respect to the slot's
-// vertex alone (rad/m): constraints/bending.hpp's formulas (Bridson et al. 2003), without the
-// three gradients the vertex does not need. False where the pair is degenerate.
-bool dihedral_slot(const Vec3& a, const Vec3& b, const Vec3& c, const Vec3& d, int slot, Real& theta, Vec3& grad) {
-  const Vec3 e = b - a;
-  const Vec3 N1 = (c - a).cross(c - b);
-  const Vec3 N2 = (d - b).cross(d - a);
-  const Real e2 = e.squaredNorm(), n1 = N1.squaredNorm(), n2 = N2.squaredNorm();
-  if (!(e2 > 0 && n1 > 0 && n2 > 0)) return false;
-  const Real elen = std::sqrt(e2);
-  theta = atan2_rational(N1.cross(N2).dot(e), N1.dot(N2) * elen);  // csb's inlined atan2 (atan2.hpp), as the bending kernels
-  switch (slot) {
-    case 0: grad = -((c - b).dot(e) / elen * (N1 / n1) + (d - b).dot(e) / elen * (N2 / n2)); break;
-    case 1: grad = (c - a).dot(e) / elen * (N1 / n1) + (d - a).dot(e) / elen * (N2 / n2); break;
-    case 2: grad = -elen * (N1 / n1); break;
-    default: grad = -elen * (N2 / n2); break;
-  }
-  return true;
-}
-
 // One vertex's Newton block of E: f (N) and H (N/m) at positions x (3 per particle).
 struct Block {
   const Model& model;
@@ -415,9 +393,10 @@ void Block::operator()(Index i, const std::vector<Incidence>& inc, Vec3& f, Mat3
       case kBending: {
         const auto& b = model.bending;
         const auto& q4 = b.particles[c];
-        Vec3 gi;
+        Vec3 grad[4];
         Real theta = 0;
-        if (!dihedral_slot(at(q4[0]), at(q4[1]), at(q4[2]), at(q4[3]), q.slot, theta, gi)) break;
+        if (!dihedral_angle_and_gradient(at(q4[0]), at(q4[1]), at(q4[2]), at(q4[3]), theta, grad)) break;
+        const Vec3& gi = grad[q.slot];
         const Real C = wrap_angle(theta - b.rest_angle[c]);
         const Real k = 1 / b.compliance[c];
         f -= (k * C) * gi;
