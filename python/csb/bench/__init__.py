@@ -681,15 +681,6 @@ def compliant_cloth(n: int) -> _core.Model:
     return b.build()
 
 
-def _one_thread(name: str, iterations: int, settings: dict) -> _core.Integrator:
-    extra = dict(settings)
-    if name in _core.pbd_variant_names():
-        return _core.PbdStepper(method=name, dt=1 / 60, iterations=iterations, threads=1)
-    if any(k.name == "threads" for k in _core.method_info(name).settings):
-        extra["threads"] = 1
-    return _core.make_integrator(name, 1 / 60, iterations=iterations, **extra)
-
-
 def _copy_state(model, state):
     s = model.initial_state()
     s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
@@ -702,6 +693,8 @@ def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int
     scale, and the fewest iterations of _LADDER whose step's is within EQUAL_ERROR, with its ms
     per step (None: not within 640). Median of `rounds` rounds of `steps` steps each, the methods
     taking turns within a round."""
+    from ..studies.study.cells import one_thread_integrator
+
     rows = []
     g = (0.0, -9.81, 0.0)
     for n in sizes:
@@ -711,7 +704,7 @@ def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int
 
         def residual(name, iterations, settings):
             s = _copy_state(model, moving)
-            _one_thread(name, iterations, settings).step(model, s)
+            one_thread_integrator(name, 1 / 60, iterations=iterations, settings=settings).step(model, s)
             r = _core.backward_euler_residual(model, moving, s, 1 / 60, g)
             return r.max / r.scale
 
@@ -731,7 +724,7 @@ def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int
         for p in plan:
             for key, it in (("ten", 10), ("equal", p["iterations_equal"])):
                 if it is not None:
-                    stepper = _one_thread(p["name"], it, p["settings"])
+                    stepper = one_thread_integrator(p["name"], 1 / 60, iterations=it, settings=p["settings"])
                     state = _copy_state(model, moving)
                     with warnings.catch_warnings():  # PBD makes the compliant stretch rigid, as the header says
                         warnings.simplefilter("ignore", _core.MaterialWarning)

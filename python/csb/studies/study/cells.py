@@ -61,22 +61,31 @@ def _core_reference(model, start, times, gravity, reference):
                                energy_tolerance=reference["energy_tolerance"])
 
 
+def one_thread_integrator(name: str, dt: float, *, substeps: int = 1, iterations: int = 10, gravity=(0.0, -9.81, 0.0),
+                          settings: dict[str, Any] | None = None) -> _core.Integrator:
+    """The built-in method `name` as csb.make_integrator makes it, on one thread (a method with a
+    `threads` setting, and the position-based pipeline), so that its cost is one core's: how the
+    studies and the benchmarks time the methods against each other."""
+    settings = dict(settings or {})
+    if "threads" not in settings and any(k.name == "threads" for k in _core.method_info(name).settings):
+        settings["threads"] = 1
+    s = _core.make_integrator(name, dt, substeps=substeps, iterations=iterations, gravity=gravity, **settings)
+    if isinstance(s, _core.PbdStepper):
+        st = s.settings
+        kept = {n: getattr(st, n) for n in ("method", "dt", "substeps", "iterations", "gravity", "damping",
+                                            "stiffness_correction", "front_end", "solver", "xpbd_damping",
+                                            "verlet_drag", "sqrt_approximation", "ordering", "max_speed")}
+        s = _core.PbdStepper(**kept, threads=1)
+    return s
+
+
 def _make_stepper(definition: dict[str, Any], context: dict[str, Any], params: dict[str, Any], dt: float,
                   gravity) -> _core.Integrator:
     method = definition["method"]
     if "name" in method:
-        settings = dict(method.get("settings", {}))
-        if "threads" not in settings and any(k.name == "threads" for k in _core.method_info(method["name"]).settings):
-            settings["threads"] = 1  # one thread: the cost is one core's
-        s = _core.make_integrator(method["name"], dt, substeps=params.get("substeps", 1),
-                                  iterations=params.get("iterations", 10), gravity=gravity, **settings)
-        if isinstance(s, _core.PbdStepper):  # one thread: the cost is one core's
-            st = s.settings
-            settings = {n: getattr(st, n) for n in ("method", "dt", "substeps", "iterations", "gravity", "damping",
-                                                    "stiffness_correction", "front_end", "solver", "xpbd_damping",
-                                                    "verlet_drag", "sqrt_approximation", "ordering", "max_speed")}
-            s = _core.PbdStepper(**settings, threads=1)
-        return s
+        return one_thread_integrator(method["name"], dt, substeps=params.get("substeps", 1),
+                                     iterations=params.get("iterations", 10), gravity=gravity,
+                                     settings=method.get("settings"))
     from .. import make_stepper
 
     if "plugin" in method:
