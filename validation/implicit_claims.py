@@ -53,7 +53,7 @@ import numpy as np
 
 import csb
 from csb.reference import integrate_reference
-from csb.studies import write_csv
+from csb.studies import copy_state, write_csv
 from csb.studies.literature import mass_ratio_chain, stiffness_ratio_chain
 from csb.studies.soft_bodies import hanging_tet_cube
 from csb.studies.study.schema import hanging_cloth
@@ -185,12 +185,6 @@ def moving_cloth(n: int):
     return model, s
 
 
-def _copy(model, state):
-    s = model.initial_state()
-    s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
-    return s
-
-
 def pd_convergence(n: int, iterations: int) -> tuple[list[dict], list[dict]]:
     """One step of 1/60 s from the moving cloth: the backward-Euler residual after each iteration
     of PD, PD + Chebyshev (Wang's delay S = 10, γ = 0.9, ρ measured) and Newton (converged backward
@@ -200,10 +194,10 @@ def pd_convergence(n: int, iterations: int) -> tuple[list[dict], list[dict]]:
     for label, settings in (("PD", {}), ("PD + Chebyshev", {"chebyshev": True})):
         pd = csb.make_integrator("projective-dynamics", 1 / 60, iterations=iterations, record_residuals=True,
                                  threads=1, **settings)
-        pd.step(model, _copy(model, start))
+        pd.step(model, copy_state(model, start))
         curves[label] = list(pd.residual_history)
     be = csb.make_integrator("backward-euler", 1 / 60)
-    be.step(model, _copy(model, start))
+    be.step(model, copy_state(model, start))
     curves["Newton"] = list(be.history)
     rows = []
     for label, r in curves.items():
@@ -211,17 +205,17 @@ def pd_convergence(n: int, iterations: int) -> tuple[list[dict], list[dict]]:
             rows.append(dict(method=label, iteration=k, residual_N=float(v)))
     # cost: a fresh stepper factors on its first step; later steps reuse it
     pd = csb.make_integrator("projective-dynamics", 1 / 60, iterations=iterations, threads=1)
-    pd.step(model, _copy(model, start))
+    pd.step(model, copy_state(model, start))
     factor_ms = 1e3 * pd.last_factorization_time
     times = []
     for _ in range(5):
-        s = _copy(model, start)
+        s = copy_state(model, start)
         t0 = time.perf_counter()
         pd.step(model, s)
         times.append((time.perf_counter() - t0) / iterations * 1e3)
     be_times = []
     for _ in range(3):
-        s = _copy(model, start)
+        s = copy_state(model, start)
         t0 = time.perf_counter()
         be.step(model, s)
         be_times.append((time.perf_counter() - t0) * 1e3)
@@ -259,7 +253,7 @@ def vbd_against_xpbd(n: int, budgets: tuple[int, ...], rounds: int) -> list[dict
             ends = {}
             for _ in range(rounds):
                 for label, stepper in steppers.items():
-                    s = _copy(model, start)
+                    s = copy_state(model, start)
                     t0 = time.perf_counter()
                     stepper.step(model, s)
                     times[label].append(1e3 * (time.perf_counter() - t0))
@@ -278,7 +272,7 @@ def vbd_acceleration(n: int, budgets: tuple[int, ...], rhos: tuple[float, ...]) 
     rows = []
     for rho in rhos:
         for it in budgets:
-            s = _copy(model, start)
+            s = copy_state(model, start)
             csb.make_integrator("vbd", 1 / 60, iterations=it, acceleration=rho, threads=1).step(model, s)
             r = csb.backward_euler_residual(model, start, s, 1 / 60, G)
             rows.append(dict(acceleration=rho, iterations=it, residual_over_scale=r.max / r.scale))

@@ -681,18 +681,13 @@ def compliant_cloth(n: int) -> _core.Model:
     return b.build()
 
 
-def _copy_state(model, state):
-    s = model.initial_state()
-    s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
-    return s
-
-
 def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int = 5) -> list[dict]:
     """Per cloth size and method: ms per step at 10 iterations, the backward-Euler residual of one
     step from a moving state (the cloth after 30 steps of XPBD from rest) over the step's force
     scale, and the fewest iterations of _LADDER whose step's is within EQUAL_ERROR, with its ms
     per step (None: not within 640). Median of `rounds` rounds of `steps` steps each, the methods
     taking turns within a round."""
+    from ..studies import copy_state
     from ..studies.study.cells import one_thread_integrator
 
     rows = []
@@ -703,7 +698,7 @@ def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int
         _core.PbdStepper(method="xpbd", dt=1 / 60, iterations=10).step(model, moving, 30)
 
         def residual(name, iterations, settings):
-            s = _copy_state(model, moving)
+            s = copy_state(model, moving)
             one_thread_integrator(name, 1 / 60, iterations=iterations, settings=settings).step(model, s)
             r = _core.backward_euler_residual(model, moving, s, 1 / 60, g)
             return r.max / r.scale
@@ -725,7 +720,7 @@ def method_table(sizes: Sequence[int] = (32, 64), *, rounds: int = 5, steps: int
             for key, it in (("ten", 10), ("equal", p["iterations_equal"])):
                 if it is not None:
                     stepper = one_thread_integrator(p["name"], 1 / 60, iterations=it, settings=p["settings"])
-                    state = _copy_state(model, moving)
+                    state = copy_state(model, moving)
                     with warnings.catch_warnings():  # PBD makes the compliant stretch rigid, as the header says
                         warnings.simplefilter("ignore", _core.MaterialWarning)
                         stepper.step(model, state, 2)

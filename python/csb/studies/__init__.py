@@ -23,6 +23,13 @@ from ..model import ModelBuilder
 from ..scene import Scene
 
 
+def copy_state(model: _core.Model, state: _core.State) -> _core.State:
+    """An independent copy of `state` (positions, velocities, time, step count) for `model`."""
+    s = model.initial_state()
+    s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
+    return s
+
+
 def write_csv(path, rows: list[dict]) -> None:
     """Rows of a study as a CSV file, the first row's keys as the header."""
     with open(path, "w", newline="") as f:

@@ -12,6 +12,7 @@ import numpy as np
 
 from .. import _core
 from ..model import ModelBuilder
+from . import copy_state
 from .literature import xpbd_chain
 
 G = (0.0, -9.81, 0.0)
@@ -34,12 +35,6 @@ def hanging_cloth(n: int = 16, *, compliance: float = 1e-4, bending_compliance: 
     b.pin(inst.first_particle)
     b.pin(inst.first_particle + n - 1)
     return b.build()
-
-
-def _copy(model: _core.Model, state: _core.State) -> _core.State:
-    s = model.initial_state()
-    s.x, s.v, s.t, s.step = np.array(state.x), np.array(state.v), state.t, state.step
-    return s
 
 
 def _support_force(model: _core.Model, state: _core.State) -> float:
@@ -75,8 +70,8 @@ def xpbd_chain_same_step(*, link: float = 1.0, iterations: tuple[int, ...] = (50
         state = model.initial_state()
         f_xpbd, f_same, res_norm, res_rel, newton = [], [], [], [], 0
         for _ in range(frames):
-            before = _copy(model, state)
-            target = _copy(model, state)
+            before = copy_state(model, state)
+            target = copy_state(model, state)
             same.step(model, target)
             newton = max(newton, same.newton_iterations)
             f_same.append(_support_force(model, target))
@@ -133,7 +128,7 @@ def _timed_step(model: _core.Model, state: _core.State, stepper, repeats: int,
     count, best, after = 1, np.inf, None
     for _ in range(repeats):
         while True:
-            copies = [_copy(model, state) for _ in range(count)]
+            copies = [copy_state(model, state) for _ in range(count)]
             t0 = time.process_time()
             for c in copies:
                 stepper.step(model, c)
