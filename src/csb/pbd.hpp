@@ -296,6 +296,7 @@ class PbdStepper : public Integrator {
   void generate_self_contacts(const Model& model, const Positions& x);
   void set_relaxation(const Model& model);
   void project_contacts(const Model& model, bool jacobi);
+  void project_self_contacts(const Model& model, bool jacobi);
   void settle_contact_moves(bool average);
   void apply_friction(const Model& model, const Positions& x);
   void apply_restitution(const Model& model, State& state, Real h);
