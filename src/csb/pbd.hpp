@@ -245,7 +245,38 @@ class PbdStepper : public Integrator {
   [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
   // The divergence guard (PbdSettings::max_speed) after a step; guard_size_ is the model's
   // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
+  // Moving colliders and attachments (collision/collider_motion.cpp; collision.hpp for the
+  // contacts). Each collider of the model has a rigid pose x_world = R x_model + t, the identity
+  // until moved. move_collider sets the pose the collider reaches at the end of the next step();
+  // over that step's sub-steps it goes there from its present pose (t linearly, R by quaternion
+  // slerp: less than π a step). Throws InvalidArgument naming the collider for an index out of
+  // range or a rotation that is not one (|RᵀR - I|, |det R - 1| > kRotationTolerance) or
+  // non-finite values. translation in m.
+  void move_collider(const Model& model, Index collider, const Mat3& rotation, const Vec3& translation);
+  // The pose of a collider at the end of the last step (what the state's positions saw).
+  ColliderPose collider_pose(Index collider) const;
+  // Attaches particles to a collider: kinematic (inverse mass 0 in the projections) and predicted
+  // at the collider's interpolated pose applied to where they are in its frame now (so a cape
+  // hangs from a moving character's shoulders). A particle held already (grab or attachment) is
+  // an error. detach lets go of `particles` of that collider (all of them if empty); they keep
+  // the velocity they had. Attached particles appear in grabs() with negative handles.
+  void attach(const Model& model, const State& state, Index collider, const std::vector<Index>& particles);
+  void detach(Index collider, const std::vector<Index>& particles = {});
+  const std::vector<ColliderAttachment>& attachments() const { return attachments_; }
+
   // (s) of the state the stepper first stepped on this model.
+  struct ColliderMotion {
+    ColliderPose from, to;     // at the end of the last step, at the end of the next
+    ColliderPose start, end;   // of the current sub-step
+    bool moving = false;       // either pose is not the identity (else every operation is the static one)
+  };
+  std::vector<ColliderMotion> collider_motion_;  // per collider of the model, empty until one is moved or attached to
+  std::vector<ColliderAttachment> attachments_;
+  int next_attachment_ = -1;
+  void size_collider_motion(const Model& model, const char* what);
+  void move_colliders(const Model& model, int sub);  // the sub-step's poses; attached particles' predictions
+  void end_collider_motion();
+
   void check_divergence(const Model& model, State& state, Real h);
   // The stages of step() (step/stepper.cpp lists them against Algorithm 1).
   void check_request(const Model& model, const State& state, std::int64_t steps) const;

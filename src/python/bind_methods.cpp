@@ -196,9 +196,55 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
           d["target"] = std::vector<double>{g.target.x(), g.target.y(), g.target.z()};
           d["compliance"] = g.compliance;
           out.append(d);
+          if (g.handle < 0) continue;  // a particle attached to a collider (attachments)
         }
         return out;
-      }, "The grabs held now: handle, particle, target (m), compliance (m/N).");
+      }, "The grabs held now: handle, particle, target (m), compliance (m/N).")
+      // Moving colliders and attachments (collision/collider_motion.cpp).
+      .def("move_collider", [](PbdStepper& s, const Model& model, IntArg collider, py::handle rotation,
+                               py::handle translation) {
+        const Index c = index_arg(collider, "move_collider: collider");
+        const std::string what = "move_collider: collider " + std::to_string(c);
+        s.move_collider(model, c, to_mat3(rotation, what + ": rotation"), to_vec3(translation, what + ": translation"));
+      }, py::arg("model"), py::arg("collider"), py::arg("rotation"), py::arg("translation"),
+         "Sets the pose collider `collider` reaches at the end of the next step: x_world = rotation x_model + "
+         "translation (rotation a 3 x 3 rotation matrix, orthonormal with det +1 to 1e-6; translation in m). Over the "
+         "step's sub-steps it moves there from its present pose (translation linearly, rotation by quaternion slerp, "
+         "so less than π a step); contacts see the motion relative to it, friction and restitution the relative "
+         "velocity. Every collider starts at the identity.")
+      .def("collider_pose", [](const PbdStepper& s, IntArg collider) {
+        const ColliderPose p = s.collider_pose(index_arg(collider, "collider_pose: collider"));
+        py::array_t<double> r({py::ssize_t(3), py::ssize_t(3)});
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) r.mutable_at(i, j) = p.rotation(i, j);
+        return py::make_tuple(r, vec3_array(p.translation));
+      }, py::arg("collider"), "The pose (rotation, translation in m) of a collider at the end of the last step.")
+      .def("attach", [](PbdStepper& s, const Model& model, const State& state, IntArg collider, py::iterable particles) {
+        std::vector<Index> ids;
+        for (py::handle h : particles) ids.push_back(index_arg(h.cast<IntArg>(), "attach: particle"));
+        s.attach(model, state, index_arg(collider, "attach: collider"), ids);
+      }, py::arg("model"), py::arg("state"), py::arg("collider"), py::arg("particles"),
+         "Attaches particles to collider `collider`: kinematic while attached (inverse mass 0 in the projections), "
+         "each placed at the collider's pose, interpolated over the sub-steps, applied to where it is in the "
+         "collider's frame now (a cape on a moving character's shoulders).")
+      .def("detach", [](PbdStepper& s, IntArg collider, std::optional<py::iterable> particles) {
+        std::vector<Index> ids;
+        if (particles)
+          for (py::handle h : *particles) ids.push_back(index_arg(h.cast<IntArg>(), "detach: particle"));
+        s.detach(index_arg(collider, "detach: collider"), ids);
+      }, py::arg("collider"), py::arg("particles") = py::none(),
+         "Lets go of `particles` attached to collider `collider` (all of them if None); they keep their velocity.")
+      .def_property_readonly("attachments", [](const PbdStepper& s) {
+        py::list out;
+        for (const ColliderAttachment& a : s.attachments()) {
+          py::dict d;
+          d["collider"] = a.collider;
+          d["particle"] = a.particle;
+          d["local"] = std::vector<double>{a.local.x(), a.local.y(), a.local.z()};
+          out.append(d);
+        }
+        return out;
+      }, "The particles attached to colliders: collider, particle, local (m, its position in the collider's frame).");
 
   m.def("tear", [](py::object model_obj, py::object state_obj, double max_strain, IntArg max_tears_arg) {
     const Model& model = model_obj.cast<const Model&>();

@@ -1,4 +1,4 @@
-// csb — static colliders and the contacts the PBD stepper generates against them (Müller,
+// csb — colliders and the contacts the PBD stepper generates against them (Müller,
 // Heidelberger, Hennix, Ratcliff 2007, "Position Based Dynamics", §3.4 and §4.3).
 //
 // A collider is immutable and part of the Model: a half-space, a sphere, a capsule, an oriented
@@ -23,6 +23,26 @@
 // half-space beyond a tangent plane lies outside the collider, so a satisfied contact keeps the
 // particle out (and at least r away). A mesh sheet has no inside: a particle keeps the side it
 // is on, and the normal of a contact is turned towards that side.
+//
+// Moving colliders. The shape above is the collider's model frame; the position-based stepper
+// owns a rigid pose per collider, x_world = R x_model + t (identity until moved; the Model stays
+// immutable), set for the end of the next step and interpolated over its sub-steps (t linearly,
+// R by slerp of unit quaternions, as a kinematic grab's hand moves). A sub-step goes from pose A
+// (its start) to pose B (its end); the ray is tested in the model frame, from A⁻¹ x to B⁻¹ p:
+// the particle's motion relative to the collider, so a collider faster than the cloth is thin
+// does not pass through it.
+//   - Translation only (R_A = R_B): both the particle's prediction and the collider move on
+//     straight lines at constant speed within the sub-step, so their relative path is exactly
+//     that segment; the test is exact (as continuous as for a static collider).
+//   - Rotation: in the model frame the relative path of a particle is an arc, replaced by its
+//     chord. The chord is off the arc by at most ρ θ²/8 (ρ the distance to the rotation axis,
+//     θ the angle turned in the sub-step): a feature thinner than that can be missed.
+// The contact point q and normal n are carried to the world by pose B, so the constraint is the
+// tangent plane where the surface is at the end of the sub-step. The contact also keeps the
+// motion over the sub-step of the collider's material point at q, B q_m - A q_m (q_m = B⁻¹ q):
+// friction acts on the particle's displacement relative to it and restitution on the relative
+// normal velocity (contacts.cpp). For an unmoved collider that motion is zero and every
+// operation is the static collider's.
 #pragma once
 
 #include "csb/mesh.hpp"
@@ -64,7 +84,7 @@ struct ColliderMesh {
   TriangleGrid grid;
 };
 
-// One static collider. Only the fields of its kind are used:
+// One collider, in its model frame. Only the fields of its kind are used:
 //   Plane    point (m), normal (unit, outward: the free side)
 //   Sphere   center (m), radius (m)
 //   Capsule  a, b (m): the ends of its axis; radius (m)
@@ -111,7 +131,44 @@ struct Contact {
   Real lambda = 0;                  // XPBD multiplier, kg m (the contact force is λ/h² along n)
   Real normal_correction = 0;       // m, what the contact pushed the particle along n this sub-step
   Real sweep_move = 0;              // m, PBD with averaged Jacobi: this sweep's push, before the averaging
+  Vec3 surface_motion = Vec3::Zero();  // m, the collider's material point at q moved this far in the sub-step
 };
+
+// A collider's rigid pose, x_world = rotation x_model + translation (rotation orthonormal with
+// determinant +1; translation in m).
+struct ColliderPose {
+  Mat3 rotation = Mat3::Identity();
+  Vec3 translation = Vec3::Zero();  // m
+  Vec3 to_world(const Vec3& x) const { return rotation * x + translation; }
+  Vec3 to_model(const Vec3& x) const { return rotation.transpose() * (x - translation); }
+  bool identity() const { return rotation == Mat3::Identity() && translation == Vec3::Zero(); }
+};
+
+// The pose `fraction` in [0, 1] of the way from `from` to `to`: translation linear, rotation by
+// slerp of unit quaternions (the shorter arc, so a step must turn less than π); exactly `from`
+// at 0 and `to` at 1.
+ColliderPose interpolate_pose(const ColliderPose& from, const ColliderPose& to, Real fraction);
+
+// Throws InvalidArgument naming `what` unless `rotation` is a rotation (|RᵀR - I| and
+// |det R - 1| at most kRotationTolerance, entries finite) and `translation` is finite.
+constexpr Real kRotationTolerance = 1e-6;
+void validate_pose(const Mat3& rotation, const Vec3& translation, const std::string& what);
+
+// A particle attached to a collider: kinematic (inverse mass 0 in the projections, like a
+// kinematic grab), its prediction the collider's pose applied to `local`, where it was in the
+// collider's model frame when attached.
+struct ColliderAttachment {
+  Index collider = 0;
+  Index particle = 0;
+  Vec3 local = Vec3::Zero();        // m, model frame of the collider
+  int handle = 0;                   // of the kinematic grab that holds it (< 0)
+};
+
+// generate_contact against collider c at pose A at the sub-step's start and B at its end: the
+// ray A⁻¹ x -> B⁻¹ p in the model frame, the contact carried to the world by B (see above).
+bool generate_moving_contact(const Collider& c, const ColliderPose& A, const ColliderPose& B, Index collider_index,
+                             Index i, const Vec3& x, const Vec3& p, Real r, Real margin, Real h,
+                             std::vector<Contact>& out, std::vector<std::uint32_t>& stamps, std::uint32_t& stamp);
 
 // Appends the contact of particle i (at x, predicted at p, thickness r, speculative margin in m)
 // with collider c if there is one; `stamps` holds candidate triangle marks for mesh colliders

@@ -26,7 +26,13 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
     for (Index i = 0; i < model.num_particles(); ++i) {
       if (w[i] <= 0) continue;
       const Vec3 xi = x.col(i), pi = p_.col(i);
-      for (Index c = 0; c < static_cast<Index>(model.colliders.size()); ++c)
+      for (Index c = 0; c < static_cast<Index>(model.colliders.size()); ++c) {
+        if (!collider_motion_.empty() && collider_motion_[c].moving) {  // along the motion relative to it
+          const ColliderMotion& m = collider_motion_[c];
+          generate_moving_contact(model.colliders[c], m.start, m.end, c, i, xi, pi, model.thickness[i],
+                                  margin_[model.group[i]], h, contacts_, stamps_, stamp_);
+          continue;
+        }
         generate_contact(model.colliders[c], c, i, xi, pi, model.thickness[i], margin_[model.group[i]], h, contacts_,
                          stamps_, stamp_);
     }
@@ -103,14 +109,17 @@ void PbdStepper::settle_contact_moves(bool average) {
 //   otherwise:       p <- p - Δx_t μk d / |Δx_t|       (kinetic: slides, slowed by μk d)
 // Divided by h this is the velocity-level rule |Δv_t| <= μ |f_n| h / m with f_n = m d / h²
 // the contact force (Müller et al. 2020, "Detailed Rigid Body Simulation with XPBD", Eq. 30).
-// The velocity (p - x)/h, or Verlet's x - x*, inherits the change.
+// The velocity (p - x)/h, or Verlet's x - x*, inherits the change. Against a moving collider
+// Δx_t is relative: the particle's displacement minus that of the collider's material point at
+// the contact over the sub-step (Contact::surface_motion, zero for an unmoved collider), so a
+// static contact is carried along by the surface (a rotating sphere turns the cloth on it).
 void PbdStepper::apply_friction(const Model& model, const Positions& x) {
   for (const Contact& k : contacts_) {
     const Real d = k.normal_correction;
     const ContactMaterial& m = model.colliders[k.collider].material;
     if (!(d > 0) || !(m.friction_static > 0)) continue;
     const Index i = k.particle;
-    const Vec3 dx = p_.col(i) - x.col(i);
+    const Vec3 dx = p_.col(i) - x.col(i) - k.surface_motion;
     const Vec3 dt = dx - dx.dot(k.normal) * k.normal;
     const Real len = dt.norm();
     if (len <= m.friction_static * d)
@@ -127,7 +136,11 @@ void PbdStepper::apply_friction(const Model& model, const Positions& x) {
 // with v_rest = 2 |g| h, the normal speed gravity gives in two sub-steps (the threshold of Müller
 // et al. 2020, §3.6), so a particle at rest, whose ṽ_n is -|g| h, never bounces and does not
 // jitter. A particle that started the sub-step inside (the static fallback) leaves with
-// v_n <- min(v_n, 0): being pushed out does not launch it. Verlet: x* <- x - h v.
+// v_n <- min(v_n, 0): being pushed out does not launch it. Verlet: x* <- x - h v. Against a
+// moving collider v_n and ṽ_n are relative to the surface (ṽ_n from the ray in the collider's
+// frame, v_n minus the normal velocity of the collider's material point at the contact,
+// surface_motion/h): a plane moving up at u into a ball falling at v leaves it at
+// u + e (u + v).
 void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
   const Real v_rest = 2 * settings_.gravity.norm() * h;
   const bool verlet = settings_.front_end == FrontEnd::Verlet;
@@ -135,7 +148,7 @@ void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
     if (!(k.normal_correction > 0)) continue;
     const Index i = k.particle;
     Vec3 v = verlet ? Vec3((state.x.col(i) - x_prev_.col(i)) / h) : Vec3(state.v.col(i));
-    const Real vn = v.dot(k.normal);
+    const Real vn = (v - k.surface_motion / h).dot(k.normal);
     Real target = vn;
     if (k.started_inside)
       target = std::min(vn, Real(0));

@@ -35,6 +35,8 @@ int PbdStepper::grab(const Model& model, const State& state, Index particle, con
 }
 
 Grab& PbdStepper::find_grab(int handle) {
+  if (handle < 0)
+    throw InvalidArgument("handle " + std::to_string(handle) + " holds a particle attached to a collider: use detach");
   for (Grab& g : grabs_)
     if (g.handle == handle) return g;
   throw InvalidArgument("no grab with handle " + std::to_string(handle) + " (released already?)");

@@ -63,6 +63,7 @@ std::int64_t PbdStepper::projections_per_step(const Model& model) const {
 //   per sub-step:
 //     predict                      (5)-(7)               predict, damp_velocities (step/integrate.cpp)
 //     move the hands               -                     apply_grab_targets (interaction/grabs.cpp)
+//     move the colliders           -                     move_colliders (collision/collider_motion.cpp)
 //     zero XPBD's multipliers      -                     reset_multipliers (step/workspace.cpp)
 //     generate contacts            (8)                   generate_contacts (collision/contacts.cpp)
 //     project, `iterations` sweeps (9)-(11)              project (solver/sequential.cpp, solver/coloured.cpp)
@@ -101,6 +102,7 @@ void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
   predict(model, state, h);                                                 // (5)-(7)
   if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
   reset_multipliers();
+  if (!collider_motion_.empty()) move_colliders(model, sub);             // poses, attached particles
   generate_contacts(model, state.x, h);                                     // (8)
   project(model, state.x);                                                  // (9)-(11)
   if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
@@ -197,7 +199,7 @@ bool PbdStepper::begin_steps(const Model& model, State& state) {
   // projection's threads then also predict and update (the same operations, split by particle),
   // all sub-steps of a step in one fork of the team; otherwise the sub-steps run here, the team
   // forked for each projection.
-  return settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() &&
+  return settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() && collider_motion_.empty() &&
          self_groups_.empty() && (verlet || settings_.damping <= 0);
 }
 
@@ -209,6 +211,7 @@ void PbdStepper::end_step(const Model& model, State& state, Real h) {
   for (Grab& g : grabs_) g.from = g.target;
   if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
 }
+  end_collider_motion();
 
 // The Verlet front end keeps its velocity in the previous positions: the state's velocities
 // are made from them when a call ends (or stops).

@@ -1,0 +1,179 @@
+// csb — moving colliders and attachments: the position-based stepper owns a rigid pose per
+// collider (the Model stays immutable), interpolated over the sub-steps of a step like a kinematic
+// grab's hand; contacts are generated along the particle's motion relative to the collider
+// (collision.hpp), and attached particles follow the pose.
+#include "csb/pbd.hpp"
+#include "csb/format.hpp"
+#include "csb/step/internal.hpp"
+
+#include <cmath>
+
+namespace csb {
+
+using detail::str;
+
+ColliderPose interpolate_pose(const ColliderPose& from, const ColliderPose& to, Real fraction) {
+  if (fraction <= 0) return from;
+  if (fraction >= 1) return to;
+  ColliderPose out;
+  out.translation = from.translation + fraction * (to.translation - from.translation);
+  if (from.rotation == to.rotation) {
+    out.rotation = from.rotation;
+  } else {
+    const Eigen::Quaternion<Real> a(from.rotation), b(to.rotation);
+    out.rotation = a.normalized().slerp(fraction, b.normalized()).toRotationMatrix();
+  }
+  return out;
+}
+
+void validate_pose(const Mat3& rotation, const Vec3& translation, const std::string& what) {
+  if (!rotation.allFinite()) throw InvalidArgument(what + ": rotation must be finite");
+  if (!translation.allFinite()) throw InvalidArgument(what + ": translation must be finite (m), got " + str(translation));
+  const Real orth = (rotation.transpose() * rotation - Mat3::Identity()).cwiseAbs().maxCoeff();
+  const Real det = rotation.determinant();
+  if (!(orth <= kRotationTolerance) || !(std::abs(det - 1) <= kRotationTolerance))
+    throw InvalidArgument(what + ": rotation must be a rotation matrix (|RᵀR - I| and |det R - 1| at most " +
+                          str(kRotationTolerance) + "), got |RᵀR - I| = " + str(orth) + ", det R = " + str(det));
+}
+
+bool generate_moving_contact(const Collider& c, const ColliderPose& A, const ColliderPose& B, Index collider_index,
+                             Index i, const Vec3& x, const Vec3& p, Real r, Real margin, Real h,
+                             std::vector<Contact>& out, std::vector<std::uint32_t>& stamps, std::uint32_t& stamp) {
+  if (!generate_contact(c, collider_index, i, A.to_model(x), B.to_model(p), r, margin, h, out, stamps, stamp))
+    return false;
+  Contact& k = out.back();
+  const Vec3 q = k.point;  // model frame
+  k.point = B.to_world(q);
+  k.normal = B.rotation * k.normal;
+  k.surface_motion = k.point - A.to_world(q);
+  return true;
+}
+
+namespace {
+
+const Collider& collider_at(const Model& model, Index collider, const char* what) {
+  const Index n = static_cast<Index>(model.colliders.size());
+  if (collider < 0 || collider >= n)
+    throw InvalidArgument(std::string(what) + ": collider " + std::to_string(collider) + " is out of range (the model has " +
+                          std::to_string(n) + " colliders)");
+  return model.colliders[collider];
+}
+
+}  // namespace
+
+// The poses are sized to the model's colliders on first use; another model with a different
+// number of colliders is an error (the poses would not mean anything for it).
+void PbdStepper::size_collider_motion(const Model& model, const char* what) {
+  const std::size_t n = model.colliders.size();
+  if (collider_motion_.empty()) collider_motion_.resize(n);
+  if (collider_motion_.size() != n)
+    throw InvalidArgument(std::string(what) + ": this stepper holds poses for " + std::to_string(collider_motion_.size()) +
+                          " colliders, but the model has " + std::to_string(n));
+}
+
+void PbdStepper::move_collider(const Model& model, Index collider, const Mat3& rotation, const Vec3& translation) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.move_collider");
+  const Collider& c = collider_at(model, collider, "move_collider");
+  validate_pose(rotation, translation, "move_collider: collider " + std::to_string(collider) + " ('" + c.name + "')");
+  size_collider_motion(model, "move_collider");
+  ColliderMotion& m = collider_motion_[collider];
+  m.to.rotation = rotation;
+  m.to.translation = translation;
+}
+
+ColliderPose PbdStepper::collider_pose(Index collider) const {
+  if (collider < 0) throw InvalidArgument("collider_pose: collider " + std::to_string(collider) + " is out of range");
+  if (collider >= static_cast<Index>(collider_motion_.size())) return {};
+  return collider_motion_[collider].from;
+}
+
+void PbdStepper::attach(const Model& model, const State& state, Index collider, const std::vector<Index>& particles) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.attach");
+  const Collider& c = collider_at(model, collider, "attach");
+  if (state.x.cols() != model.num_particles()) throw InvalidArgument("attach: the state does not belong to the model");
+  size_collider_motion(model, "attach");
+  for (std::size_t k = 0; k < particles.size(); ++k) {
+    const Index i = particles[k];
+    if (i < 0 || i >= model.num_particles())
+      throw InvalidArgument("attach: particle " + std::to_string(i) + " is out of range (the model has " +
+                            std::to_string(model.num_particles()) + " particles)");
+    for (std::size_t j = 0; j < k; ++j)
+      if (particles[j] == i) throw InvalidArgument("attach: particle " + std::to_string(i) + " is listed twice");
+    for (const Grab& g : grabs_)
+      if (g.particle == i)
+        throw InvalidArgument("attach: particle " + std::to_string(i) + " is already held (" +
+                              (g.handle < 0 ? "attached to a collider" : "grab " + std::to_string(g.handle)) + ")");
+  }
+  (void)c;
+  const ColliderPose& now = collider_motion_[collider].from;  // where the collider is in `state`
+  for (const Index i : particles) {
+    ColliderAttachment a;
+    a.collider = collider;
+    a.particle = i;
+    a.local = now.to_model(state.x.col(i));
+    a.handle = next_attachment_--;
+    Grab g;  // kinematic: inverse mass 0 while attached, as a grab of compliance 0
+    g.handle = a.handle;
+    g.particle = i;
+    g.target = g.from = state.x.col(i);
+    g.pinned = model.inv_mass[i] == 0;
+    grabs_.push_back(g);
+    attachments_.push_back(a);
+  }
+}
+
+void PbdStepper::detach(Index collider, const std::vector<Index>& particles) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.detach");
+  for (const Index i : particles) {
+    bool found = false;
+    for (const ColliderAttachment& a : attachments_) found = found || (a.collider == collider && a.particle == i);
+    if (!found)
+      throw InvalidArgument("detach: particle " + std::to_string(i) + " is not attached to collider " +
+                            std::to_string(collider));
+  }
+  std::vector<ColliderAttachment> kept;
+  for (const ColliderAttachment& a : attachments_) {
+    const bool drop = a.collider == collider &&
+                      (particles.empty() || std::find(particles.begin(), particles.end(), a.particle) != particles.end());
+    if (!drop) {
+      kept.push_back(a);
+      continue;
+    }
+    for (std::size_t g = 0; g < grabs_.size(); ++g)
+      if (grabs_[g].handle == a.handle) {
+        if (grabs_[g].pinned) stop_.push_back(a.particle);
+        grabs_.erase(grabs_.begin() + static_cast<std::ptrdiff_t>(g));
+        break;
+      }
+  }
+  attachments_ = std::move(kept);
+}
+
+// The poses at the start and end of sub-step `sub`, and the attached particles' predictions
+// (after the grabs' targets, so an attachment overrides the straight line of its grab).
+void PbdStepper::move_colliders(const Model& model, int sub) {
+  if (collider_motion_.size() != model.colliders.size())
+    throw InvalidArgument("step: this stepper holds poses for " + std::to_string(collider_motion_.size()) +
+                          " colliders, but the model has " + std::to_string(model.colliders.size()));
+  const Real s0 = Real(sub) / settings_.substeps, s1 = Real(sub + 1) / settings_.substeps;
+  for (ColliderMotion& m : collider_motion_) {
+    m.moving = !(m.from.identity() && m.to.identity());
+    if (!m.moving) continue;
+    m.start = interpolate_pose(m.from, m.to, s0);
+    m.end = interpolate_pose(m.from, m.to, s1);
+  }
+  for (const ColliderAttachment& a : attachments_) {
+    if (a.particle >= model.num_particles())
+      throw InvalidArgument("attachment of particle " + std::to_string(a.particle) + " to collider " +
+                            std::to_string(a.collider) + ": this model has " + std::to_string(model.num_particles()) +
+                            " particles");
+    const ColliderMotion& m = collider_motion_[a.collider];
+    p_.col(a.particle) = m.moving ? m.end.to_world(a.local) : a.local;
+  }
+}
+
+void PbdStepper::end_collider_motion() {
+  for (ColliderMotion& m : collider_motion_) m.from = m.to;
+}
+
+}  // namespace csb
