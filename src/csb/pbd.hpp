@@ -275,7 +275,7 @@ class PbdStepper : public Integrator {
   int next_attachment_ = -1;
   void size_collider_motion(const Model& model, const char* what);
   void move_colliders(const Model& model, int sub);  // the sub-step's poses; attached particles' predictions
-  void end_collider_motion();
+  void end_collider_motion(const Model& model, const State& state);
 
   void check_divergence(const Model& model, State& state, Real h);
   // The stages of step() (step/stepper.cpp lists them against Algorithm 1).

@@ -42,10 +42,13 @@ bool generate_moving_contact(const Collider& c, const ColliderPose& A, const Col
   if (!generate_contact(c, collider_index, i, A.to_model(x), B.to_model(p), r, margin, h, out, stamps, stamp))
     return false;
   Contact& k = out.back();
-  const Vec3 q = k.point;  // model frame
-  k.point = B.to_world(q);
+  // Where the contact holds the particle, q + r n, in the model frame: a particle that does not
+  // slide moves with this point of the collider's frame (with q instead, a cloth of thickness r
+  // on a sphere of radius R turning at ω turned at ω R/(R + r)).
+  const Vec3 held = k.point + k.thickness * k.normal;
+  k.point = B.to_world(k.point);
   k.normal = B.rotation * k.normal;
-  k.surface_motion = k.point - A.to_world(q);
+  k.surface_motion = B.to_world(held) - A.to_world(held);
   return true;
 }
 
@@ -172,8 +175,21 @@ void PbdStepper::move_colliders(const Model& model, int sub) {
   }
 }
 
-void PbdStepper::end_collider_motion() {
-  for (ColliderMotion& m : collider_motion_) m.from = m.to;
+// The end of a step: the poses reached become the next step's start. A collider can carry a
+// particle at the speed of its frame there, and throw it at up to twice that (restitution 1), so
+// the divergence guard counts the fastest speed of a moving collider's frame at the particles
+// (m/s, over this step) with the speeds it started from.
+void PbdStepper::end_collider_motion(const Model& model, const State& state) {
+  Real fastest = 0;
+  for (ColliderMotion& m : collider_motion_) {
+    if (!(m.from.identity() && m.to.identity()))
+      for (Index i = 0; i < model.num_particles(); ++i) {
+        const Vec3 local = m.to.to_model(state.x.col(i));
+        fastest = std::max(fastest, (m.to.to_world(local) - m.from.to_world(local)).norm());
+      }
+    m.from = m.to;
+  }
+  guard_v0_ = std::max(guard_v0_, 2 * fastest / settings_.dt);
 }
 
 }  // namespace csb

@@ -39,10 +39,11 @@
 //     θ the angle turned in the sub-step): a feature thinner than that can be missed.
 // The contact point q and normal n are carried to the world by pose B, so the constraint is the
 // tangent plane where the surface is at the end of the sub-step. The contact also keeps the
-// motion over the sub-step of the collider's material point at q, B q_m - A q_m (q_m = B⁻¹ q):
-// friction acts on the particle's displacement relative to it and restitution on the relative
-// normal velocity (contacts.cpp). For an unmoved collider that motion is zero and every
-// operation is the static collider's.
+// motion over the sub-step of the point of the collider's frame where it holds the particle,
+// s = q_m + r n_m in the model frame (q_m, n_m: q and n there), B s - A s: friction acts on the
+// particle's displacement relative to it and restitution on the relative normal velocity
+// (contacts.cpp); a particle that does not slide moves with the collider as if fixed to it.
+// For an unmoved collider that motion is zero and every operation is the static collider's.
 #pragma once
 
 #include "csb/mesh.hpp"
@@ -131,7 +132,7 @@ struct Contact {
   Real lambda = 0;                  // XPBD multiplier, kg m (the contact force is λ/h² along n)
   Real normal_correction = 0;       // m, what the contact pushed the particle along n this sub-step
   Real sweep_move = 0;              // m, PBD with averaged Jacobi: this sweep's push, before the averaging
-  Vec3 surface_motion = Vec3::Zero();  // m, the collider's material point at q moved this far in the sub-step
+  Vec3 surface_motion = Vec3::Zero();  // m, how far the collider carried the point q + r n in the sub-step
 };
 
 // A collider's rigid pose, x_world = rotation x_model + translation (rotation orthonormal with

@@ -211,7 +211,7 @@ void PbdStepper::end_step(const Model& model, State& state, Real h) {
   for (Grab& g : grabs_) g.from = g.target;
   if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
 }
-  end_collider_motion();
+  end_collider_motion(model, state);
 
 // The Verlet front end keeps its velocity in the previous positions: the state's velocities
 // are made from them when a call ends (or stops).

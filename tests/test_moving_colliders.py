@@ -1,0 +1,252 @@
+"""Colliders that move (the position-based steppers own a rigid pose per collider, interpolated
+over the sub-steps) and particles attached to them: contacts along the motion relative to the
+collider, friction and restitution on the relative velocity (collision.hpp, contacts.cpp)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import csb
+
+G = 9.81
+EPS = np.finfo(float).eps
+METHODS = ["pbd", "xpbd", "jakobsen"]
+
+
+def rot_y(angle: float) -> np.ndarray:
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def puck(mu: float, restitution: float = 0.0, y: float = 0.0):
+    b = csb.ModelBuilder()
+    g = b.add_group("puck")
+    b.add_particle([0.0, y, 0.0], 0.1, g)
+    b.add_plane(friction_static=mu, friction_kinetic=mu, restitution=restitution, name="floor")
+    model = b.build()
+    return model, model.initial_state()
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_particle_on_a_plane_sliding_sideways_is_carried_along_with_friction(method):
+    """The floor moves along x at u = 0.5 m/s from t = 0, the particle at rest on it, μ = 0.5.
+    Kinetic friction accelerates the particle at μ g until it moves with the floor, at
+    t* = u/(μ g) = 0.10 s, lagging u²/(2 μ g) = 25.5 mm behind it; then static friction keeps the
+    relative displacement at zero. The friction acts a sub-step late and the catch-up ends
+    within a sub-step, so the lag is known to the floor's travel in two sub-steps, 2 u h =
+    1.7 mm. Once caught up the particle's offset to the floor changes by round-off only
+    (1e-12 m over 0.5 s, a thousand ulps of 0.5 m)."""
+    model, state = puck(0.5)
+    dt, substeps, u = 1 / 60, 10, 0.5
+    stepper = csb.PbdStepper(method=method, dt=dt, substeps=substeps)
+    offsets = []
+    for k in range(60):
+        stepper.move_collider(model, 0, np.eye(3), [u * (k + 1) * dt, 0.0, 0.0])
+        stepper.step(model, state, 1)
+        offsets.append(state.x[0, 0] - u * (k + 1) * dt)
+    assert offsets[-1] == pytest.approx(-u * u / (2 * 0.5 * G), abs=2 * u * dt / substeps)
+    assert max(offsets[30:]) - min(offsets[30:]) < 1e-12
+    assert state.v[0, 0] == pytest.approx(u, abs=1e-9)
+    assert state.x[0, 1] == pytest.approx(0.0, abs=1e-12)  # on the floor, which moves within itself
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_frictionless_particle_stays_where_it_is_while_the_floor_slides(method):
+    model, state = puck(0.0)
+    stepper = csb.PbdStepper(method=method, dt=1 / 60, substeps=10)
+    for k in range(60):
+        stepper.move_collider(model, 0, np.eye(3), [0.5 * (k + 1) / 60, 0.0, 0.0])
+        stepper.step(model, state, 1)
+    assert state.x[0, 0] == 0.0 and state.x[0, 2] == 0.0 and state.v[0, 0] == 0.0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_turntable_carries_a_particle_round_at_omega_r(method):
+    """A floor turning about its normal (the y axis) at ω = 2 rad/s, a particle 0.2 m from the
+    axis moving with it (v = ω ρ along the circle), μ = 0.5. Each sub-step the particle's
+    prediction differs from the floor point's chord by at most ω² ρ h² = 0.8 h², within the static
+    cone μ g h² = 4.9 h² (the contact's normal correction is g h²), so friction puts it on the
+    floor's material point: it stays on the circle of radius ρ and at the floor's angle to
+    round-off (1e-12 over 600 sub-steps of ulp-size errors), and its speed is the chord over h,
+    2 ρ sin(ω h/2)/h (ω ρ less (ω h)²/24 of it)."""
+    b = csb.ModelBuilder()
+    g = b.add_group("puck")
+    rho, omega, dt, substeps = 0.2, 2.0, 1 / 60, 10
+    b.add_particle([rho, 0.0, 0.0], 0.1, g)
+    b.add_plane(friction_static=0.5, friction_kinetic=0.5)
+    model = b.build()
+    state = model.initial_state()
+    state.v[0] = (0.0, 0.0, -omega * rho)  # rot_y turns +x towards -z
+    stepper = csb.PbdStepper(method=method, dt=dt, substeps=substeps)
+    lags = []
+    for k in range(60):
+        stepper.move_collider(model, 0, rot_y(omega * (k + 1) * dt), [0.0, 0.0, 0.0])
+        stepper.step(model, state, 1)
+        lags.append(omega * (k + 1) * dt - math.atan2(-state.x[0, 2], state.x[0, 0]))
+    h = dt / substeps
+    assert np.hypot(state.x[0, 0], state.x[0, 2]) == pytest.approx(rho, abs=1e-12)
+    assert max(abs(a) for a in lags) < 1e-12
+    assert np.linalg.norm(state.v[0]) == pytest.approx(2 * rho * math.sin(omega * h / 2) / h, rel=1e-9)
+
+
+def draped_cloth(omega: float, mu: float = 0.5, n: int = 12, threads: int = 1, steps: int = 90,
+                 method: str = "xpbd"):
+    """A 0.5 m cloth dropped from 2 cm onto a 0.3 m sphere turning about the vertical at ω; its
+    spin (rad/s) after each step, Σ (x × v)_y / Σ ρ²."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.5, 0.5, n, n, center=[0, 0.32, 0]), mass=0.1, thickness=0.01)
+    b.add_sphere(center=[0, 0, 0], radius=0.3, friction_static=mu, friction_kinetic=mu, name="ball")
+    model = b.build()
+    state = model.initial_state()
+    stepper = csb.PbdStepper(method=method, dt=1 / 60, substeps=20, iterations=1, threads=threads)
+    spins = []
+    for k in range(steps):
+        stepper.move_collider(model, 0, rot_y(omega * (k + 1) / 60), [0.0, 0.0, 0.0])
+        stepper.step(model, state, 1)
+        x, v = state.x, state.v
+        spins.append(float(np.sum(x[:, 2] * v[:, 0] - x[:, 0] * v[:, 2]) / np.sum(x[:, 0] ** 2 + x[:, 2] ** 2)))
+    return state, np.array(spins)
+
+
+def test_a_sphere_turning_under_a_cloth_turns_it_with_friction():
+    """The sphere turns at ω = π/2 rad/s, μ = 0.5. The cap under the cloth slopes at most 57°
+    (|x| <= 0.25 m) and the cloth rests on it by friction as on a static sphere; static friction
+    moves each contact particle with the point of the sphere's frame where the contact holds it,
+    so after 1.5 s the cloth turns rigidly at ω: its spin is ω within 1 % (what remains is the
+    rim swinging and the chord of each sub-step's turn, (ω h)² ~ 2e-5; measured 4e-5).
+    Without friction the sphere's surface moves within itself and does not turn the cloth, which
+    slides off: its spin stays that of the same cloth on a static sphere (whose folding gives
+    Σ x × v a few % of ω by itself: up to 0.054 rad/s) within 1 % of ω."""
+    omega = math.pi / 2
+    _, spins = draped_cloth(omega)
+    assert spins[-1] == pytest.approx(omega, rel=0.01)
+    _, free = draped_cloth(omega, mu=0.0)
+    _, static = draped_cloth(0.0, mu=0.0)
+    assert np.abs(free - static).max() < 0.01 * omega
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("e", [0.0, 0.5, 1.0])
+def test_a_plane_moving_up_hits_a_ball_and_it_leaves_at_u_plus_e_times_the_closing_speed(method, e):
+    """No gravity; the ball falls at v0 = 1 m/s, the floor rises at u = 2 m/s: the closing speed
+    is u + v0 and the ball leaves at u + e (u + v0). The contact pushes the ball onto the floor's
+    end-of-sub-step position (relative normal velocity 0), and restitution sets it to e times the
+    closing speed, measured along the ray in the floor's frame, so the result is exact to
+    round-off (1e-9 m/s: ulps of the positions divided by h)."""
+    model, state = puck(0.0, restitution=e, y=0.05)
+    state.v[0] = (0.0, -1.0, 0.0)
+    dt, substeps, u = 1 / 60, 10, 2.0
+    stepper = csb.PbdStepper(method=method, dt=dt, substeps=substeps, gravity=[0, 0, 0])
+    for k in range(6):
+        stepper.move_collider(model, 0, np.eye(3), [0.0, u * (k + 1) * dt, 0.0])
+        stepper.step(model, state, 1)
+    assert state.v[0, 1] == pytest.approx(u + e * (u + 1.0), abs=1e-9)
+    assert state.x[0, 1] >= u * 6 * dt - 1e-12  # above the floor
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_thin_plate_at_100_m_s_does_not_pass_through_a_cloth(method):
+    """A 1 cm thick, 1 m wide plate moves up at 100 m/s from 1 m below a 0.4 m cloth: 1.67 m in
+    one step of one sub-step, so it starts below the cloth and ends above it. The ray in the
+    plate's frame runs from above the plate to below it and enters the top face: every particle
+    ends on the plate's top face (its thickness 0: C = (p - q)·n >= 0, the contacts projected
+    last in each sweep), to round-off of the 0.67 m coordinate (1e-12 m)."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.4, 0.4, 8, 8, center=[0, 0, 0]), mass=0.1)
+    b.add_box(center=[0, -1.0, 0], half_extents=[0.5, 0.005, 0.5], name="plate")
+    model = b.build()
+    state = model.initial_state()
+    dt = 1 / 60
+    stepper = csb.PbdStepper(method=method, dt=dt, substeps=1, iterations=4, gravity=[0, 0, 0])
+    stepper.move_collider(model, 0, np.eye(3), [0.0, 100.0 * dt, 0.0])
+    stepper.step(model, state, 1)
+    top = -1.0 + 100.0 * dt + 0.005
+    assert state.x[:, 1].min() >= top - 1e-12
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_particles_attached_to_a_turning_collider_stay_at_its_pose(method):
+    """Three corners of a cloth attached to a box that turns about y at 1 rad/s while moving
+    along x: after every step an attached particle is at R(t) x0 + t(t), computed here with
+    numpy. The stepper applies the same pose to the same x0 (the pose at attaching was the
+    identity, so x0 is kept exactly); only the order of the three-term sums may differ: a few ulps
+    of |R| |x0| + |t|, bounded by 8 ε (|x0| + |t|)."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.4, 0.4, 5, 5, center=[0, 1.0, 0]), mass=0.1)
+    b.add_box(center=[0, 2.0, 0], half_extents=[0.1, 0.1, 0.1], name="torso")
+    model = b.build()
+    state = model.initial_state()
+    x = state.x.copy()
+    pinned = [0, 4, 20]
+    stepper = csb.PbdStepper(method=method, dt=1 / 60, substeps=5)
+    stepper.attach(model, state, 0, pinned)
+    assert [a["particle"] for a in stepper.attachments] == pinned and stepper.grabs == []
+    for k in range(30):
+        t = (k + 1) / 60
+        R, tr = rot_y(1.0 * t), np.array([0.3 * t, 0.0, 0.0])
+        stepper.move_collider(model, 0, R, tr)
+        stepper.step(model, state, 1)
+        for i in pinned:
+            expected = R @ x[i] + tr
+            assert np.abs(state.x[i] - expected).max() <= 8 * EPS * (np.linalg.norm(x[i]) + np.linalg.norm(tr))
+    stepper.detach(0, [4])
+    assert [a["particle"] for a in stepper.attachments] == [0, 20]
+    v4 = state.v[4].copy()
+    stepper.step(model, state, 1)
+    assert state.v[4, 1] < v4[1]  # falls once let go
+    stepper.detach(0)
+    assert stepper.attachments == []
+
+
+def test_bad_poses_and_attachments_are_refused_naming_the_collider_and_parameter():
+    model, state = puck(0.5)
+    stepper = csb.PbdStepper(method="pbd", dt=1 / 60)
+    cases = [
+        (lambda: stepper.move_collider(model, 1, np.eye(3), [0, 0, 0]), "collider 1 is out of range"),
+        (lambda: stepper.move_collider(model, 0, 2 * np.eye(3), [0, 0, 0]), "collider 0 ('floor'): rotation"),
+        (lambda: stepper.move_collider(model, 0, np.diag([1.0, 1.0, -1.0]), [0, 0, 0]), "det R"),
+        (lambda: stepper.move_collider(model, 0, np.full((3, 3), np.nan), [0, 0, 0]), "rotation must be finite"),
+        (lambda: stepper.move_collider(model, 0, np.eye(3), [0, math.nan, 0]), "translation"),
+        (lambda: stepper.move_collider(model, 0, np.eye(2), [0, 0, 0]), "rotation must be a 3 x 3"),
+        (lambda: stepper.attach(model, state, 0, [3]), "particle 3 is out of range"),
+        (lambda: stepper.attach(model, state, 2, [0]), "collider 2 is out of range"),
+        (lambda: stepper.detach(0, [0]), "not attached"),
+    ]
+    for call, words in cases:
+        with pytest.raises(csb.ParameterError, match=None) as info:
+            call()
+        assert words in str(info.value), str(info.value)
+    # A rotation off by less than the tolerance (1e-6) is taken.
+    stepper.move_collider(model, 0, rot_y(0.1) * (1 + 1e-8), [0, 0, 0])
+    stepper.attach(model, state, 0, [0])
+    with pytest.raises(csb.ParameterError, match="already held"):
+        stepper.attach(model, state, 0, [0])
+    with pytest.raises(csb.ParameterError, match="already held"):
+        stepper.grab(model, state, 0, [0, 0, 0])
+
+
+def test_moving_colliders_are_deterministic_across_runs_and_threads():
+    """The contacts and friction of a moving collider run on the calling thread in particle
+    order, so two runs, and one and two threads of the coloured sweep, give the same bits."""
+    a, _ = draped_cloth(math.pi / 2, steps=30, threads=1)
+    b, _ = draped_cloth(math.pi / 2, steps=30, threads=1)
+    c, _ = draped_cloth(math.pi / 2, steps=30, threads=2)
+    assert np.array_equal(a.x, b.x) and np.array_equal(a.v, b.v)
+    assert np.array_equal(a.x, c.x) and np.array_equal(a.v, c.v)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_collider_left_at_the_identity_gives_the_static_bits(method):
+    """A collider moved to the identity pose takes the static path: the same bits as a stepper
+    that never heard of poses (scripts/state_hashes.py pins the static scenes themselves)."""
+    a, _ = draped_cloth(0.0, steps=20, method=method)
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.5, 0.5, 12, 12, center=[0, 0.32, 0]), mass=0.1, thickness=0.01)
+    b.add_sphere(center=[0, 0, 0], radius=0.3, friction_static=0.5, friction_kinetic=0.5, name="ball")
+    model = b.build()
+    state = model.initial_state()
+    csb.PbdStepper(method=method, dt=1 / 60, substeps=20, iterations=1, threads=1).step(model, state, 20)
+    assert np.array_equal(a.x, state.x) and np.array_equal(a.v, state.v)
