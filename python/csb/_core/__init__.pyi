@@ -494,13 +494,29 @@ class PbdStepper(Integrator):
         """
         method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off).
         """
+    def attach(self, model: Model, state: State, collider: int, particles: collections.abc.Iterable) -> None:
+        """
+        Attaches particles to collider `collider`: kinematic while attached (inverse mass 0 in the projections), each placed at the collider's pose, interpolated over the sub-steps, applied to where it is in the collider's frame now (a cape on a moving character's shoulders).
+        """
+    def collider_pose(self, collider: int) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.ndarray]:
+        """
+        The pose (rotation, translation in m) of a collider at the end of the last step.
+        """
     def contacts(self) -> dict:
         """
-        The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (point-triangle), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
+        The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (self-contacts: proximity point-triangle and edge-edge, and continuous), self_edge_count (edge-edge proximity), self_continuous (found by the continuous test), self_failsafe (particles the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
+        """
+    def detach(self, collider: int, particles: collections.abc.Iterable | None = None) -> None:
+        """
+        Lets go of `particles` attached to collider `collider` (all of them if None); they keep their velocity.
         """
     def grab(self, model: Model, state: State, particle: int, target: typing.Any, *, compliance: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> int:
         """
         Holds `particle` with the hand at `target` (m) and returns a handle (click and drag). compliance 0: the particle follows the hand exactly, moved along a straight line over the sub-steps of the next step; compliance > 0 (m/N): an XPBD spring to the hand. The hand starts where the particle is now.
+        """
+    def move_collider(self, model: Model, collider: int, rotation: typing.Any, translation: typing.Any) -> None:
+        """
+        Sets the pose collider `collider` reaches at the end of the next step: x_world = rotation x_model + translation (rotation a 3 x 3 rotation matrix, orthonormal with det +1 to 1e-6; translation in m). Over the step's sub-steps it moves there from its present pose (translation linearly, rotation by quaternion slerp, so less than π a step); contacts see the motion relative to it, friction and restitution the relative velocity. Every collider starts at the identity.
         """
     def move_grab(self, handle: int, target: typing.Any) -> None:
         """
@@ -523,6 +539,11 @@ class PbdStepper(Integrator):
     def step(self, model: Model, state: State, steps: int = 1, interrupt: typing.Any = None) -> None:
         """
         Advances state by `steps` steps of dt (the GIL is released meanwhile; Ctrl-C, or `interrupt` (a callable asked between sub-steps) returning True, stops it between sub-steps, the state left at the end of the last completed one; a second thread stepping the same stepper meanwhile gets csb.ConcurrentUseError). The first time this stepper steps a model, a csb.MaterialWarning per constraint family whose declared material the method cannot read: PBD and Jakobsen read the stiffness k, XPBD the compliance α, so constraints with only α > 0 (k = 1) are rigid under PBD and Jakobsen, those with only k < 1 (α = 0) rigid under XPBD.
+        """
+    @property
+    def attachments(self) -> list:
+        """
+        The particles attached to colliders: collider, particle, local (m, its position in the collider's frame).
         """
     @property
     def grabs(self) -> list:
