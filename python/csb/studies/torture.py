@@ -15,9 +15,10 @@ The scenes (SI units; XPBD; every cloth self-colliding through ModelBuilder.enab
   compliance 1000 1/(N m), with the coloured sweep and the sequential one.
 
 :func:`run` steps a scene one sub-step at a time (a PbdStepper of ``substeps=1`` whose dt is the
-scene's sub-step, the hands of the grabs put where they are at the end of each sub-step: the
-same positions, to the bit, as the scene's stepper of ``substeps`` sub-steps a frame, whose
-hands are interpolated linearly over a frame; tests/test_torture.py checks it), and after every
+scene's sub-step: without grabs, the same positions to the bit as the scene's stepper of
+``substeps`` sub-steps a frame, tests/test_torture.py checks it; the hands of grabs are put on
+their path at the end of every sub-step, where that stepper would move them along the chord of
+a frame), and after every
 sub-step asks the IPC Toolkit (``ipctk.has_intersections``, Ferguson et al.'s, independent of
 csb's geometry) whether any edge of the cloth crosses one of its triangles; where it does, csb's
 exact count of crossing edge-triangle pairs (:func:`csb.studies.collisions.self_intersections`)
@@ -65,7 +66,7 @@ class TortureScene:
     settings: dict[str, Any] = field(default_factory=dict)   # PbdStepper keywords but dt and substeps
     held: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))   # grabbed particles
     hands: Callable[[float], np.ndarray] | None = None       # t (s) -> (len(held), 3) targets, m
-    colliders: Callable[[Any, float], None] | None = None    # (stepper, t (s)) moves the colliders
+    colliders: Callable[[Any, _core.Model, float], None] | None = None   # (stepper, model, t (s)): poses at t
     unavailable: str = ""               # why this build cannot run the scene ('' when it can)
 
     @property
@@ -137,9 +138,12 @@ def rotating_sphere(*, n: int = 30, size: float = 1.2, seconds: float = 3.0, spi
     """cloth_sphere's cloth (``n`` x ``n``, ``size`` m, 0.5 m above the centre of a 0.3 m sphere,
     friction 0.4 / 0.3, and the ground at y = -0.6 m) dropped onto the sphere, which turns about
     the vertical axis at ``spin`` rad/s (π: a turn in 2 s), so that friction winds the cloth
-    round it, for ``seconds`` s. The sphere turns through the stepper's moving colliders
-    (``PbdStepper.move_collider``); a build without them cannot run the scene (``unavailable``
-    says so) and a static sphere would be cloth_sphere."""
+    round it, for ``seconds`` s. The sphere turns through the stepper's moving colliders: before
+    each sub-step, ``PbdStepper.move_collider(model, 0, R_y(spin t), 0)`` gives the pose it
+    reaches at the sub-step's end t (a turn about its own centre, the origin, so it stays where
+    it is and only its surface moves). A build without moving colliders cannot run the scene
+    (``unavailable`` says so): a sphere that does not turn would be cloth_sphere. Sub-steps and
+    iterations are cloth_sphere's (30 x 1 per 1/60 s)."""
     def build(self_collision: bool) -> _core.Model:
         b = ModelBuilder()
         inst = b.add_mesh(_core.cloth_grid(size, size, n, n, "xz", [0.0, 0.5, 0.0]), density=0.2,
@@ -150,9 +154,14 @@ def rotating_sphere(*, n: int = 30, size: float = 1.2, seconds: float = 3.0, spi
         b.add_plane(point=[0.0, -0.6, 0.0], normal=[0.0, 1.0, 0.0], friction_static=0.6, name="ground")
         return b.build()
 
+    def colliders(stepper, model: _core.Model, t: float) -> None:
+        a = spin * t   # rad about +y
+        rotation = np.array([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
+        stepper.move_collider(model, 0, rotation, (0.0, 0.0, 0.0))
+
     model, control = _pair(build)
     scene = TortureScene("rotating_sphere", f"{n} x {n} cloth on a sphere turning at {spin:.3g} rad/s", model, control,
-                         seconds, substeps, dict(method="xpbd", iterations=iterations))
+                         seconds, substeps, dict(method="xpbd", iterations=iterations), colliders=colliders)
     if not hasattr(_core.PbdStepper, "move_collider"):
         scene.unavailable = "this build of csb has no moving colliders (PbdStepper.move_collider)"
     return scene
@@ -249,7 +258,8 @@ def soft_drape(*, ordering: str = "coloured", seconds: float = 3.0, bending_comp
     if ordering not in ("coloured", "sequential"):
         raise _core.ParameterError(f"ordering must be 'coloured' or 'sequential', got {ordering!r}")
     text = bundled_scenes()["cloth_sphere"].read_text(encoding="utf-8")
-    text = re.sub(r"bending = \{ compliance = [0-9.e+-]+ \}", f"bending = {{ compliance = {bending_compliance!r} }}", text)
+    text = re.sub(r"bending = \{ compliance = [0-9.e+-]+ \}", f"bending = {{ compliance = {bending_compliance!r} }}",
+                  text)
     text = re.sub(r"\[solver\]", f'[solver]\nordering = "{ordering}"', text)
     control_text = re.sub(r"(?m)^self_collision = .*$", "", text)
     sims = []
@@ -350,11 +360,14 @@ def _stepper(scene: TortureScene, model: _core.Model, state: _core.State):
     return stepper, handles
 
 
-def run(scene: TortureScene, *, self_collision: bool = True, check: str = "substep",
-        record: bool = False) -> dict[str, Any]:
+def run(scene: TortureScene, *, self_collision: bool = True, check: str = "substep", count: str = "substep",
+        record: bool = False, progress: bool = False) -> dict[str, Any]:
     """Steps ``scene`` for its time, one sub-step a call, with self-collision (or its control
     without) and, ``check`` = 'substep', the checker after every sub-step ('frame': after every
-    frame only; 'none': never). Returns:
+    frame only; 'none': never). ``count`` = 'substep' counts the crossing pairs at every checked
+    sub-step that intersects, 'frame' only at those that end a frame (ipctk's yes or no is still
+    asked at every checked sub-step): on the full-size scenes a count takes 0.1 s, ipctk's
+    verdict 0.01 s. ``progress`` prints a line every simulated second. Returns:
 
     - substeps, checked: sub-steps stepped and checked;
     - intersecting: checked sub-steps (or frames) where ipctk finds the cloth intersecting itself;
@@ -369,6 +382,8 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
     - failsafe: the sum over the sub-steps of contacts().get("self_failsafe", 0);
     - frame_seconds: wall time (s) of the stepping alone in each frame of 1/60 s (the checker, the
       hands and the contact queries not counted), and its median frame_cost;
+    - history: at each checked sub-step, its end time t (s), ipctk's verdict and the crossings
+      (-1: not counted);
     - frames: with ``record``, the positions at the end of every frame (and the start), (F+1, N, 3);
     - final: the positions at the end.
     """
@@ -376,6 +391,8 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
         raise _core.Error(f"{scene.name}: {scene.unavailable}")
     if check not in ("substep", "frame", "none"):
         raise _core.ParameterError(f"check must be 'substep', 'frame' or 'none', got {check!r}")
+    if count not in ("substep", "frame"):
+        raise _core.ParameterError(f"count must be 'substep' or 'frame', got {count!r}")
     model = scene.model if self_collision else scene.control
     state = model.initial_state()
     stepper, handles = _stepper(scene, model, state)
@@ -385,6 +402,7 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
     first = None
     penetration = 0.0
     frame_seconds = []
+    history = []   # (t, ipctk's verdict, crossings) at each checked sub-step
     frames = [np.array(state.x)] if record else []
     for f in range(scene.frames):
         spent = 0.0
@@ -395,7 +413,7 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
                 for handle, target in zip(handles, scene.hands(t)):
                     stepper.move_grab(handle, target)
             if scene.colliders is not None:
-                scene.colliders(stepper, t)
+                scene.colliders(stepper, model, t)
             start = time.perf_counter()
             stepper.step(model, state)
             spent += time.perf_counter() - start
@@ -405,33 +423,44 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
             if checker is not None and (check == "substep" or k == scene.substeps - 1):
                 checked += 1
                 x = np.asarray(state.x)
-                if checker.any(x):
+                n = -1   # not counted
+                hit = checker.any(x)
+                if hit:
                     intersecting += 1
-                    n = checker.count(x)
-                    crossing += n > 0
-                    max_crossings = max(max_crossings, n)
+                    if count == "substep" or k == scene.substeps - 1:
+                        n = checker.count(x)
+                        crossing += n > 0
+                        max_crossings = max(max_crossings, n)
                     if first is None:
                         first = t
+                history.append((t, hit, n if hit else 0))
         frame_seconds.append(spent)
+        if progress and (f + 1) % 60 == 0:
+            which = scene.name + ("" if self_collision else " (control)")
+            print(f"  {which}: {(f + 1) * FRAME:.0f} s of {scene.seconds:g}, {sum(frame_seconds):.0f} s stepping, "
+                  f"{intersecting} intersecting sub-steps", flush=True)
         if record:
             frames.append(np.array(state.x))
     return dict(scene=scene.name, self_collision=self_collision, particles=scene.num_particles,
-                substeps=scene.frames * scene.substeps, checked=checked, check=check, intersecting=intersecting,
+                substeps=scene.frames * scene.substeps, checked=checked, check=check, count=count,
+                intersecting=intersecting,
                 crossing=crossing, max_crossings=max_crossings, first_intersection=first, max_penetration=penetration,
                 failsafe=failsafe, frame_seconds=frame_seconds,
                 frame_cost=float(np.median(frame_seconds)) if frame_seconds else 0.0,
+                history=np.array(history, dtype=[("t", float), ("intersecting", bool), ("crossings", np.int64)]),
                 frames=np.array(frames) if record else None, final=np.array(state.x))
 
 
-def measure(scene: TortureScene, *, record: bool = False) -> dict[str, Any]:
+def measure(scene: TortureScene, *, record: bool = False, count: str = "substep",
+            progress: bool = False) -> dict[str, Any]:
     """The scene's figures: :func:`run` with self-collision, checked at every sub-step, and its
     control without self-collision, checked at frame ends (it shows whether the scene needs
     self-collision at all) and timed the same way (one sub-step a call on both sides, so that the
     ratio compares like with like). Keys: those of run()'s self-collision run, plus
     control_intersecting (frames), control_crossing, control_checked, control_max_crossings, control_frame_cost and
     cost_ratio (frame_cost / control_frame_cost)."""
-    on = run(scene, record=record)
-    off = run(scene, self_collision=False, check="frame")
+    on = run(scene, record=record, count=count, progress=progress)
+    off = run(scene, self_collision=False, check="frame", progress=progress)
     return dict(on, control_intersecting=off["intersecting"], control_crossing=off["crossing"],
                 control_checked=off["checked"],
                 control_max_crossings=off["max_crossings"], control_frame_cost=off["frame_cost"],
@@ -489,15 +518,16 @@ def render_video(scene: TortureScene, frames: np.ndarray, out: str | Path, *, wi
 
 
 COLUMNS = ("scene", "particles", "sub-steps checked", "intersecting sub-steps (ipctk)", "with crossings",
-           "max crossings", "first intersection (s)", "max penetration (m)", "fail-safe", "control: intersecting frames",
-           "ms/frame with", "ms/frame without", "ratio")
+           "max crossings", "first intersection (s)", "max penetration (m)", "fail-safe",
+           "control: intersecting frames", "ms/frame with", "ms/frame without", "ratio")
 
 
 def row(r: dict[str, Any]) -> dict[str, Any]:
     """One line of the table from measure()'s figures."""
     return {"scene": r["scene"], "particles": r["particles"], "sub-steps checked": r["checked"],
-            "intersecting sub-steps (ipctk)": r["intersecting"], "with crossings": r["crossing"],
-            "max crossings": r["max_crossings"],
+            "intersecting sub-steps (ipctk)": r["intersecting"],
+            "with crossings": r["crossing"] if r["count"] == "substep" else f"{r['crossing']} of frame ends",
+            "max crossings": r["max_crossings"] if r["count"] == "substep" else f"{r['max_crossings']} at frame ends",
             "first intersection (s)": r["first_intersection"], "max penetration (m)": r["max_penetration"],
             "fail-safe": r["failsafe"],
             "control: intersecting frames": f"{r['control_intersecting']}/{r['control_checked']}"
