@@ -137,9 +137,9 @@ def test_a_scene_this_build_cannot_run_says_why():
         T.run(scene)
 
 
-# Measured on the quick tier (python -m csb.studies.torture --quick) with today's proximity
-# self-collision (Müller 2007 §4.4, point-triangle only): the scenes it does not keep free of
-# crossings, and how far from it they are.
+# Measured on the quick tier (python -m csb.studies.torture --quick) with csb's proximity
+# self-collision (Müller 2007 §4.4, point-triangle contacts only): the scenes it did not keep free
+# of crossings, and how far from it they were. Not strict: continuous self-collision is to pass them.
 OPEN = {
     "twist": "crossings at 75 of 1800 sub-steps (at most 3 pairs, from 1.41 s): the band twisted onto itself",
     "stack": "intersecting at 973 of 1200 sub-steps (at most 65 crossing pairs, from 0.19 s) once the layers land",
@@ -161,17 +161,18 @@ def test_self_collision_keeps_the_scene_free_of_crossings(request, name):
 
 
 def test_the_study_script_writes_its_table(tmp_path):
-    """validation/torture.py on one quick scene: the JSON, Markdown and CSV tables and the chart."""
+    """validation/torture.py on a quarter of a second of the quick twist: the JSON, Markdown and
+    CSV tables and the chart."""
     import json
     import subprocess
     import sys
     from pathlib import Path
 
     script = Path(__file__).resolve().parents[1] / "validation" / "torture.py"
-    r = subprocess.run([sys.executable, str(script), "--out", str(tmp_path), "--quick", "--no-video", "soft_drape"],
-                       capture_output=True, text=True, timeout=300)
+    r = subprocess.run([sys.executable, str(script), "--out", str(tmp_path), "--quick", "--no-video", "--seconds", "0.25",
+                        "twist"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr[-3000:]
     data = json.loads((tmp_path / "torture.json").read_text())
-    assert [s["scene"] for s in data["scenes"]] == ["soft_drape"] and data["scenes"][0]["checked"] == 45 * 30
-    assert "| soft_drape | 900 | 1350 |" in (tmp_path / "torture.md").read_text()
+    assert [s["scene"] for s in data["scenes"]] == ["twist"] and data["scenes"][0]["checked"] == 15 * 20
+    assert "| twist | 256 | 300 |" in (tmp_path / "torture.md").read_text()
     assert (tmp_path / "torture.csv").exists() and (tmp_path / "torture_crossings.png").read_bytes()[:4] == b"\x89PNG"
