@@ -250,3 +250,157 @@ def test_a_collider_left_at_the_identity_gives_the_static_bits(method):
     state = model.initial_state()
     csb.PbdStepper(method=method, dt=1 / 60, substeps=20, iterations=1, threads=1).step(model, state, 20)
     assert np.array_equal(a.x, state.x) and np.array_equal(a.v, state.v)
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene files: keyframed motion, callbacks, attachments to colliders
+
+SCENE = """
+[scene]
+name = "moving"
+duration = 0.5
+
+[solver]
+method = "{method}"
+dt = 0.01
+substeps = 2
+iterations = 5
+
+[[mesh]]
+name = "cape"
+shape = "cloth"
+size = [0.4, 0.4]
+resolution = [5, 5]
+plane = "xz"
+translate = [0.0, 1.0, 0.0]
+mass = 0.1
+stretch = {{ stiffness = 0.9, compliance = 1e-6 }}
+{attach}
+
+[[collider]]
+type = "box"
+name = "torso"
+center = [0.0, 1.5, 0.0]
+half_extents = [0.1, 0.1, 0.1]
+{motion}
+"""
+
+MOTION = ('motion = { times = [0.0, 1.0, 2.0], translation = [[0, 0, 0], [0.5, 0, 0], [0, 0, 0]], '
+          'rotation = [[0, 0, 0], [0, 1.5, 0], [0, 0, 0]] }')
+
+
+def scene(tmp_path, method="pbd", motion=MOTION, attach=""):
+    p = tmp_path / "moving.toml"
+    p.write_text(SCENE.format(method=method, motion=motion, attach=attach))
+    return p
+
+
+def test_keyframes_are_interpolated_linearly_and_by_slerp_and_held_outside(tmp_path):
+    """Halfway between keyframes 0 and 1: translation 0.25 m, rotation 0.75 rad about y (slerp
+    between rotations about one axis turns at a constant rate); before 0 and after 2 s the end
+    keyframes hold. Exact to round-off (1e-12)."""
+    motion = csb.load_scene(scene(tmp_path)).colliders[0].motion
+    R, t = motion.pose(0.5)
+    np.testing.assert_allclose(t, [0.25, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(R, rot_y(0.75), atol=1e-12)
+    R, t = motion.pose(1.75)  # 1.5 rad back to 0, three quarters of the way: 0.375 rad
+    np.testing.assert_allclose(R, rot_y(0.375), atol=1e-12)
+    np.testing.assert_allclose(t, [0.125, 0, 0], atol=1e-12)
+    for before, after in ((-1.0, 0.0), (5.0, 2.0)):
+        Rb, tb = motion.pose(before)
+        Ra, ta = motion.pose(after)
+        np.testing.assert_array_equal(Rb, Ra)
+        np.testing.assert_array_equal(tb, ta)
+
+
+def test_a_scene_moves_its_collider_and_the_attached_cape_follows(tmp_path):
+    """The cape's corner vertices 0 and 4 are attached to the torso: after every step they are at
+    the keyframed pose applied to where they started, as the stepper reports its pose."""
+    attach = 'attach = { indices = [0, 4], collider = "torso" }'
+    sim = csb.load_scene(scene(tmp_path, attach=attach)).build()
+    x0 = sim.state.x.copy()
+    motion = sim.scene.colliders[0].motion
+    for _ in range(20):
+        sim.step()
+        R, t = motion.pose(sim.state.t)
+        Rs, ts = sim.stepper.collider_pose(0)
+        np.testing.assert_allclose(Rs, R, atol=1e-12)  # the same keyframe pose, to round-off
+        for i in (0, 4):
+            np.testing.assert_allclose(sim.state.x[i], Rs @ x0[i] + ts, atol=1e-12)
+    # t = 0.2 s: 0.3 rad about y and 0.1 m along x.
+    np.testing.assert_allclose(sim.state.x[0], rot_y(0.3) @ x0[0] + [0.1, 0.0, 0.0], atol=1e-12)
+
+
+def test_a_python_callback_overrides_the_keyframes(tmp_path):
+    sim = csb.load_scene(scene(tmp_path)).build()
+    sim.collider_motion["torso"] = lambda t: (np.eye(3), [0.0, -t, 0.0])
+    sim.step(3)
+    R, t = sim.stepper.collider_pose(0)
+    np.testing.assert_array_equal(R, np.eye(3))
+    assert t[1] == pytest.approx(-0.03, abs=1e-15)
+    sim.collider_motion["nobody"] = lambda t: (np.eye(3), [0, 0, 0])
+    with pytest.raises(csb.ParameterError, match="no collider named 'nobody'"):
+        sim.step()
+    del sim.collider_motion["nobody"]
+    sim.collider_motion["torso"] = lambda t: (2 * np.eye(3), [0, 0, 0])
+    with pytest.raises(csb.ParameterError, match="collider 'torso' at t = 0.04 s: .*rotation"):
+        sim.step()
+
+
+def test_the_runner_steps_a_moving_scene(tmp_path):
+    result = csb.load_scene(scene(tmp_path, attach='attach = { indices = [0], collider = "torso" }')).run()
+    assert result.steps == 50
+    sim = result.simulation
+    R, t = sim.stepper.collider_pose(0)
+    np.testing.assert_allclose(t, [0.25, 0, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["implicit-euler", "vbd"])
+def test_methods_without_moving_colliders_refuse_them_by_name(tmp_path, method):
+    with pytest.raises(csb.SceneError, match=f"collider 'torso' has a motion, but method '{method}'"):
+        csb.load_scene(scene(tmp_path, method=method)).build()
+    with pytest.raises(csb.SceneError, match=f"attached to a collider, but method '{method}'"):
+        csb.load_scene(scene(tmp_path, method=method, motion="",
+                             attach='attach = { indices = [0], collider = "torso" }')).build()
+    sim = csb.load_scene(scene(tmp_path, method=method, motion="")).build()
+    sim.collider_motion["torso"] = lambda t: (np.eye(3), [0, 0, 0])
+    with pytest.raises(csb.ParameterError, match=f"method '{method}' cannot move colliders"):
+        sim.step()
+
+
+@pytest.mark.parametrize("motion, key, words", [
+    ("motion = { times = [0.0, 2.0, 1.0] }", "times", "strictly increasing"),
+    ("motion = { times = [] }", "times", "non-empty"),
+    ("motion = { times = [0.0, nan] }", "times", "finite"),
+    ("motion = { times = [0.0, 1.0], translation = [[0, 0, 0]] }", "translation", "one [x, y, z] per time"),
+    ("motion = { times = [0.0, 1.0], translation = [[0, 0], [0, 0]] }", "translation", "[x, y, z]"),
+    ("motion = { times = [0.0, 1.0], rotation = [[0, 0, 0], [0, nan, 0]] }", "rotation", "[x, y, z]"),
+    ("motion = { times = [0.0, 1.0], rotation = [[0, 0, 0], [0, 3.2, 0]] }", "rotation", "π rad or more"),
+    ("motion = { times = [0.0], speed = 3 }", "speed", "unknown key"),
+])
+def test_bad_keyframes_are_scene_errors_naming_file_line_and_key(tmp_path, motion, key, words):
+    path = scene(tmp_path, motion=motion)
+    line = path.read_text().splitlines().index(motion) + 1
+    with pytest.raises(csb.SceneError) as info:
+        csb.load_scene(path)
+    message = str(info.value)
+    assert f"{path}:{line}" in message and f"collider[0] (torso).motion.{key}" in message and words in message, message
+
+
+def test_bad_attachments_are_scene_errors(tmp_path):
+    with pytest.raises(csb.SceneError, match="no collider named 'head'"):
+        csb.load_scene(scene(tmp_path, attach='attach = { indices = [0], collider = "head" }')).build()
+    with pytest.raises(csb.SceneError, match="attach.stiffness: an attachment to a collider"):
+        csb.load_scene(scene(tmp_path, attach='attach = { indices = [0], collider = "torso", stiffness = 0.5 }'))
+
+
+def test_the_bundled_rotating_sphere_scene_turns_its_cloth():
+    """cloth_rotating_sphere: the sphere turns at π/2 rad/s (keyframes a quarter turn apart, so
+    slerp gives a constant rate): after 1 s the ball's pose is a quarter turn, and the cloth on it
+    has started to turn the same way (its spin about the axis is positive)."""
+    sim = csb.load_scene("cloth_rotating_sphere").build()
+    sim.step(60)
+    R, _ = sim.stepper.collider_pose(sim.colliders["ball"])
+    np.testing.assert_allclose(R, rot_y(math.pi / 2), atol=1e-9)
+    x, v = sim.state.x, sim.state.v
+    assert np.sum(x[:, 2] * v[:, 0] - x[:, 0] * v[:, 2]) > 0

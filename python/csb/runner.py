@@ -216,10 +216,10 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             n = min(steps_per_frame, steps - done)
             t0 = time.perf_counter()
             if scene.tearing is None:
-                sim.stepper.step(sim.model, sim.state, n)
+                sim.step(n)  # moving colliders put at each step's pose
             else:
                 for _ in range(n):
-                    sim.stepper.step(sim.model, sim.state)
+                    sim.step()
                     torn = _core.tear(sim.model, sim.state, max_strain=scene.tearing.max_strain,
                                       max_tears=scene.tearing.max_per_step)
                     if torn["torn"]:

@@ -23,7 +23,7 @@ import os
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
 
@@ -122,6 +122,7 @@ class AttachSpec:
     targets: tuple[Vec3, ...] | None = None   # m; None: where the particles start
     stiffness: float = 1.0
     compliance: float = 0.0                   # m/N
+    collider: str | None = None               # attached to this collider, kinematic, following its pose
 
 
 @dataclass(frozen=True)
@@ -162,8 +163,69 @@ class MeshSpec:
 
 
 @dataclass(frozen=True)
+class MotionSpec:
+    """Keyframed rigid motion of a collider: at time t (s) its shape, as declared, is moved to
+    x_world = R(t) x + translation(t). Rotations are rotation vectors (rad: the axis times the
+    angle). Between keyframes the translation is linear and the rotation the slerp of the two
+    keyframes' quaternions (the shorter arc: consecutive rotation vectors differ by less than π); before
+    the first keyframe and after the last the pose is held."""
+
+    times: tuple[float, ...]              # s, strictly increasing
+    translation: tuple[Vec3, ...]         # m, one per time
+    rotation: tuple[Vec3, ...]            # rad, rotation vectors, one per time
+
+    def pose(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(R, translation in m) at time t (s)."""
+        times = self.times
+        if t <= times[0] or len(times) == 1:
+            k, f = 0, 0.0
+        elif t >= times[-1]:
+            k, f = len(times) - 2, 1.0
+        else:
+            k = int(np.searchsorted(times, t, side="right")) - 1
+            f = (t - times[k]) / (times[k + 1] - times[k])
+        a = np.asarray(self.translation[k])
+        if f == 0.0:
+            return _quat_matrix(_quat(self.rotation[k])), a.copy()
+        b = np.asarray(self.translation[k + 1])
+        q = _slerp(_quat(self.rotation[k]), _quat(self.rotation[k + 1]), f)
+        return _quat_matrix(q), (b.copy() if f == 1.0 else a + f * (b - a))
+
+
+def _quat(rotvec: Vec3) -> np.ndarray:
+    """Unit quaternion (w, x, y, z) of a rotation vector (rad)."""
+    v = np.asarray(rotvec, dtype=float)
+    angle = float(np.linalg.norm(v))
+    if angle == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate(([math.cos(angle / 2)], math.sin(angle / 2) * v / angle))
+
+
+def _slerp(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
+    """Spherical interpolation of unit quaternions along the shorter arc (Shoemake 1985)."""
+    d = float(np.dot(a, b))
+    if d < 0:
+        b, d = -b, -d
+    if d > 1 - 1e-12:  # the same rotation to round-off: nothing to interpolate
+        q = a + f * (b - a)
+        return q / np.linalg.norm(q)
+    theta = math.acos(d)
+    return (math.sin((1 - f) * theta) * a + math.sin(f * theta) * b) / math.sin(theta)
+
+
+def _quat_matrix(q: np.ndarray) -> np.ndarray:
+    w, x, y, z = q
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+@dataclass(frozen=True)
 class ColliderSpec:
-    """A static collider (Müller 2007 §4.3): its shape's parameters (m) and its material."""
+    """A collider (Müller 2007 §4.3): its shape's parameters (m), its material, and optionally its
+    keyframed motion (the position-based methods only)."""
 
     name: str
     type: str                         # "plane", "sphere", "capsule", "box", "mesh"
@@ -171,6 +233,7 @@ class ColliderSpec:
     friction_static: float = 0.0      # Coulomb μs
     friction_kinetic: float = 0.0     # Coulomb μk <= μs
     restitution: float = 0.0          # e in [0, 1]
+    motion: MotionSpec | None = None
 
 
 _COLLIDERS = ("plane", "sphere", "capsule", "box", "mesh")
@@ -207,17 +270,61 @@ class OutputSpec:
 
 @dataclass
 class Simulation:
-    """A scene made ready to step: the model, its state, the stepper and where each mesh landed."""
+    """A scene made ready to step: the model, its state, the stepper and where each mesh landed.
+
+    Colliders move by the scene's keyframes (``motion`` of a ``[[collider]]``) or, overriding
+    them, by ``collider_motion[name] = f`` where ``f(t)`` returns ``(R, translation)`` at time t (s):
+    a 3 x 3 rotation matrix and a translation in m applied to the collider as declared. step()
+    asks for the pose at the end of each step (the stepper interpolates over its sub-steps)."""
 
     scene: "Scene"
     model: _core.Model
     state: _core.State
     stepper: _core.Integrator      # the scene's solver (a PbdStepper), or the method given to build()
     meshes: dict[str, MeshInstance]
+    colliders: dict[str, int] = field(default_factory=dict)   # name -> index in the model
+    collider_motion: dict[str, Callable[[float], tuple[Any, Any]]] = field(default_factory=dict)
 
     @property
     def gravity(self) -> Vec3:
         return self.scene.solver.gravity
+
+    def _motions(self) -> list[tuple[int, Callable[[float], tuple[Any, Any]]]]:
+        motions: dict[int, Callable[[float], tuple[Any, Any]]] = {}
+        for c in self.scene.colliders:
+            if c.motion is not None:
+                motions[self.colliders[c.name]] = c.motion.pose
+        for name, f in self.collider_motion.items():
+            if name not in self.colliders:
+                raise _core.ParameterError(
+                    f"collider_motion: no collider named {name!r} (the scene has: {', '.join(self.colliders) or 'none'})")
+            if not callable(f):
+                raise _core.ParameterError(f"collider_motion[{name!r}] must be a function of t (s) returning (R, translation)")
+            motions[self.colliders[name]] = f
+        if motions and not isinstance(self.stepper, _core.PbdStepper):
+            raise _core.ParameterError(
+                f"method '{self.stepper.name()}' cannot move colliders: moving colliders are part of the "
+                "position-based methods (pbd, xpbd, jakobsen); its colliders would be static")
+        return sorted(motions.items())
+
+    def step(self, steps: int = 1) -> None:
+        """Advance `steps` steps, each after putting every moving collider at its pose for the
+        step's end (t + dt)."""
+        motions = self._motions()
+        if not motions:
+            self.stepper.step(self.model, self.state, steps)
+            return
+        stepper: _core.PbdStepper = self.stepper  # type: ignore[assignment]
+        names = {i: n for n, i in self.colliders.items()}
+        for _ in range(steps):
+            t = self.state.t + stepper.dt()
+            for index, pose in motions:
+                try:
+                    R, tr = pose(t)
+                    stepper.move_collider(self.model, index, R, tr)
+                except _core.ParameterError as e:
+                    raise _core.ParameterError(f"collider '{names[index]}' at t = {t:.6g} s: {e}") from None
+            stepper.step(self.model, self.state, 1)
 
     def measure(self) -> dict[str, Any]:
         return _core.measure(self.model, self.state, self.gravity)
@@ -260,6 +367,7 @@ class Scene:
         builder = ModelBuilder()
         groups: dict[str, int] = {}
         instances: dict[str, MeshInstance] = {}
+        to_collider: list[tuple[str, str, list[int]]] = []   # (mesh, collider, particles) attached
         for spec in self.meshes:
             mesh = _make_mesh(spec)
             group_name = spec.group or spec.name
@@ -291,7 +399,10 @@ class Scene:
             if spec.pin is not None:
                 for i in _select(self, spec, spec.pin, inst, "pin"):
                     builder.pin(i)
-            if spec.attach is not None:
+            if spec.attach is not None and spec.attach.collider is not None:
+                chosen = _select(self, spec, spec.attach.selection, inst, "attach")
+                to_collider.append((spec.name, spec.attach.collider, chosen))
+            elif spec.attach is not None:
                 chosen = _select(self, spec, spec.attach.selection, inst, "attach")
                 targets = spec.attach.targets
                 if targets is not None and len(targets) != len(chosen):
@@ -308,14 +419,25 @@ class Scene:
                                     compliance=t.compliance, anchors=t.anchors)
             except _core.ParameterError as e:
                 raise SceneError(f"{self.path}: tethers: {e}") from None
-        for c in self.colliders:
-            _add_collider(self, builder, c)
+        colliders = {c.name: _add_collider(self, builder, c) for c in self.colliders}
         try:
             model = builder.build()
         except _core.ParameterError as e:  # e.g. a particle that starts inside a collider
             raise SceneError(f"{self.path}: {e}") from None
-        return Simulation(self, model, model.initial_state(),
-                          stepper if stepper is not None else self.solver.stepper(), instances)
+        stepper = stepper if stepper is not None else self.solver.stepper()
+        moving = [c.name for c in self.colliders if c.motion is not None]
+        if (moving or to_collider) and not isinstance(stepper, _core.PbdStepper):
+            what = f"collider '{moving[0]}' has a motion" if moving else f"mesh '{to_collider[0][0]}' is attached to a collider"
+            raise SceneError(
+                f"{self.path}: {what}, but method '{stepper.name()}' cannot move colliders or attach particles "
+                "to them (the position-based methods pbd, xpbd and jakobsen can)")
+        sim = Simulation(self, model, model.initial_state(), stepper, instances, colliders)
+        for mesh_name, collider, chosen in to_collider:
+            if collider not in colliders:
+                raise SceneError(f"{self.path}: mesh '{mesh_name}' attach.collider: no collider named {collider!r} "
+                                 f"(the scene has: {', '.join(colliders) or 'none'})")
+            stepper.attach(model, sim.state, colliders[collider], chosen)  # type: ignore[attr-defined]
+        return sim
 
     def run(self, out_dir: str | os.PathLike[str] | None = None, *, progress: bool = False,
             stepper: _core.Integrator | None = None) -> "RunResult":
@@ -326,23 +448,23 @@ class Scene:
         return run_scene(self, out_dir, progress=progress, stepper=stepper)
 
 
-def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> None:
+def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> int:
     material = dict(friction_static=c.friction_static, friction_kinetic=c.friction_kinetic,
                     restitution=c.restitution, name=c.name)
     a = c.params
     try:
         if c.type == "plane":
-            builder.add_plane(point=a["point"], normal=a["normal"], **material)
+            return builder.add_plane(point=a["point"], normal=a["normal"], **material)
         elif c.type == "sphere":
-            builder.add_sphere(center=a["center"], radius=a["radius"], **material)
+            return builder.add_sphere(center=a["center"], radius=a["radius"], **material)
         elif c.type == "capsule":
-            builder.add_capsule(a=a["a"], b=a["b"], radius=a["radius"], **material)
+            return builder.add_capsule(a=a["a"], b=a["b"], radius=a["radius"], **material)
         elif c.type == "box":
-            builder.add_box(center=a["center"], half_extents=a["half_extents"], rotation=_rotation(a["rotate"]),
-                            **material)
+            return builder.add_box(center=a["center"], half_extents=a["half_extents"],
+                                   rotation=_rotation(a["rotate"]), **material)
         else:
             mesh = transformed(load_mesh(a["file"]), scale=a["scale"], rotate=a["rotate"], translate=a["translate"])
-            builder.add_collider_mesh(mesh, **material)
+            return builder.add_collider_mesh(mesh, **material)
     except _core.ParameterError as e:
         raise SceneError(f"{scene.path}: collider '{c.name}': {e}") from None
 
@@ -488,11 +610,17 @@ def _read_mesh(source: _Source, data: Any, k: int, base: Path) -> MeshSpec:
     att_t = t.table("attach")
     if att_t is not None:
         sel = _read_selection(att_t)
+        collider = att_t.string("collider", None)
+        if collider is not None:
+            for key in ("targets", "stiffness", "compliance"):
+                if att_t.has(key):
+                    raise att_t.error(key, "an attachment to a collider follows the collider's pose exactly "
+                                           "(kinematic): no targets, stiffness or compliance")
         targets = att_t.vectors("targets", None)
         stiffness = att_t.number("stiffness", 1.0, check=lambda x: 0 <= x <= 1, expect="a stiffness in [0, 1]")
         compliance = att_t.number("compliance", 0.0, check=lambda x: x >= 0, expect="a compliance >= 0 (m/N)")
         att_t.finish()
-        attach = AttachSpec(sel, targets, stiffness, compliance)
+        attach = AttachSpec(sel, targets, stiffness, compliance, collider)
 
     stretch, stretch_compliance = material("stretch", "m/N")
     bending, bending_compliance = (None, 0.0)
@@ -572,8 +700,36 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
     if muk > mus:
         raise t.error("friction_kinetic", f"must not exceed friction_static ({mus}), got {muk}")
     e = t.number("restitution", 0.0, check=lambda x: 0 <= x <= 1, expect="a restitution in [0, 1]")
+    motion = None
+    motion_t = t.table("motion")
+    if motion_t is not None:
+        motion = _read_motion(motion_t)
     t.finish()
-    return ColliderSpec(name, kind, params, mus, muk, e)
+    return ColliderSpec(name, kind, params, mus, muk, e, motion)
+
+
+def _read_motion(t: _Table) -> MotionSpec:
+    """motion = { times = [...] (s), translation = [[x, y, z], ...] (m), rotation = [[rx, ry, rz], ...]
+    (rad, rotation vectors) }, one keyframe per time; a missing translation or rotation is zero."""
+    times = t.raw("times")
+    if (not isinstance(times, list) or not times
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in times)):
+        raise t.error("times", f"must be a non-empty list of finite times (s), got {times!r}")
+    if any(b <= a for a, b in zip(times, times[1:])):
+        raise t.error("times", f"must be strictly increasing, got {times!r}")
+    zeros = tuple((0.0, 0.0, 0.0) for _ in times)
+    translation = t.vectors("translation", zeros)
+    rotation = t.vectors("rotation", zeros)
+    for key, v in (("translation", translation), ("rotation", rotation)):
+        if len(v) != len(times):
+            raise t.error(key, f"must have one [x, y, z] per time ({len(times)}), got {len(v)}")
+    for k in range(len(times) - 1):
+        # Slerp takes the shorter arc: a turn of π or more between keyframes would go the other way.
+        if float(np.linalg.norm(np.subtract(rotation[k + 1], rotation[k]))) >= math.pi:
+            raise t.error("rotation", f"keyframes {k} and {k + 1} differ by π rad or more; add keyframes in "
+                                      "between (the rotation is interpolated along the shorter arc)")
+    t.finish()
+    return MotionSpec(tuple(float(x) for x in times), translation, rotation)
 
 
 def _method_settings(so) -> tuple[tuple[str, Any], ...]:
