@@ -18,12 +18,12 @@ The scenes (SI units; XPBD; every cloth self-colliding through ModelBuilder.enab
 scene's sub-step: without grabs, the same positions to the bit as the scene's stepper of
 ``substeps`` sub-steps a frame, tests/test_torture.py checks it; the hands of grabs are put on
 their path at the end of every sub-step, where that stepper would move them along the chord of
-a frame), and after every
-sub-step asks the IPC Toolkit (``ipctk.has_intersections``, Ferguson et al.'s, independent of
-csb's geometry) whether any edge of the cloth crosses one of its triangles; where it does, csb's
-exact count of crossing edge-triangle pairs (:func:`csb.studies.collisions.self_intersections`)
-says how many. It also keeps the deepest collider penetration the stepper reports
-(``contacts()["max_penetration"]``), the self-collision fail-safe activations
+a frame), and after every sub-step asks the IPC Toolkit (``ipctk.has_intersections``, Ferguson
+et al.'s, independent of csb's geometry) whether any edge of the cloth meets one of its
+triangles; where it does, csb's exact count of crossing edge-triangle pairs (that of
+:func:`csb.studies.collisions.self_intersections`) says how many. It also keeps the deepest
+contact violation the stepper reports (``contacts()["max_penetration"]``: colliders and
+self-contacts, thickness included), the self-collision fail-safe activations
 (``contacts().get("self_failsafe", 0)``: 0 where the stepper has no fail-safe), and the wall time
 of the stepping alone per frame of 1/60 s, beside the same scene's without self-collision.
 
