@@ -79,7 +79,7 @@ def test_without_self_collision_the_stacked_layers_pass_through_each_other(stack
 def test_without_self_collision_the_twisted_band_passes_through_itself():
     """The control of the quick twist (16 x 16, 1.5 s): edges properly cross triangles at the end
     of some frames once the band has turned onto itself (measured: 9 of 90 frames, up to 52 pairs,
-    from 1.37 s), not in the first second (the half turn before the band closes)."""
+    from 1.37 s), not in the first second (by then the edges have turned 2π/3 against each other)."""
     r = T.run(T.build("twist", quick=True), self_collision=False, check="frame")
     assert r["crossing"] > 0 and r["max_crossings"] > 0 and r["first_intersection"] > 1.0
 
