@@ -108,6 +108,7 @@ def draped_cloth(omega: float, mu: float = 0.5, n: int = 12, threads: int = 1, s
         stepper.step(model, state, 1)
         x, v = state.x, state.v
         spins.append(float(np.sum(x[:, 2] * v[:, 0] - x[:, 0] * v[:, 2]) / np.sum(x[:, 0] ** 2 + x[:, 2] ** 2)))
+    assert stepper.threads_used == threads
     return state, np.array(spins)
 
 
