@@ -229,22 +229,6 @@ class PbdStepper : public Integrator {
   std::vector<std::string> degenerate_notes_to_report(const Model& model, const State& state);
   static constexpr std::int64_t kDegenerateCheckSteps = 64;
 
- private:
-  void prepare(const Model& model);
-  void predict(const Model& model, State& state, Real h);
-  // (5) and (7) of Algorithm 1 for particles [begin, end), without Müller's damping (Euler) or
-  // with the Verlet front end; (12)-(15) for particles [begin, end); a non-finite position of
-  // sub-step `sub` as an error naming particle i (the state left at the last finite sub-step).
-  void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
-  void commit(State& state, Real h, Index begin, Index end);
-  // commit then predict_range for particles [begin, end) in one pass (the same operations), the
-  // prediction's h g (Verlet: h² g) taken from accel_ (a fused step).
-  void advance(State& state, Real h, Index begin, Index end);
-  // accel_ for particles [begin, end).
-  void set_accel(const Model& model, Real h, Index begin, Index end);
-  [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
-  // The divergence guard (PbdSettings::max_speed) after a step; guard_size_ is the model's
-  // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
   // Moving colliders and attachments (collision/collider_motion.cpp; collision.hpp for the
   // contacts). Each collider of the model has a rigid pose x_world = R x_model + t, the identity
   // until moved. move_collider sets the pose the collider reaches at the end of the next step();
@@ -264,7 +248,7 @@ class PbdStepper : public Integrator {
   void detach(Index collider, const std::vector<Index>& particles = {});
   const std::vector<ColliderAttachment>& attachments() const { return attachments_; }
 
-  // (s) of the state the stepper first stepped on this model.
+ private:
   struct ColliderMotion {
     ColliderPose from, to;     // at the end of the last step, at the end of the next
     ColliderPose start, end;   // of the current sub-step
@@ -277,6 +261,22 @@ class PbdStepper : public Integrator {
   void move_colliders(const Model& model, int sub);  // the sub-step's poses; attached particles' predictions
   void end_collider_motion(const Model& model, const State& state);
 
+  void prepare(const Model& model);
+  void predict(const Model& model, State& state, Real h);
+  // (5) and (7) of Algorithm 1 for particles [begin, end), without Müller's damping (Euler) or
+  // with the Verlet front end; (12)-(15) for particles [begin, end); a non-finite position of
+  // sub-step `sub` as an error naming particle i (the state left at the last finite sub-step).
+  void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
+  void commit(State& state, Real h, Index begin, Index end);
+  // commit then predict_range for particles [begin, end) in one pass (the same operations), the
+  // prediction's h g (Verlet: h² g) taken from accel_ (a fused step).
+  void advance(State& state, Real h, Index begin, Index end);
+  // accel_ for particles [begin, end).
+  void set_accel(const Model& model, Real h, Index begin, Index end);
+  [[noreturn]] void fail_non_finite(State& state, int sub, Index i, Real h);
+  // The divergence guard (PbdSettings::max_speed) after a step; guard_size_ is the model's
+  // rest bounding-box diagonal (m), guard_v0_ and guard_t0_ the fastest speed (m/s) and the time
+  // (s) of the state the stepper first stepped on this model.
   void check_divergence(const Model& model, State& state, Real h);
   // The stages of step() (step/stepper.cpp lists them against Algorithm 1).
   void check_request(const Model& model, const State& state, std::int64_t steps) const;

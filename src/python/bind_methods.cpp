@@ -190,13 +190,13 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
       .def_property_readonly("grabs", [](const PbdStepper& s) {
         py::list out;
         for (const Grab& g : s.grabs()) {
+          if (g.handle < 0) continue;  // a particle attached to a collider (attachments)
           py::dict d;
           d["handle"] = g.handle;
           d["particle"] = g.particle;
           d["target"] = std::vector<double>{g.target.x(), g.target.y(), g.target.z()};
           d["compliance"] = g.compliance;
           out.append(d);
-          if (g.handle < 0) continue;  // a particle attached to a collider (attachments)
         }
         return out;
       }, "The grabs held now: handle, particle, target (m), compliance (m/N).")

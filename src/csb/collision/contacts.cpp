@@ -35,6 +35,7 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
         }
         generate_contact(model.colliders[c], c, i, xi, pi, model.thickness[i], margin_[model.group[i]], h, contacts_,
                          stamps_, stamp_);
+      }
     }
   }
   for (const Contact& k : contacts_)

@@ -101,8 +101,8 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
 void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
   predict(model, state, h);                                                 // (5)-(7)
   if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
-  reset_multipliers();
   if (!collider_motion_.empty()) move_colliders(model, sub);             // poses, attached particles
+  reset_multipliers();
   generate_contacts(model, state.x, h);                                     // (8)
   project(model, state.x);                                                  // (9)-(11)
   if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
@@ -209,9 +209,9 @@ void PbdStepper::end_step(const Model& model, State& state, Real h) {
   ++state.step;
   state.t += settings_.dt;
   for (Grab& g : grabs_) g.from = g.target;
+  end_collider_motion(model, state);
   if (settings_.max_speed != std::numeric_limits<Real>::infinity()) check_divergence(model, state, h);
 }
-  end_collider_motion(model, state);
 
 // The Verlet front end keeps its velocity in the previous positions: the state's velocities
 // are made from them when a call ends (or stops).
