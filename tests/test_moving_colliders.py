@@ -348,8 +348,11 @@ def test_a_python_callback_overrides_the_keyframes(tmp_path):
         sim.step()
 
 
-def test_the_runner_steps_a_moving_scene(tmp_path):
-    result = csb.load_scene(scene(tmp_path, attach='attach = { indices = [0], collider = "torso" }')).run()
+def test_the_runner_steps_a_moving_scene_and_draws_the_collider_where_it_is(tmp_path):
+    result = csb.load_scene(scene(tmp_path, attach='attach = { indices = [0], collider = "torso" }')).run(
+        tmp_path / "out")
+    assert (tmp_path / "out" / "snapshot.png").is_file()
+    assert result.checks() == []  # driven by the torso: the energy may rise
     assert result.steps == 50
     sim = result.simulation
     R, t = sim.stepper.collider_pose(0)

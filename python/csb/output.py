@@ -259,9 +259,11 @@ def _collider_triangles(c: dict[str, Any], extent: float) -> np.ndarray:
     return np.array([t for a, b, c_, d in quads for t in ((a, b, c_), (a, c_, d))])
 
 
-def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str) -> Path:
+def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str,
+                  poses: Sequence[tuple[Any, Any]] | None = None) -> Path:
     """The model's surface (triangles, or its particles and line cells) at ``state``, with its
-    colliders in grey: a picture of where the simulation ended, y up."""
+    colliders in grey: a picture of where the simulation ended, y up. ``poses``: per collider
+    (R, translation in m) where a moving collider is (PbdStepper.collider_pose); None: as declared."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -276,8 +278,11 @@ def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str
     fig = plt.figure(figsize=(6.5, 6), constrained_layout=True)
     ax = fig.add_subplot(projection="3d")
     centre = (lo + hi) / 2
-    for c in model.colliders:
+    for k, c in enumerate(model.colliders):
         tris = _collider_triangles(c, extent)
+        if poses is not None:
+            R, t = poses[k]
+            tris = tris @ np.asarray(R).T + np.asarray(t)
         # Planes and large meshes are drawn only near the bodies.
         ax.add_collection3d(Poly3DCollection(to_plot(tris), facecolor=(0.6, 0.6, 0.6, 0.25),
                                              edgecolor=(0.4, 0.4, 0.4, 0.3), linewidth=0.3))
