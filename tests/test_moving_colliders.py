@@ -459,3 +459,24 @@ def test_a_turning_paddle_sweeps_particles_without_passing_any(method):
         assert not inside.any(), (k, np.flatnonzero(inside))
     moved = np.linalg.norm(state.x - model.rest_positions, axis=1) > 1e-3
     assert moved.sum() >= 12  # half a turn: the paddle's two blades have swept the particles at 0.2 .. π rad
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_within_a_step_the_pose_is_interpolated_linearly_and_by_slerp(method):
+    """A step of two sub-steps from the identity to a turn of 1 rad about y and 0.4 m along x,
+    stopped after its first sub-step (interrupt): an attached particle is at the halfway pose,
+    rot_y(0.5) x0 + (0.2, 0, 0) (the slerp of two turns about one axis is the turn by the mean
+    angle), to round-off (1e-12 m)."""
+    b = csb.ModelBuilder()
+    g = b.add_group("p")
+    b.add_particle([0.3, 0.0, 0.1], 0.1, g)
+    b.add_sphere(center=[0.0, -1.0, 0.0], radius=0.1, name="hand")
+    model = b.build()
+    state = model.initial_state()
+    x0 = state.x[0].copy()
+    stepper = csb.PbdStepper(method=method, dt=0.01, substeps=2, gravity=[0, 0, 0])
+    stepper.attach(model, state, 0, [0])
+    stepper.move_collider(model, 0, rot_y(1.0), [0.4, 0.0, 0.0])
+    with pytest.raises(csb.Error, match="after sub-step 0"):
+        stepper.step(model, state, 1, interrupt=lambda: True)
+    np.testing.assert_allclose(state.x[0], rot_y(0.5) @ x0 + [0.2, 0.0, 0.0], atol=1e-12)
