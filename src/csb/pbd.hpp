@@ -27,6 +27,7 @@
 #include "csb/integrator.hpp"
 #include "csb/material.hpp"
 #include "csb/model.hpp"
+#include "csb/collision/ccd.hpp"
 #include "csb/collision/spatial_hash.hpp"
 #include "csb/solver/team.hpp"
 #include "csb/use_guard.hpp"
@@ -129,22 +130,37 @@ struct Grab {
   bool pinned = false;         // the model pins the particle: released, it stops where it is
 };
 
-// A point-triangle self-contact of a cloth (Müller 2007 §4.4): particle q against triangle
-// (p1, p2, p3) of its own group, kept on the side `side` (±1 along the triangle's normal) it was on
-// at the start of the sub-step, at least `thickness` away: C = side (q - p1)·n - d >= 0.
+// A self-contact of a cloth (Müller 2007 §4.4; continuous contacts after Bridson, Fedkiw,
+// Anderson 2002): two features of its own group, a point and a triangle or two edges, kept apart
+// along a normal. The separation is d = Σ_k c_k p_k over the four particles (point–triangle: q,
+// t0, t1, t2 with c = (1, -b0, -b1, -b2), b the barycentric coordinates of q's nearest point;
+// edge–edge: a0, a1, b0, b1 with c = (1 - u, u, -(1 - v), -v) at the closest points' parameters),
+// and the inequality C = d·n - thickness >= 0 with n:
+//  - a proximity contact (point–triangle, made at the start of the sub-step): the triangle's
+//    current unit normal times `side`, the side q was on at the start of the sub-step;
+//  - a continuous contact (found by the continuous test after the sweeps): `normal`, fixed, d's
+//    direction at the time of impact.
 struct SelfContact {
-  Index particle = 0;
-  Triangle triangle{};
-  Vec3 barycentric = Vec3::Zero();  // of q's nearest point on the triangle at generation
-  Real side = 1;
-  Real thickness = 0;               // d, m: h, or q's distance at the start of the sub-step if less
+  PairKind kind = PairKind::PointTriangle;
+  bool continuous = false;
+  std::array<Index, 4> particles{};
+  std::array<Real, 4> weights{};    // c
+  Vec3 normal = Vec3::UnitY();      // unit
+  Real side = 1;                    // proximity: ±1 along the triangle's normal
+  Real thickness = 0;               // m: the group's, or the pair's distance at the start of the sub-step if less
+  Real approach = 0;                // m/s, d's normal speed in the motion x -> p when made (< 0: approaching)
+  bool pushed = false;              // the contact moved its particles this sub-step
 };
 
 // What the collision detection of the last sub-step found.
 struct ContactSummary {
   Index count = 0;            // particle-collider contacts, speculative ones included
   Index active = 0;           // those that pushed their particle this sub-step
-  Index self_count = 0;       // point-triangle self-contacts
+  Index self_count = 0;       // self-contacts: proximity point-triangle, and continuous
+  Index self_continuous = 0;  // of which found by the continuous test after the sweeps
+  Index self_failsafe = 0;    // particles the self-collision fail-safe stopped (p = x) this sub-step
+  Index self_unresolved = 0;  // impacts the fail-safe could not stop (only prescribed particles moved)
+  std::int64_t self_searches = 0;  // candidate-pair searches (spatial hash builds) since the stepper was made
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
 };
@@ -324,10 +340,12 @@ class PbdStepper : public Integrator {
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
   void generate_contacts(const Model& model, const Positions& x, Real h);
-  void generate_self_contacts(const Model& model, const Positions& x);
+  void generate_self_contacts(const Model& model, const Positions& x, Real h);
   void set_relaxation(const Model& model);
   void project_contacts(const Model& model, bool jacobi);
   void project_self_contacts(const Model& model, bool jacobi);
+  Real self_penetration(const Positions& x) const;
+  void settle_self_contact_velocities(const Model& model, State& state, Real h);
   void settle_contact_moves(bool average);
   void apply_friction(const Model& model, const Positions& x);
   void apply_restitution(const Model& model, State& state, Real h);
@@ -382,8 +400,32 @@ class PbdStepper : public Integrator {
     Real thickness = 0;                  // h, m
     Real cell = 1;                       // m, hash cell edge
     std::vector<Index> triangles;        // into model.triangles
+    std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
+    // The candidate pairs (self_contacts.cpp, find_self_candidates):
+    // point-triangle (particle, triangle index into `triangles`) and edge-edge (indices into
+    // `edges`, first < second).
+    std::vector<std::array<Index, 2>> pt, ee;
+    bool searched = false;               // pt and ee were found for this model
   };
   std::vector<SelfGroup> self_groups_;
+  // Continuous self-collision (self_contacts.cpp).
+  void find_self_candidates(const Model& model, SelfGroup& g, const Positions& x);
+  bool self_candidates_hold(const Model& model, const SelfGroup& g, const Positions& x) const;
+  void sweep_self_boxes(const Model& model, const SelfGroup& g, const Positions& x, Real pad);
+  void find_self_impacts(const Model& model, const SelfGroup& g, const Positions& x);
+  void resolve_self_collisions(const Model& model, const Positions& x, Real h);
+  struct SelfImpact {
+    PairKind kind;
+    std::array<Index, 4> particles;
+    Real toi;
+  };
+  std::vector<SelfImpact> impacts_;
+  Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
+  Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
+  std::int64_t self_searches_ = 0;       // candidate searches since the stepper was made
+  SpatialHash edge_hash_;
+  std::vector<Vec3> edge_lo_, edge_hi_;
+  std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
   std::vector<Contact> contacts_;
   std::vector<SelfContact> self_contacts_;
   ContactSummary contact_summary_;

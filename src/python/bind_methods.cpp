@@ -159,6 +159,10 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["count"] = sum.count;
         d["active"] = sum.active;
         d["self_count"] = sum.self_count;
+        d["self_continuous"] = sum.self_continuous;
+        d["self_failsafe"] = sum.self_failsafe;
+        d["self_unresolved"] = sum.self_unresolved;
+        d["self_searches"] = sum.self_searches;
         d["max_depth"] = sum.max_depth;
         d["max_penetration"] = sum.max_penetration;
         d["particle"] = particle;
@@ -169,7 +173,10 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["lambda"] = lambda;
         return d;
       }, "The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those "
-         "that pushed their particle), self_count (point-triangle), max_depth "
+         "that pushed their particle), self_count (self-contacts: proximity point-triangle, and continuous), "
+         "self_continuous (found by the continuous test), self_failsafe (particles "
+         "the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), self_searches (candidate-pair "
+         "searches since the stepper was made), max_depth "
          "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
          "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")

@@ -42,7 +42,7 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
     contact_summary_.max_depth =
         std::max(contact_summary_.max_depth, k.thickness - (p_.col(k.particle) - k.point).dot(k.normal));
   contact_summary_.count = static_cast<Index>(contacts_.size());
-  if (!self_groups_.empty()) generate_self_contacts(model, x);
+  if (!self_groups_.empty()) generate_self_contacts(model, x, h);
 }
 
 // The contacts' projections in one sweep, after the other constraints so that non-penetration
@@ -169,12 +169,7 @@ void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
     worst = std::max(worst, k.thickness - (state.x.col(k.particle) - k.point).dot(k.normal));
     contact_summary_.active += k.normal_correction > 0;
   }
-  for (const SelfContact& k : self_contacts_) {
-    const auto& t = k.triangle;
-    const Vec3 a = state.x.col(t[0]);
-    const Vec3 n = (state.x.col(t[1]) - a).cross(state.x.col(t[2]) - a);
-    if (n.norm() > 0) worst = std::max(worst, k.thickness - k.side * (state.x.col(k.particle) - a).dot(n.normalized()));
-  }
+  worst = std::max(worst, self_penetration(state.x));
   contact_summary_.max_penetration = worst;
 }
 

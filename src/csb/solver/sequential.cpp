@@ -117,10 +117,8 @@ void PbdStepper::set_relaxation(const Model& model) {
   else
     jacobi_counts(model, relax_);
   for (const Contact& k : contacts_) relax_[k.particle] += 1;
-  for (const SelfContact& k : self_contacts_) {
-    relax_[k.particle] += 1;
-    for (Index i : k.triangle) relax_[i] += 1;
-  }
+  for (const SelfContact& k : self_contacts_)
+    for (Index i : k.particles) relax_[i] += 1;
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   for (Index i = 0; i < model.num_particles(); ++i) relax_[i] = w[i] > 0 && relax_[i] > 0 ? 1 / relax_[i] : 1;
 }

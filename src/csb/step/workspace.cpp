@@ -93,7 +93,14 @@ void PbdStepper::prepare(const Model& model) {
                             " m, its rest bounding-box diagonal): give a thickness of the order of the cloth's "
                             "thickness, well under its edges");
     sg.cell = edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self;
-    most_triangles = std::max(most_triangles, sg.triangles.size());
+    for (const Index t : sg.triangles)
+      for (int e = 0; e < 3; ++e) {
+        const Index a = model.triangles[t][e], b = model.triangles[t][(e + 1) % 3];
+        sg.edges.push_back({std::min(a, b), std::max(a, b)});
+      }
+    std::sort(sg.edges.begin(), sg.edges.end());
+    sg.edges.erase(std::unique(sg.edges.begin(), sg.edges.end()), sg.edges.end());
+    most_triangles = std::max({most_triangles, sg.triangles.size(), sg.edges.size()});
     self_groups_.push_back(std::move(sg));
   }
   for (const Collider& c : model.colliders)
