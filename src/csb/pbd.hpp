@@ -251,7 +251,9 @@ class PbdStepper : public Integrator {
   // over that step's sub-steps it goes there from its present pose (t linearly, R by quaternion
   // slerp: less than π a step). Throws InvalidArgument naming the collider for an index out of
   // range or a rotation that is not one (|RᵀR - I|, |det R - 1| > kRotationTolerance) or
-  // non-finite values. translation in m.
+  // non-finite values. translation in m. A step interrupted between sub-steps leaves the pose
+  // of the step's start as the one to move from (as for a grab's hand): the next step() goes
+  // from there again.
   void move_collider(const Model& model, Index collider, const Mat3& rotation, const Vec3& translation);
   // The pose of a collider at the end of the last step (what the state's positions saw).
   ColliderPose collider_pose(Index collider) const;
