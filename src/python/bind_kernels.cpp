@@ -27,6 +27,22 @@ void bind_kernels(py::module_& m) {
     const Real v = project_attachment(x.data(), w, t.data(), stiffness);
     return py::make_tuple(vec3_array(x), v);
   }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("stiffness") = 1.0);
+  k.def("additive_ccd", [](const std::string& kind, const Eigen::Matrix<double, 4, 3>& x,
+                           const Eigen::Matrix<double, 4, 3>& dx, double separation, double thickness) {
+    if (kind != "point-triangle" && kind != "edge-edge")
+      throw InvalidArgument("additive_ccd: kind must be 'point-triangle' or 'edge-edge', got '" + kind + "'");
+    if (!(separation > 0 && separation < 1)) throw InvalidArgument("additive_ccd: separation must be in (0, 1)");
+    if (!(thickness >= 0) || !std::isfinite(thickness)) throw InvalidArgument("additive_ccd: thickness must be >= 0 m");
+    if (!x.allFinite() || !dx.allFinite()) throw InvalidArgument("additive_ccd: x and dx must be finite");
+    std::array<Vec3, 4> xs, ds;
+    for (int i = 0; i < 4; ++i) xs[i] = x.row(i).transpose(), ds[i] = dx.row(i).transpose();
+    const Impact m = additive_ccd(kind == "edge-edge" ? PairKind::EdgeEdge : PairKind::PointTriangle, xs, ds, separation,
+                                  thickness);
+    return py::make_tuple(m.hit, m.toi);
+  }, py::arg("kind"), py::arg("x"), py::arg("dx"), py::arg("separation") = 0.1, py::arg("thickness") = 0.0,
+     "Additive CCD (Li, Kaufman, Jiang 2021) of a pair moving from x to x + dx ((4, 3), m; point-triangle: the "
+     "point then the triangle, edge-edge: the two edges' ends): (hit, toi), the first fraction of the motion at which "
+     "the distance falls below thickness + separation (d(0) - thickness), conservatively.");
   k.def("tet_volume", [](py::handle a, py::handle b, py::handle c, py::handle d) {
     return tet_volume(to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d"));
   }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), "Signed volume (1/6)(b - a) x (c - a)·(d - a), m³.");

@@ -6,7 +6,11 @@ import collections.abc
 import numpy
 import numpy.typing
 import typing
-__all__: list[str] = ['atan2', 'dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'kernel_isa', 'project_attachment', 'project_balloon', 'project_bending', 'project_bending_coloured', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
+__all__: list[str] = ['additive_ccd', 'atan2', 'dihedral_angle', 'dihedral_angle_gradient', 'enclosed_volume', 'kernel_isa', 'project_attachment', 'project_balloon', 'project_bending', 'project_bending_coloured', 'project_distance', 'project_volume', 'project_volume_xpbd', 'tet_volume', 'tet_volume_gradient']
+def additive_ccd(kind: str, x: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[4, 3]"], dx: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[4, 3]"], separation: typing.SupportsFloat | typing.SupportsIndex = 0.1, thickness: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> tuple[bool, float]:
+    """
+    Additive CCD (Li, Kaufman, Jiang 2021) of a pair moving from x to x + dx ((4, 3), m; point-triangle: the point then the triangle, edge-edge: the two edges' ends): (hit, toi), the first fraction of the motion at which the distance falls below thickness + separation (d(0) - thickness), conservatively.
+    """
 def atan2(y: typing.Any, x: typing.Any) -> numpy.typing.NDArray[numpy.float64]:
     """
     The coloured bending kernel's branch-free rational atan2 (csb/atan2.hpp), elementwise, rad.
