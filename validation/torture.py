@@ -57,6 +57,7 @@ def main() -> None:
     for name in args.scenes:
         scene = T.build(name, quick=args.quick)
         if args.seconds is not None and args.seconds < scene.seconds:
+            scene.description += f" (here its first {args.seconds:g} s)"
             scene.seconds = args.seconds
         if scene.unavailable:
             notes.append(f"{name}: not run: {scene.unavailable}")
