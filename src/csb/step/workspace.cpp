@@ -62,9 +62,9 @@ void PbdStepper::prepare(const Model& model) {
     delta_.resize(3, n);
     count_.resize(n);
   }
-  // Collisions: the triangles of each self-colliding group; hash cells of about a triangle's
-  // size plus the thickness on each side (Teschner et al. 2003 find a cell near the mean
-  // primitive size best).
+  // Collisions: the triangles and edges of each self-colliding group; hash cells of about a
+  // feature's widened box, 1.5 times the mean edge plus twice the thickness (Teschner et al. 2003
+  // find a cell near the mean primitive size best; self_contacts.cpp says how 1.5 was chosen).
   self_groups_.clear();
   std::size_t most_triangles = 0;
   for (Index g = 0; g < model.num_groups(); ++g) {
@@ -92,7 +92,7 @@ void PbdStepper::prepare(const Model& model) {
                             "' exceeds the size of its cloth (" + str((hi - lo).norm()) +
                             " m, its rest bounding-box diagonal): give a thickness of the order of the cloth's "
                             "thickness, well under its edges");
-    sg.cell = edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self;
+    sg.cell = 1.5 * (edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self);
     for (const Index t : sg.triangles)
       for (int e = 0; e < 3; ++e) {
         const Index a = model.triangles[t][e], b = model.triangles[t][(e + 1) % 3];
