@@ -13,27 +13,52 @@ import numpy as np
 from . import _core
 from ._core import Mesh
 
-__all__ = ["Mesh", "MeshReport", "MeshWarning", "load_mesh", "clean", "transformed", "icosphere"]
+__all__ = ["Mesh", "MeshReport", "MeshWarning", "AnimationWarning", "load_mesh", "clean", "transformed", "icosphere"]
 
 
 class MeshWarning(UserWarning):
     """Something in a mesh was dropped or skipped (degenerate triangles, non-manifold edges, ...)."""
 
 
+class AnimationWarning(MeshWarning):
+    """A mesh file animates its meshes (node animations or skinning) and csb loaded its rest pose;
+    :func:`csb.load_animation` reads the animation."""
+
+
 _PACKAGE = os.path.dirname(os.path.abspath(__file__)) + os.sep
 
 
-def warn_mesh(message: str) -> None:
-    """Issue a :class:`MeshWarning` that points at the user's line: the first caller outside the
-    csb package (``load_mesh``, ``add_mesh``, a scene's ``build``, ...), however deep in csb it
-    was found."""
+def warn_mesh(message: str, category: type[Warning] = MeshWarning) -> None:
+    """Issue a :class:`MeshWarning` (or ``category``) that points at the user's line: the first
+    caller outside the csb package (``load_mesh``, ``add_mesh``, a scene's ``build``, ...),
+    however deep in csb it was found."""
     if sys.version_info >= (3, 12):
-        warnings.warn(message, MeshWarning, skip_file_prefixes=(_PACKAGE,))
+        warnings.warn(message, category, skip_file_prefixes=(_PACKAGE,))
         return
     level, frame = 1, sys._getframe(0)  # stacklevel 1 is this function
     while frame is not None and frame.f_code.co_filename.startswith(_PACKAGE):
         level, frame = level + 1, frame.f_back
-    warnings.warn(message, MeshWarning, stacklevel=level)
+    warnings.warn(message, category, stacklevel=level)
+
+
+def _animation_message(path: str, summary: dict[str, Any]) -> str | None:
+    """The :class:`AnimationWarning` for a file whose scene has animations or skinned meshes, or None."""
+    animations, skinned = summary["animations"], summary["skinned"]
+    if not animations and not skinned:
+        return None
+    parts = []
+    if animations:
+        listed = "; ".join(f"{(name or f'animation {k}')!r}: {duration:.4g} s, {channels} animated node(s)"
+                           for k, (name, duration, channels) in enumerate(animations))
+        parts.append(f"{len(animations)} animation(s) ({listed})")
+    if skinned:
+        listed = "; ".join(f"{(name or 'unnamed')!r}: {bones} bone(s), {vertices} vertices"
+                           for name, bones, vertices in skinned)
+        parts.append(f"{len(skinned)} skinned mesh(es) ({listed})")
+    return (f"{path}: the file holds " + " and ".join(parts) + "; csb loaded the rest pose (the nodes' static "
+            "transforms, no bone applied) and does not play the animation. csb.load_animation(path) reads the "
+            "animated vertices at given times (s), and, for a mesh its node moves rigidly, keyframes for "
+            "PbdStepper.move_collider or a scene file's collider motion")
 
 
 # Elements that make a Gauss-Seidel sweep with few iterations unstable: a sliver's altitude is so
@@ -145,13 +170,21 @@ def load_mesh(
     on which it would allocate more than ``max_memory`` bytes (default 2 GiB, beyond what this
     process already has mapped; enforced on Linux) a MeshError naming that limit. Both errors say
     how to raise the limit; a non-positive ``max_memory`` is a :class:`csb.ParameterError`.
+
+    A file whose scene has animations or skinned meshes (glTF, FBX, Collada, ...) loads in its
+    rest pose (the nodes' static transforms, no bone applied) with an :class:`AnimationWarning`
+    naming the animations (and their durations, s) and the skinned meshes; :func:`csb.load_animation`
+    reads the animation itself.
     """
     if isinstance(max_memory, bool) or not isinstance(max_memory, (int, float, np.integer, np.floating)):
         raise _core.ParameterError(f"max_memory must be a number of bytes > 0, got {max_memory!r}")
-    mesh, report = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance, timeout=timeout,
-                                    max_memory=float(max_memory))
+    mesh, report, animation = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance,
+                                               timeout=timeout, max_memory=float(max_memory))
     mesh.report = MeshReport._from_core(report)
     mesh.report._emit()
+    message = _animation_message(os.fspath(path), animation)
+    if message is not None:
+        warn_mesh(message, AnimationWarning)
     return mesh
 
 

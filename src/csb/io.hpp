@@ -23,9 +23,27 @@ namespace csb {
 // would allocate more than `max_memory` bytes (beyond what the calling process already has
 // mapped; Linux enforces it) gives a MeshError naming that limit. Throws InvalidArgument for a
 // negative timeout or a max_memory that is not > 0.
+//
+// load_mesh reads the rest pose: the static transforms of the file's nodes, bones not applied.
+// What the file animates is listed in `animations` (when given) so that the caller can say so.
+struct AnimationInfo {
+  std::string name;           // as the file names it ("" if unnamed)
+  double duration = 0;        // s (Assimp's ticks over its ticks per second, 25 where the file gives none)
+  unsigned channels = 0;      // animated nodes
+};
+struct SkinnedMeshInfo {
+  std::string name;           // the mesh's name in the file ("" if unnamed)
+  unsigned bones = 0;
+  unsigned vertices = 0;
+};
+struct AnimationSummary {
+  std::vector<AnimationInfo> animations;
+  std::vector<SkinnedMeshInfo> skinned;
+  bool empty() const { return animations.empty() && skinned.empty(); }
+};
 inline constexpr double kDefaultMaxMemory = 2.0 * 1024 * 1024 * 1024;  // bytes (2 GiB)
 Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr,
-               double timeout = 0, double max_memory = kDefaultMaxMemory);
+               double timeout = 0, double max_memory = kDefaultMaxMemory, AnimationSummary* animations = nullptr);
 
 // Writes the triangles of a mesh; the format follows the extension (.obj .stl .ply .gltf .glb
 // .dae .3ds .fbx .x .3mf ...). Throws MeshError if Assimp cannot write it.

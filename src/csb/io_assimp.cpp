@@ -75,7 +75,60 @@ struct RawScene {
   std::vector<float> vertices;        // x, y, z per vertex, all meshes concatenated
   std::vector<std::uint32_t> triangles;
   std::uint64_t points = 0, lines = 0, polygons = 0;
+  std::string animation;  // encode_summary() of what the file animates
 };
+
+// Ticks per second of an animation: Assimp leaves 0 where the file gives none, and its own
+// viewer then plays 25.
+double ticks_per_second(const aiAnimation* a) { return a->mTicksPerSecond > 0 ? a->mTicksPerSecond : 25.0; }
+
+std::string printable(const aiString& name) {
+  std::string s(name.C_Str());
+  for (char& c : s)
+    if (c == '\t' || c == '\n' || c == '\r') c = ' ';
+  return s;
+}
+
+// The animations and skinned meshes of a scene as read, before post-processing (which drops them
+// when it bakes the node transforms).
+AnimationSummary summarize(const aiScene* scene) {
+  AnimationSummary out;
+  for (unsigned k = 0; k < scene->mNumAnimations; ++k) {
+    const aiAnimation* a = scene->mAnimations[k];
+    out.animations.push_back({printable(a->mName), a->mDuration / ticks_per_second(a), a->mNumChannels});
+  }
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    const aiMesh* am = scene->mMeshes[m];
+    if (am->mNumBones > 0) out.skinned.push_back({printable(am->mName), am->mNumBones, am->mNumVertices});
+  }
+  return out;
+}
+
+// One line per item, tab-separated: "a name duration channels" or "s name bones vertices"; it
+// crosses the pipe from the import process.
+std::string encode_summary(const AnimationSummary& summary) {
+  std::ostringstream s;
+  s.precision(17);
+  for (const AnimationInfo& a : summary.animations) s << "a\t" << a.name << '\t' << a.duration << '\t' << a.channels << '\n';
+  for (const SkinnedMeshInfo& m : summary.skinned) s << "s\t" << m.name << '\t' << m.bones << '\t' << m.vertices << '\n';
+  return s.str();
+}
+
+AnimationSummary decode_summary(const std::string& text) {
+  AnimationSummary out;
+  std::istringstream lines(text);
+  for (std::string line; std::getline(lines, line);) {
+    std::vector<std::string> f;
+    std::istringstream fields(line);
+    for (std::string item; std::getline(fields, item, '\t');) f.push_back(item);
+    if (f.size() != 4) continue;
+    if (f[0] == "a") out.animations.push_back({f[1], std::strtod(f[2].c_str(), nullptr),
+                                               static_cast<unsigned>(std::strtoul(f[3].c_str(), nullptr, 10))});
+    if (f[0] == "s") out.skinned.push_back({f[1], static_cast<unsigned>(std::strtoul(f[2].c_str(), nullptr, 10)),
+                                            static_cast<unsigned>(std::strtoul(f[3].c_str(), nullptr, 10))});
+  }
+  return out;
+}
 
 RawScene read_in_process(const std::string& path) {
   RawScene raw;
@@ -84,7 +137,13 @@ RawScene read_in_process(const std::string& path) {
   // primitive types so that points and lines can be told apart, and let Assimp check its output.
   const unsigned flags = aiProcess_Triangulate | aiProcess_PreTransformVertices | aiProcess_SortByPType |
                          aiProcess_ValidateDataStructure;
-  const aiScene* scene = importer.ReadFile(path, flags);
+  // Assimp's ReadFile validates, then post-processes; split in two, the same steps run in the same
+  // order, and the animations can be listed in between.
+  const aiScene* scene = importer.ReadFile(path, aiProcess_ValidateDataStructure);
+  if (scene) {
+    raw.animation = encode_summary(summarize(scene));
+    scene = importer.ApplyPostProcessing(flags & ~aiProcess_ValidateDataStructure);
+  }
   if (!scene) {
     // Assimp turns the std::bad_alloc of an exhausted memory limit into an error string.
     if (std::strstr(importer.GetErrorString(), "bad_alloc")) throw std::bad_alloc();
@@ -206,9 +265,10 @@ void child_import(const std::string& path, int fd, double max_memory) {
   } catch (...) {
     raw.error = "cannot read the file: Assimp failed with an unknown exception";
   }
-  const std::uint64_t header[7] = {out_of_memory ? kOutOfMemory : raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
-                                   raw.points, raw.lines, raw.polygons};
+  const std::uint64_t header[8] = {out_of_memory ? kOutOfMemory : raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
+                                   raw.points, raw.lines, raw.polygons, raw.animation.size()};
   const bool sent = write_all(fd, header, sizeof header) && write_all(fd, raw.error.data(), raw.error.size()) &&
+                    write_all(fd, raw.animation.data(), raw.animation.size()) &&
                     write_all(fd, raw.vertices.data(), raw.vertices.size() * sizeof(float)) &&
                     write_all(fd, raw.triangles.data(), raw.triangles.size() * sizeof(std::uint32_t));
   ::close(fd);
@@ -313,7 +373,7 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
     raw.error = why.str();
     return raw;
   }
-  std::uint64_t header[7];
+  std::uint64_t header[8];
   if (bytes.size() < sizeof header) {
     raw.error = "the import process ended without a result";
     return raw;
@@ -326,7 +386,8 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
     raw.error = why.str();
     return raw;
   }
-  const std::size_t need = sizeof header + header[1] + header[2] * sizeof(float) + header[3] * sizeof(std::uint32_t);
+  const std::size_t need =
+      sizeof header + header[1] + header[7] + header[2] * sizeof(float) + header[3] * sizeof(std::uint32_t);
   if (bytes.size() != need) {
     raw.error = "the import process sent an incomplete result";
     return raw;
@@ -335,6 +396,8 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
   raw.ok = header[0] == 1;
   raw.error.assign(p, header[1]);
   p += header[1];
+  raw.animation.assign(p, header[7]);
+  p += header[7];
   // An empty vector's data() may be null, and memcpy from or to null is undefined even for
   // 0 bytes (UBSan reports it): a refused file sends no vertices.
   raw.vertices.resize(header[2]);
@@ -383,7 +446,7 @@ struct NamedLink {
 }  // namespace
 
 Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout,
-               double max_memory) {
+               double max_memory, AnimationSummary* animations) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileNotFound(path + ": no such file");
   if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
@@ -452,6 +515,7 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
                                                       " point(s) and " + std::to_string(raw.lines) +
                                                       " line segment(s) beside the triangles");
   if (report) *report = std::move(local);
+  if (animations) *animations = decode_summary(raw.animation);
   return out;
 }
 

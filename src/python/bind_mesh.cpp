@@ -3,6 +3,22 @@
 
 namespace csb::python {
 
+namespace {
+
+// What a file animates, for csb.load_mesh's AnimationWarning: {"animations": [(name, duration s,
+// channels)], "skinned": [(mesh name, bones, vertices)]}.
+py::dict animation_summary_dict(const AnimationSummary& summary) {
+  py::list animations, skinned;
+  for (const AnimationInfo& a : summary.animations) animations.append(py::make_tuple(a.name, a.duration, a.channels));
+  for (const SkinnedMeshInfo& s : summary.skinned) skinned.append(py::make_tuple(s.name, s.bones, s.vertices));
+  py::dict d;
+  d["animations"] = animations;
+  d["skinned"] = skinned;
+  return d;
+}
+
+}  // namespace
+
 void bind_mesh(py::module_& m) {
   // ---------------------------------------------------------------- meshes
   py::class_<Mesh>(m, "Mesh", "A triangle (and/or line) mesh before it enters the particle pool; metres.", py::dynamic_attr())
@@ -50,11 +66,12 @@ void bind_mesh(py::module_& m) {
     o.weld_tolerance = weld_tolerance;
     MeshReport r;
     Mesh out;
+    AnimationSummary summary;
     {
       py::gil_scoped_release release;
-      out = load_mesh(path, o, &r, timeout, max_memory);
+      out = load_mesh(path, o, &r, timeout, max_memory, &summary);
     }
-    return py::make_tuple(out, report_dict(r));
+    return py::make_tuple(out, report_dict(r), animation_summary_dict(summary));
   }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0,
      py::arg("max_memory") = kDefaultMaxMemory);
 
