@@ -223,3 +223,142 @@ def test_a_file_without_animation_loads_silently(tmp_path):
     path = tmp_path / "still.gltf"
     csb.save_mesh(csb.Mesh(TRIANGLE, [[0, 1, 2]], name="still"), str(path))
     csb.load_mesh(path)  # warnings are errors in this suite
+
+
+# ---------------------------------------------------------------- load_animation reads it
+
+
+def f32(values) -> np.ndarray:
+    """The values as the file stores them (float32), in double."""
+    return np.asarray(values, np.float32).astype(float)
+
+
+def lerp_keys(times, values, t) -> np.ndarray:
+    values = f32(values)
+    return np.array([np.interp(t, f32(times), values[:, c]) for c in range(values.shape[1])])
+
+
+def slerp(a: np.ndarray, b: np.ndarray, f: float) -> np.ndarray:
+    """Shoemake's (1985) slerp of unit quaternions along the shorter arc."""
+    d = float(np.dot(a, b))
+    if d < 0:
+        b, d = -b, -d
+    theta = math.acos(min(d, 1.0))
+    if theta == 0:
+        return a
+    return (math.sin((1 - f) * theta) * a + math.sin(f * theta) * b) / math.sin(theta)
+
+
+def slerp_keys(times, quats, t) -> np.ndarray:
+    times, q = f32(times), f32(quats)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    k = min(int(np.searchsorted(times, t, side="right")) - 1, len(times) - 2)
+    return slerp(q[k], q[k + 1], (t - times[k]) / (times[k + 1] - times[k]))
+
+
+def matrix(q) -> np.ndarray:
+    """Rotation matrix of a unit quaternion (x, y, z, w)."""
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def rodrigues(v) -> np.ndarray:
+    angle = float(np.linalg.norm(v))
+    if angle == 0:
+        return np.eye(3)
+    k = np.asarray(v) / angle
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
+
+
+# The evaluation repeats, in double, the reference's operations on the same float32 keys by other
+# formulas (Eigen's slerp, matrix products): coordinates of order 1 agree to a few ulps, and 1e-12 m
+# leaves a margin of about 10^3 ulps while catching any interpolation error (a wrong key or
+# fraction moves a vertex by 1e-2 m or more here).
+EXACT = 1e-12
+
+
+def test_a_rigid_node_animation_follows_its_keys(rigid_gltf):
+    times = [0.0, 0.25, 0.5, 1.0, 1.3, 1.7, 2.0]
+    anim = csb.load_animation(rigid_gltf, times)
+    assert (anim.name, anim.duration) == ("slide", 2.0)
+    np.testing.assert_array_equal(anim.times, times)
+    (m,) = anim.meshes
+    assert (m.name, m.node, m.skinned) == ("plate", "plate", False)
+    np.testing.assert_array_equal(m.triangles, [[0, 1, 2]])
+    assert m.vertices.shape == (len(times), 3, 3)
+    x0 = f32(TRIANGLE)
+    for k, t in enumerate(times):
+        R, p = matrix(slerp_keys(R_TIMES, R_VALUES, t)), lerp_keys(T_TIMES, T_VALUES, t)
+        np.testing.assert_allclose(m.vertices[k], x0 @ R.T + p, rtol=0, atol=EXACT, err_msg=f"t = {t} s")
+    # The keyframes take the rest pose load_mesh reads to the animated one, as move_collider does.
+    kf = m.keyframes
+    assert kf is not None
+    with pytest.warns(csb.AnimationWarning):
+        rest = csb.load_mesh(rigid_gltf).vertices
+    for k in range(len(times)):
+        np.testing.assert_allclose(rest @ kf.matrices[k].T + kf.translation[k], m.vertices[k], rtol=0, atol=EXACT)
+        np.testing.assert_allclose(rodrigues(kf.rotation[k]), kf.matrices[k], rtol=0, atol=EXACT)
+    motion = kf.motion()
+    assert motion["times"] == times and len(motion["translation"]) == len(motion["rotation"]) == len(times)
+
+
+def test_default_times_are_the_keys(rigid_gltf):
+    anim = csb.load_animation(rigid_gltf)
+    np.testing.assert_array_equal(anim.times, [0.0, 1.0, 2.0])
+    assert csb.load_animation(rigid_gltf, animation="slide").meshes[0].vertices.shape == (3, 3, 3)
+
+
+def test_a_skinned_column_follows_its_bones(skinned_gltf):
+    times = [0.0, 0.3, 0.75, 1.2, 1.5]
+    anim = csb.load_animation(skinned_gltf, times)
+    (m,) = anim.meshes
+    assert m.skinned and m.keyframes is None and m.name == "column"
+    np.testing.assert_array_equal(m.vertices[0], COLUMN.astype(np.float32))  # the bind pose at t = 0
+    x0 = f32(COLUMN)
+    for k, t in enumerate(times):
+        slide = lerp_keys(ROOT_TIMES, ROOT_VALUES, t)
+        turn = matrix(slerp_keys(TIP_TIMES, TIP_VALUES, t))
+        root = x0 + slide                                      # weight 1 on root
+        tip = slide + TIP_OFFSET + (x0 - TIP_OFFSET) @ turn.T  # weight 1 on tip: turned about its joint
+        np.testing.assert_allclose(m.vertices[k, :4], root[:4], rtol=0, atol=EXACT, err_msg=f"t = {t} s")
+        np.testing.assert_allclose(m.vertices[k, 8:], tip[8:], rtol=0, atol=EXACT, err_msg=f"t = {t} s")
+        np.testing.assert_allclose(m.vertices[k, 4:8], 0.5 * (root[4:8] + tip[4:8]), rtol=0, atol=EXACT,
+                                   err_msg=f"t = {t} s")
+    # Halfway the tip has turned by π/4 exactly (slerp about a fixed axis is linear in the angle).
+    np.testing.assert_allclose(matrix(slerp_keys(TIP_TIMES, TIP_VALUES, 0.75)), matrix(quat_z(math.pi / 4)),
+                               atol=1e-7)  # float32 keys
+
+
+def test_a_collada_animation(collada):
+    anim = csb.load_animation(collada, [0.0, 1.0, 4.0])
+    assert anim.duration == 4.0
+    (m,) = anim.meshes
+    for k, lift in enumerate([0.0, 0.5, 2.0]):
+        np.testing.assert_allclose(m.vertices[k], TRIANGLE + [0, lift, 0], rtol=0, atol=EXACT)
+    np.testing.assert_allclose(m.keyframes.translation, [[0, 0, 0], [0, 0.5, 0], [0, 2, 0]], rtol=0, atol=EXACT)
+
+
+def test_bad_requests_are_named(rigid_gltf, tmp_path):
+    with pytest.raises(FileNotFoundError):
+        csb.load_animation(tmp_path / "nowhere.gltf")
+    still = tmp_path / "still.gltf"
+    csb.save_mesh(csb.Mesh(TRIANGLE, [[0, 1, 2]], name="still"), str(still))
+    with pytest.raises(csb.ParameterError, match="holds no animation"):
+        csb.load_animation(still)
+    with pytest.raises(csb.ParameterError, match=r"times\[1\] = 2.5 s is outside the animation 'slide' \(0 to 2 s\)"):
+        csb.load_animation(rigid_gltf, [0.0, 2.5])
+    with pytest.raises(csb.ParameterError, match="outside"):
+        csb.load_animation(rigid_gltf, [-0.1])
+    with pytest.raises(csb.ParameterError, match=r"times\[0\] is not finite"):
+        csb.load_animation(rigid_gltf, [math.nan])
+    with pytest.raises(csb.ParameterError, match="non-empty"):
+        csb.load_animation(rigid_gltf, [])
+    with pytest.raises(csb.ParameterError, match="no animation named 'walk'.*0 'slide'"):
+        csb.load_animation(rigid_gltf, animation="walk")
+    with pytest.raises(csb.ParameterError, match=r"animation must be an index in \[0, 0\], got 1"):
+        csb.load_animation(rigid_gltf, animation=1)
+    with pytest.raises(csb.ParameterError, match="no mesh or node named 'x'"):
+        csb.load_animation(rigid_gltf).mesh("x")

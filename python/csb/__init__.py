@@ -67,6 +67,7 @@ from ._core import (
     volume_violations,
 )
 from .mesh import AnimationWarning, Mesh, MeshReport, MeshWarning, clean, icosphere, load_mesh, transformed
+from .animation import AnimatedMesh, Animation, RigidKeyframes, load_animation
 from .model import MeshInstance, ModelBuilder
 from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
@@ -91,7 +92,7 @@ def plugin_include_dir() -> str:
 
 __all__ = [
     "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "AnimationWarning", "MaterialWarning", "AccuracyWarning",
-    "Mesh", "MeshReport", "load_mesh", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
+    "Mesh", "MeshReport", "load_mesh", "load_animation", "Animation", "AnimatedMesh", "RigidKeyframes", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum", "icosphere",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
     "Model", "ModelBuilder", "MeshInstance", "State",

@@ -45,6 +45,45 @@ inline constexpr double kDefaultMaxMemory = 2.0 * 1024 * 1024 * 1024;  // bytes 
 Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr,
                double timeout = 0, double max_memory = kDefaultMaxMemory, AnimationSummary* animations = nullptr);
 
+// One mesh of an animated file, evaluated at the times of an Animation. Vertices are in the frame
+// load_mesh reads (the nodes' transforms applied, the file's unit scale with them), m; they are
+// the file's own vertices, before load_mesh's welding.
+struct AnimatedMesh {
+  std::string name;                  // the mesh's name in the file, else its node's
+  std::string node;                  // the node that places it
+  Index num_vertices = 0;
+  std::vector<Real> vertices;        // times x num_vertices x 3, m
+  std::vector<Triangle> triangles;
+  bool skinned = false;              // bones deform it (linear blend skinning)
+  // Without bones, and when the nodes above it neither scale nor shear it beyond its rest pose,
+  // the mesh moves rigidly: x(t) = rotation[k] x_rest + translation[k] takes the rest pose
+  // load_mesh reads to the pose at times[k] (what PbdStepper.move_collider takes).
+  bool rigid = false;
+  std::vector<Mat3> rotation;        // per time
+  std::vector<Vec3> translation;     // m, per time
+};
+
+struct Animation {
+  std::string name;                  // as the file names it
+  double duration = 0;               // s
+  std::vector<Real> times;           // s, where the meshes were evaluated
+  std::vector<AnimatedMesh> meshes;  // one per placement of a triangle mesh in the node tree
+};
+
+// Evaluates the file's animation number `animation` (or the one named `animation_name`, if not
+// empty) at `times` (s, each in [0, duration]; nullptr: the times of its keys, or 30 per second
+// of its duration where it has fewer than two). Node animations interpolate their keys as Assimp
+// gives them (position and scaling linearly, rotation by quaternion slerp; held before the first
+// key and after the last); skinned meshes follow their bones by linear blend skinning, x = sum_b
+// w_b G_b(t) O_b x_bind / sum_b w_b (G_b the bone node's global transform, O_b its offset
+// matrix; a vertex no bone weighs follows its mesh's node). The file is first read as load_mesh
+// reads it (same checks, timeout and max_memory, in a child process), then again in this one.
+// Throws FileNotFound and MeshError as load_mesh does, and InvalidArgument for a file without
+// animation, an unknown animation, and a time that is not finite or outside [0, duration].
+Animation load_animation(const std::string& path, const std::vector<Real>* times = nullptr, int animation = 0,
+                         const std::string& animation_name = "", double timeout = 0,
+                         double max_memory = kDefaultMaxMemory);
+
 // Writes the triangles of a mesh; the format follows the extension (.obj .stl .ply .gltf .glb
 // .dae .3ds .fbx .x .3mf ...). Throws MeshError if Assimp cannot write it.
 void save_mesh(const Mesh& mesh, const std::string& path);

@@ -5,15 +5,19 @@
 #include <assimp/postprocess.h>
 #include <assimp/scene.h>
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <cstdint>
 #include <cstdlib>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <map>
 #include <memory>
 #include <new>
 #include <sstream>
@@ -516,6 +520,245 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
                                                       " line segment(s) beside the triangles");
   if (report) *report = std::move(local);
   if (animations) *animations = decode_summary(raw.animation);
+  return out;
+}
+
+namespace {
+
+using Mat4 = Eigen::Matrix<double, 4, 4>;
+
+Mat4 to_eigen(const aiMatrix4x4& m) {
+  Mat4 e;
+  e << m.a1, m.a2, m.a3, m.a4, m.b1, m.b2, m.b3, m.b4, m.c1, m.c2, m.c3, m.c4, m.d1, m.d2, m.d3, m.d4;
+  return e;
+}
+
+Vec3 to_eigen(const aiVector3D& v) { return Vec3(v.x, v.y, v.z); }
+
+// The key at or before `tick` and the fraction of the way to the next one; the first key before
+// it, the last after it (Assimp's keys are sorted by time).
+template <class Key>
+std::pair<unsigned, double> bracket(const Key* keys, unsigned n, double tick) {
+  if (n == 1 || tick <= keys[0].mTime) return {0, 0.0};
+  if (tick >= keys[n - 1].mTime) return {n - 1, 0.0};
+  unsigned lo = 0, hi = n - 1;  // keys[lo].mTime <= tick < keys[hi].mTime
+  while (hi - lo > 1) {
+    const unsigned mid = lo + (hi - lo) / 2;
+    (keys[mid].mTime <= tick ? lo : hi) = mid;
+  }
+  const double span = keys[hi].mTime - keys[lo].mTime;
+  return {lo, span > 0 ? (tick - keys[lo].mTime) / span : 0.0};
+}
+
+Vec3 interpolate(const aiVectorKey* keys, unsigned n, double tick) {
+  const auto [k, f] = bracket(keys, n, tick);
+  const Vec3 a = to_eigen(keys[k].mValue);
+  return f == 0.0 ? a : Vec3(a + f * (to_eigen(keys[k + 1].mValue) - a));
+}
+
+Eigen::Quaterniond to_eigen(const aiQuaternion& q) { return Eigen::Quaterniond(q.w, q.x, q.y, q.z).normalized(); }
+
+// Shoemake's (1985) slerp along the shorter arc (Eigen's slerp flips the sign of a negative dot).
+Eigen::Quaterniond interpolate(const aiQuatKey* keys, unsigned n, double tick) {
+  const auto [k, f] = bracket(keys, n, tick);
+  const Eigen::Quaterniond a = to_eigen(keys[k].mValue);
+  return f == 0.0 ? a : a.slerp(f, to_eigen(keys[k + 1].mValue));
+}
+
+// A node's transform relative to its parent at `tick`: T R S from its channel's keys, each part
+// without keys taken from the node's static transform.
+Mat4 local_transform(const aiNode* node, const aiNodeAnim* channel, double tick) {
+  if (!channel) return to_eigen(node->mTransformation);
+  aiVector3D s0, p0;
+  aiQuaternion r0;
+  node->mTransformation.Decompose(s0, r0, p0);
+  const Vec3 p = channel->mNumPositionKeys ? interpolate(channel->mPositionKeys, channel->mNumPositionKeys, tick)
+                                           : to_eigen(p0);
+  const Eigen::Quaterniond r = channel->mNumRotationKeys
+                                   ? interpolate(channel->mRotationKeys, channel->mNumRotationKeys, tick)
+                                   : to_eigen(r0);
+  const Vec3 s = channel->mNumScalingKeys ? interpolate(channel->mScalingKeys, channel->mNumScalingKeys, tick)
+                                          : to_eigen(s0);
+  Mat4 m = Mat4::Identity();
+  m.topLeftCorner<3, 3>() = r.toRotationMatrix() * s.asDiagonal();
+  m.topRightCorner<3, 1>() = p;
+  return m;
+}
+
+// Every node's global transform (its ancestors' transforms and its own), animated by `anim` at
+// `tick`, or static (the rest pose load_mesh reads) when anim is null.
+std::map<const aiNode*, Mat4> global_transforms(const aiScene* scene, const aiAnimation* anim, double tick) {
+  std::map<std::string, const aiNodeAnim*> channels;
+  if (anim)
+    for (unsigned c = 0; c < anim->mNumChannels; ++c) channels[anim->mChannels[c]->mNodeName.C_Str()] = anim->mChannels[c];
+  std::map<const aiNode*, Mat4> out;
+  std::vector<std::pair<const aiNode*, Mat4>> stack{{scene->mRootNode, Mat4::Identity()}};
+  while (!stack.empty()) {
+    const auto [node, parent] = stack.back();
+    stack.pop_back();
+    const auto found = channels.find(node->mName.C_Str());
+    const Mat4 global = parent * local_transform(node, found == channels.end() ? nullptr : found->second, tick);
+    out[node] = global;
+    for (unsigned c = 0; c < node->mNumChildren; ++c) stack.push_back({node->mChildren[c], global});
+  }
+  return out;
+}
+
+// The placements of the scene's triangle meshes, depth first as the nodes are stored.
+std::vector<std::pair<const aiNode*, unsigned>> mesh_placements(const aiScene* scene) {
+  std::vector<std::pair<const aiNode*, unsigned>> out;
+  std::vector<const aiNode*> stack{scene->mRootNode};
+  while (!stack.empty()) {
+    const aiNode* node = stack.back();
+    stack.pop_back();
+    for (unsigned k = 0; k < node->mNumMeshes; ++k)
+      if (scene->mMeshes[node->mMeshes[k]]->mPrimitiveTypes & aiPrimitiveType_TRIANGLE) out.push_back({node, node->mMeshes[k]});
+    for (unsigned c = node->mNumChildren; c-- > 0;) stack.push_back(node->mChildren[c]);
+  }
+  return out;
+}
+
+}  // namespace
+
+Animation load_animation(const std::string& path, const std::vector<Real>* times, int animation,
+                         const std::string& animation_name, double timeout, double max_memory) {
+  // The isolated read checks the file (and that Assimp neither crashes nor loops on it) and lists
+  // its animations; reading it again in this process is then safe.
+  AnimationSummary summary;
+  load_mesh(path, {}, nullptr, timeout, max_memory, &summary);
+  if (summary.animations.empty())
+    throw InvalidArgument(path + ": the file holds no animation" +
+                          (summary.skinned.empty() ? std::string()
+                                                   : " (it has skinned meshes, but nothing moves their bones)") +
+                          "; load_mesh reads it as it is");
+  Assimp::Importer importer;
+  const aiScene* scene =
+      importer.ReadFile(path, aiProcess_Triangulate | aiProcess_SortByPType | aiProcess_ValidateDataStructure);
+  if (!scene || !scene->mRootNode) throw MeshError(path + ": cannot read the file: " + importer.GetErrorString());
+  if (scene->mNumAnimations == 0) throw InvalidArgument(path + ": the file holds no animation");
+
+  std::string names;
+  for (unsigned k = 0; k < scene->mNumAnimations; ++k)
+    names += (k ? ", " : "") + std::to_string(k) + " '" + printable(scene->mAnimations[k]->mName) + "'";
+  const aiAnimation* anim = nullptr;
+  if (!animation_name.empty()) {
+    for (unsigned k = 0; k < scene->mNumAnimations && !anim; ++k)
+      if (animation_name == scene->mAnimations[k]->mName.C_Str()) anim = scene->mAnimations[k];
+    if (!anim) throw InvalidArgument(path + ": animation: no animation named '" + animation_name + "' (the file has " + names + ")");
+  } else {
+    if (animation < 0 || static_cast<unsigned>(animation) >= scene->mNumAnimations)
+      throw InvalidArgument(path + ": animation must be an index in [0, " + std::to_string(scene->mNumAnimations - 1) +
+                            "], got " + std::to_string(animation) + " (the file has " + names + ")");
+    anim = scene->mAnimations[animation];
+  }
+  const double tps = ticks_per_second(anim);
+  Animation out;
+  out.name = anim->mName.C_Str();
+  out.duration = anim->mDuration / tps;
+
+  if (times) {
+    for (std::size_t k = 0; k < times->size(); ++k) {
+      const double t = (*times)[k];
+      if (!std::isfinite(t)) throw InvalidArgument(path + ": times[" + std::to_string(k) + "] is not finite");
+      if (t < 0 || t > out.duration) {
+        std::ostringstream why;
+        why.precision(17);
+        why << path << ": times[" << k << "] = " << t << " s is outside the animation '" << out.name << "' (0 to "
+            << out.duration << " s)";
+        throw InvalidArgument(why.str());
+      }
+    }
+    out.times = *times;
+  } else {
+    for (unsigned c = 0; c < anim->mNumChannels; ++c) {
+      const aiNodeAnim* ch = anim->mChannels[c];
+      for (unsigned k = 0; k < ch->mNumPositionKeys; ++k) out.times.push_back(ch->mPositionKeys[k].mTime / tps);
+      for (unsigned k = 0; k < ch->mNumRotationKeys; ++k) out.times.push_back(ch->mRotationKeys[k].mTime / tps);
+      for (unsigned k = 0; k < ch->mNumScalingKeys; ++k) out.times.push_back(ch->mScalingKeys[k].mTime / tps);
+    }
+    std::sort(out.times.begin(), out.times.end());
+    out.times.erase(std::unique(out.times.begin(), out.times.end()), out.times.end());
+    out.times.erase(std::remove_if(out.times.begin(), out.times.end(),
+                                   [&](double t) { return !(t >= 0 && t <= out.duration); }),
+                    out.times.end());
+    if (out.times.size() < 2) {
+      constexpr double rate = 30.0;  // Hz
+      out.times.clear();
+      const auto frames = static_cast<std::size_t>(std::floor(out.duration * rate));
+      for (std::size_t k = 0; k <= frames; ++k) out.times.push_back(static_cast<double>(k) / rate);
+      if (out.times.back() < out.duration) out.times.push_back(out.duration);
+    }
+  }
+
+  const auto placements = mesh_placements(scene);
+  const auto rest = global_transforms(scene, nullptr, 0.0);
+  const std::size_t T = out.times.size();
+  std::vector<std::map<const aiNode*, Mat4>> posed(T);
+  for (std::size_t k = 0; k < T; ++k) posed[k] = global_transforms(scene, anim, out.times[k] * tps);
+
+  for (const auto& [node, index] : placements) {
+    const aiMesh* am = scene->mMeshes[index];
+    AnimatedMesh m;
+    m.name = am->mName.length ? am->mName.C_Str() : node->mName.C_Str();
+    m.node = node->mName.C_Str();
+    m.num_vertices = static_cast<Index>(am->mNumVertices);
+    for (unsigned f = 0; f < am->mNumFaces; ++f)
+      if (am->mFaces[f].mNumIndices == 3)
+        m.triangles.push_back({static_cast<Index>(am->mFaces[f].mIndices[0]), static_cast<Index>(am->mFaces[f].mIndices[1]),
+                               static_cast<Index>(am->mFaces[f].mIndices[2])});
+    m.skinned = am->mNumBones > 0;
+    // Influences per vertex: (bone, weight).
+    std::vector<std::vector<std::pair<unsigned, double>>> influences(m.skinned ? am->mNumVertices : 0);
+    std::vector<const aiNode*> bone_nodes;
+    for (unsigned b = 0; b < am->mNumBones; ++b) {
+      const aiBone* bone = am->mBones[b];
+      const aiNode* bone_node = scene->mRootNode->FindNode(bone->mName);
+      if (!bone_node)
+        throw MeshError(path + ": mesh '" + m.name + "': bone '" + bone->mName.C_Str() + "' has no node in the scene");
+      bone_nodes.push_back(bone_node);
+      for (unsigned w = 0; w < bone->mNumWeights; ++w)
+        if (bone->mWeights[w].mVertexId < am->mNumVertices && bone->mWeights[w].mWeight != 0)
+          influences[bone->mWeights[w].mVertexId].push_back({b, bone->mWeights[w].mWeight});
+    }
+    m.vertices.resize(T * am->mNumVertices * 3);
+    m.rigid = !m.skinned;
+    const Mat4 rest_inverse = rest.at(node).inverse();
+    for (std::size_t k = 0; k < T; ++k) {
+      const Mat4& placed = posed[k].at(node);
+      std::vector<Mat4> skin(am->mNumBones);
+      for (unsigned b = 0; b < am->mNumBones; ++b) skin[b] = posed[k].at(bone_nodes[b]) * to_eigen(am->mBones[b]->mOffsetMatrix);
+      Real* x = m.vertices.data() + k * am->mNumVertices * 3;
+      for (unsigned i = 0; i < am->mNumVertices; ++i) {
+        const Eigen::Vector4d v(am->mVertices[i].x, am->mVertices[i].y, am->mVertices[i].z, 1.0);
+        Eigen::Vector4d p = placed * v;
+        if (m.skinned && !influences[i].empty()) {
+          Eigen::Vector4d sum = Eigen::Vector4d::Zero();
+          double total = 0;
+          for (const auto& [b, w] : influences[i]) {
+            sum += w * (skin[b] * v);
+            total += w;
+          }
+          if (total > 0) p = sum / total;
+        }
+        for (int c = 0; c < 3; ++c) x[3 * i + c] = p[c];
+      }
+      if (m.rigid) {
+        // The motion from the rest pose: placed * rest^-1; rigid if its linear part is a rotation
+        // to the tolerance move_collider accepts (1e-6).
+        const Mat4 motion = placed * rest_inverse;
+        const Mat3 r = motion.topLeftCorner<3, 3>();
+        if ((r.transpose() * r - Mat3::Identity()).cwiseAbs().maxCoeff() > 1e-6 || std::abs(r.determinant() - 1) > 1e-6) {
+          m.rigid = false;
+          m.rotation.clear();
+          m.translation.clear();
+        } else {
+          m.rotation.push_back(r);
+          m.translation.push_back(motion.topRightCorner<3, 1>());
+        }
+      }
+    }
+    out.meshes.push_back(std::move(m));
+  }
   return out;
 }
 

@@ -75,6 +75,52 @@ void bind_mesh(py::module_& m) {
   }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0,
      py::arg("max_memory") = kDefaultMaxMemory);
 
+  // ---------------------------------------------------------------- animated files
+  m.def("_load_animation", [](const std::string& path, py::object times, int animation, const std::string& animation_name,
+                              double timeout, double max_memory) {
+    std::vector<Real> t;
+    if (!times.is_none()) {
+      const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(times);
+      if (!a || a.ndim() != 1) throw InvalidArgument(path + ": times must be a 1-D sequence of times (s)");
+      t.assign(a.data(), a.data() + a.size());
+    }
+    Animation out;
+    {
+      py::gil_scoped_release release;
+      out = load_animation(path, times.is_none() ? nullptr : &t, animation, animation_name, timeout, max_memory);
+    }
+    const auto T = static_cast<py::ssize_t>(out.times.size());
+    py::list meshes;
+    for (const AnimatedMesh& a : out.meshes) {
+      py::dict d;
+      d["name"] = a.name;
+      d["node"] = a.node;
+      const auto V = static_cast<py::ssize_t>(a.num_vertices);
+      py::array_t<double> x({T, V, py::ssize_t(3)});
+      if (!a.vertices.empty()) std::memcpy(x.mutable_data(), a.vertices.data(), sizeof(double) * a.vertices.size());
+      d["vertices"] = x;
+      d["triangles"] = index_rows(a.triangles);
+      d["skinned"] = a.skinned;
+      d["rigid"] = a.rigid;
+      py::array_t<double> r({a.rigid ? T : 0, py::ssize_t(3), py::ssize_t(3)}), p({a.rigid ? T : 0, py::ssize_t(3)});
+      for (py::ssize_t k = 0; k < static_cast<py::ssize_t>(a.rotation.size()); ++k)
+        for (py::ssize_t i = 0; i < 3; ++i) {
+          p.mutable_at(k, i) = a.translation[static_cast<std::size_t>(k)][i];
+          for (py::ssize_t j = 0; j < 3; ++j) r.mutable_at(k, i, j) = a.rotation[static_cast<std::size_t>(k)](i, j);
+        }
+      d["rotation"] = r;
+      d["translation"] = p;
+      meshes.append(d);
+    }
+    py::dict d;
+    d["name"] = out.name;
+    d["duration"] = out.duration;
+    d["times"] = py::array_t<double>(T, out.times.data());
+    d["meshes"] = meshes;
+    return d;
+  }, py::arg("path"), py::arg("times") = py::none(), py::arg("animation") = 0, py::arg("animation_name") = "",
+     py::arg("timeout") = 0.0, py::arg("max_memory") = kDefaultMaxMemory);
+
   m.def("save_mesh", &save_mesh, py::arg("mesh"), py::arg("path"),
         "Writes the mesh's triangles; the format follows the extension (.obj .stl .ply .gltf .glb .dae .3ds .fbx ...).");
   m.def("_require_time_for", &require_time_for, py::arg("what"), py::arg("operations"));
