@@ -362,3 +362,86 @@ def test_bad_requests_are_named(rigid_gltf, tmp_path):
         csb.load_animation(rigid_gltf, animation=1)
     with pytest.raises(csb.ParameterError, match="no mesh or node named 'x'"):
         csb.load_animation(rigid_gltf).mesh("x")
+
+
+# ---------------------------------------------------------------- a scene's collider follows it
+
+SCENE = """
+[scene]
+name = "animated collider"
+duration = 0.2
+
+[solver]
+method = "pbd"
+dt = 0.01
+substeps = 2
+iterations = 5
+
+[[mesh]]
+name = "sheet"
+shape = "cloth"
+size = [0.4, 0.4]
+resolution = [5, 5]
+plane = "xz"
+translate = [0.0, 3.0, 0.0]
+mass = 0.1
+
+[[collider]]
+type = "mesh"
+name = "plate"
+file = "{file}"
+scale = {scale}
+rotate = [0.0, 0.3, 0.0]
+translate = [0.1, 0.2, 0.3]
+{extra}
+"""
+
+
+def scene_file(tmp_path, file: Path, extra: str = "animation = true", scale: str = "2.0") -> Path:
+    p = tmp_path / "animated.toml"
+    p.write_text(SCENE.format(file=file.name, extra=extra, scale=scale))
+    return p
+
+
+def test_a_mesh_collider_follows_its_files_rigid_animation(rigid_gltf, tmp_path):
+    scene = csb.load_scene(scene_file(tmp_path, rigid_gltf))
+    motion = scene.colliders[0].motion
+    times = np.asarray(motion.times)
+    assert {0.0, 1.0, 2.0} <= set(times) and len(times) == 61  # the keys and 30 per second over 2 s
+    # At every keyframe the declared shape is where the file's animation puts it, declared the
+    # same way: x_d(t) = A x(t) + b.
+    anim = csb.load_animation(rigid_gltf, times)
+    A = csb.mesh._rotation([0.0, 0.3, 0.0]) * 2.0
+    b = np.array([0.1, 0.2, 0.3])
+    with pytest.warns(csb.AnimationWarning):
+        declared = csb.transformed(csb.load_mesh(rigid_gltf), scale=2.0, rotate=[0.0, 0.3, 0.0],
+                                   translate=b).vertices
+    for k, t in enumerate(times):
+        R, p = motion.pose(t)
+        np.testing.assert_allclose(declared @ R.T + p, anim.meshes[0].vertices[k] @ A.T + b, rtol=0, atol=EXACT,
+                                   err_msg=f"t = {t} s")
+    # The stepper puts the collider there (built without an AnimationWarning: the animation is used).
+    sim = scene.build()
+    for _ in range(5):
+        sim.step()
+        R, p = motion.pose(sim.state.t)
+        Rs, ps = sim.stepper.collider_pose(sim.colliders["plate"])
+        np.testing.assert_allclose(Rs, R, rtol=0, atol=EXACT)
+        np.testing.assert_allclose(ps, p, rtol=0, atol=EXACT)
+
+
+def test_an_animated_collider_that_cannot_follow_is_named(rigid_gltf, skinned_gltf, tmp_path):
+    with pytest.raises(csb.SceneError, match=r"collider\[0\] \(plate\)\.animation: a collider follows either its motion table"):
+        csb.load_scene(scene_file(tmp_path, rigid_gltf, "animation = true\nmotion = { times = [0.0] }"))
+    with pytest.raises(csb.SceneError, match=r"'column' of the file deform"):
+        csb.load_scene(scene_file(tmp_path, skinned_gltf))
+    with pytest.raises(csb.SceneError, match="no animation named 'walk'"):
+        csb.load_scene(scene_file(tmp_path, rigid_gltf, 'animation = "walk"'))
+    with pytest.raises(csb.SceneError, match=r"animation: must be true, false or an animation's name, got 3"):
+        csb.load_scene(scene_file(tmp_path, rigid_gltf, "animation = 3"))
+    with pytest.raises(csb.SceneError, match=r"\.scale: a non-uniform scale"):
+        csb.load_scene(scene_file(tmp_path, rigid_gltf, scale="[1.0, 2.0, 1.0]"))
+    still = tmp_path / "still.gltf"
+    csb.save_mesh(csb.Mesh(TRIANGLE, [[0, 1, 2]], name="still"), str(still))
+    with pytest.raises(csb.SceneError, match="holds no animation"):
+        csb.load_scene(scene_file(tmp_path, still))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import os
+import warnings
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -28,7 +29,7 @@ from typing import TYPE_CHECKING, Any, Callable
 import numpy as np
 
 from . import _core
-from .mesh import Mesh, _rotation, icosphere, load_mesh, transformed
+from .mesh import AnimationWarning, Mesh, _rotation, icosphere, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
 from .scene_file import SceneError, Vec3, _Source, _Table, read_toml
 from .tetmesh import load_tet_mesh
@@ -463,7 +464,11 @@ def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> int:
             return builder.add_box(center=a["center"], half_extents=a["half_extents"],
                                    rotation=_rotation(a["rotate"]), **material)
         else:
-            mesh = transformed(load_mesh(a["file"]), scale=a["scale"], rotate=a["rotate"], translate=a["translate"])
+            with warnings.catch_warnings():
+                if a["animation"] is not False:  # asked for: the collider follows the animation
+                    warnings.simplefilter("ignore", AnimationWarning)
+                mesh = load_mesh(a["file"])
+            mesh = transformed(mesh, scale=a["scale"], rotate=a["rotate"], translate=a["translate"])
             return builder.add_collider_mesh(mesh, **material)
     except _core.ParameterError as e:
         raise SceneError(f"{scene.path}: collider '{c.name}': {e}") from None
@@ -695,6 +700,11 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
         params["scale"] = t.scale()
         params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
         params["translate"] = t.vector("translate", (0.0, 0.0, 0.0))
+        # animation = true (the file's first animation) or the animation's name: the collider
+        # follows the file's rigid node animation as its motion.
+        params["animation"] = t.raw("animation", False)
+        if not (isinstance(params["animation"], bool) or (isinstance(params["animation"], str) and params["animation"])):
+            raise t.error("animation", f"must be true, false or an animation's name, got {params['animation']!r}")
     mus = t.number("friction_static", 0.0, check=lambda x: x >= 0, expect="a friction coefficient >= 0")
     muk = t.number("friction_kinetic", mus, check=lambda x: x >= 0, expect="a friction coefficient >= 0")
     if muk > mus:
@@ -704,8 +714,64 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
     motion_t = t.table("motion")
     if motion_t is not None:
         motion = _read_motion(motion_t)
+    if kind == "mesh" and params["animation"] is not False:
+        if motion is not None:
+            raise t.error("animation", "a collider follows either its motion table or its file's animation, not both")
+        motion = _animation_motion(t, params)
     t.finish()
     return ColliderSpec(name, kind, params, mus, muk, e, motion)
+
+
+# Where a file's animation is sampled for a collider's keyframes besides its keys (Hz): between
+# keyframes the motion interpolates linearly and by slerp, which is the file's own interpolation
+# only for one node turning about its origin; at 30 Hz the difference is second order in 1/30 s.
+_ANIMATION_RATE = 30.0
+
+
+def _animation_motion(t: _Table, params: dict[str, Any]) -> MotionSpec:
+    """The keyframes of a mesh collider that follows its file's rigid node animation: the
+    animation's motion of the mesh from its rest pose (:func:`csb.load_animation`), conjugated by
+    the collider's declared scale, rotation and translation so that it moves the shape as
+    declared."""
+    from .animation import _rotation_vectors, load_animation
+
+    which = params["animation"]
+    choice: int | str = 0 if which is True else which
+    try:
+        keys = load_animation(params["file"], animation=choice)
+        grid = np.arange(0.0, keys.duration, 1.0 / _ANIMATION_RATE)
+        times = np.union1d(keys.times, np.append(grid, keys.duration))
+        anim = keys if len(times) == len(keys.times) else load_animation(params["file"], times, animation=choice)
+    except (_core.ParameterError, _core.MeshError, FileNotFoundError) as e:
+        raise t.error("animation", str(e)) from None
+    deforming = [m.name for m in anim.meshes if m.keyframes is None]
+    if deforming:
+        raise t.error("animation", f"mesh(es) {', '.join(map(repr, deforming))} of the file deform (skinning, or a "
+                      "scaling key): a collider follows a rigid node animation only (csb.load_animation reads "
+                      "deforming animation, which cannot yet drive a collider)")
+    first = anim.meshes[0].keyframes
+    assert first is not None
+    for m in anim.meshes[1:]:
+        assert m.keyframes is not None
+        # 1e-9 m and rad: far below any collider's thickness, far above the round-off (1e-15) of
+        # the same node chain evaluated for two meshes.
+        if (np.max(np.abs(m.keyframes.matrices - first.matrices)) > 1e-9
+                or np.max(np.abs(m.keyframes.translation - first.translation)) > 1e-9):
+            raise t.error("animation", f"meshes {anim.meshes[0].name!r} and {m.name!r} of the file move differently; "
+                          "a collider follows one rigid motion (split the file, one collider per mesh)")
+    # The declared shape is x_d = A x + b (A = rotation · diag(scale)); the file moves x to
+    # R_k x + p_k, hence x_d to (A R_k A⁻¹) x_d + A p_k + b - A R_k A⁻¹ b.
+    A = _rotation(params["rotate"]) @ np.diag(params["scale"])
+    b = np.asarray(params["translate"], dtype=float)
+    A_inv = np.linalg.inv(A)
+    matrices = np.array([A @ R @ A_inv for R in first.matrices])
+    for k, M in enumerate(matrices):
+        if np.max(np.abs(M.T @ M - np.eye(3))) > 1e-6:  # move_collider's tolerance on a rotation
+            raise t.error("scale", f"a non-uniform scale turns the file's rotation at t = {anim.times[k]:.6g} s into a "
+                          "motion that is not rigid; scale the file uniformly")
+    translation = [A @ p + b - M @ b for p, M in zip(first.translation, matrices)]
+    return MotionSpec(tuple(float(x) for x in anim.times), tuple(tuple(float(c) for c in v) for v in translation),
+                      tuple(tuple(float(c) for c in v) for v in _rotation_vectors(matrices)))
 
 
 def _read_motion(t: _Table) -> MotionSpec:
