@@ -305,6 +305,41 @@ def test_a_rigid_node_animation_follows_its_keys(rigid_gltf):
     assert motion["times"] == times and len(motion["translation"]) == len(motion["rotation"]) == len(times)
 
 
+def test_a_mesh_under_an_animated_parent_and_a_unit_scale(tmp_path):
+    """A root scaling centimetres to metres, an arm at 100 cm turning a quarter turn about z in
+    1 s, and the mesh on a hand 50 cm along the arm: x(t) = 0.01 (a + Rz(θ(t)) (h + x0)). The
+    keyframes take the rest pose load_mesh reads (θ = 0) there: the unit scale applies to the
+    vertices as load_mesh applies it."""
+    g = Gltf()
+    pos = g.accessor(TRIANGLE, "VEC3")
+    idx = g.accessor([0, 1, 2], "SCALAR", np.uint32)
+    rt, rv = g.accessor([0.0, 1.0], "SCALAR"), g.accessor([[0, 0, 0, 1], quat_z(math.pi / 2)], "VEC4")
+    arm, hand = np.array([100.0, 0, 0]), np.array([50.0, 0, 0])
+    path = g.write(tmp_path / "arm.gltf", {
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "units", "scale": [0.01, 0.01, 0.01], "children": [1]},
+                  {"name": "arm", "translation": arm.tolist(), "children": [2]},
+                  {"name": "hand", "translation": hand.tolist(), "mesh": 0}],
+        "meshes": [{"name": "palm", "primitives": [{"attributes": {"POSITION": pos}, "indices": idx}]}],
+        "animations": [{"name": "wave", "samplers": [{"input": rt, "output": rv, "interpolation": "LINEAR"}],
+                        "channels": [{"sampler": 0, "target": {"node": 1, "path": "rotation"}}]}],
+    })
+    times = [0.0, 0.4, 1.0]
+    m = csb.load_animation(path, times).mesh("hand")
+    with pytest.warns(csb.AnimationWarning):
+        rest = csb.load_mesh(path).vertices
+    # load_mesh returns Assimp's float32 coordinates: 1e-6 m is about 8 float32 ulps at 1.5 m.
+    np.testing.assert_allclose(rest, 0.01 * (arm + hand + TRIANGLE), rtol=0, atol=1e-6)
+    for k, t in enumerate(times):
+        R = matrix(slerp_keys([0.0, 1.0], [[0, 0, 0, 1], quat_z(math.pi / 2)], t))
+        expected = float(np.float32(0.01)) * (arm + (hand + f32(TRIANGLE)) @ R.T)  # Assimp's nodes hold float32
+        np.testing.assert_allclose(m.vertices[k], expected, rtol=0, atol=EXACT, err_msg=f"t = {t} s")
+        kf = m.keyframes
+        np.testing.assert_allclose(kf.matrices[k], R, rtol=0, atol=EXACT)
+        # Applied to load_mesh's float32 rest pose, the keyframes agree to its rounding (as above).
+        np.testing.assert_allclose(rest @ kf.matrices[k].T + kf.translation[k], expected, rtol=0, atol=1e-6)
+
+
 def test_default_times_are_the_keys(rigid_gltf):
     anim = csb.load_animation(rigid_gltf)
     np.testing.assert_array_equal(anim.times, [0.0, 1.0, 2.0])

@@ -125,7 +125,9 @@ def load_animation(
     ask for at 0 or at ``duration``), and so is a time that is not finite.
 
     Node animations interpolate their keys as Assimp reads them: translation and scaling
-    linearly, rotation by quaternion slerp along the shorter arc; a skinned mesh follows its bones
+    linearly, rotation by quaternion slerp along the shorter arc (Assimp 5.2 keeps no
+    interpolation mode: a glTF STEP or CUBICSPLINE sampler arrives as its key values, interpolated
+    so); a skinned mesh follows its bones
     by linear blend skinning, x = Σ w_b G_b(t) O_b x_bind / Σ w_b (G_b the bone's node transform at
     t, O_b its offset, or inverse bind, matrix). Vertices are in metres in the frame
     :func:`csb.load_mesh` reads (the nodes' transforms applied, the file's unit scale among them),
