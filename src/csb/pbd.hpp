@@ -408,6 +408,13 @@ class PbdStepper : public Integrator {
     // `edges`, first < second).
     std::vector<std::array<Index, 2>> pt, ee;
     bool searched = false;               // pt and ee were found for this model
+    // Owners: each particle and edge belongs to the first triangle (in `triangles`) holding it;
+    // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
+    std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;
+    // The triangles' bounding-volume hierarchy, built once from the rest shape: per node its two
+    // children (a leaf: {-1 - triangle, -1}), children after their parent; and its triangles' count.
+    std::vector<std::array<Index, 2>> bvh_child;
+    std::vector<Index> bvh_size;
   };
   std::vector<SelfGroup> self_groups_;
   // Continuous self-collision (self_contacts.cpp).
@@ -425,8 +432,9 @@ class PbdStepper : public Integrator {
   Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::int64_t self_searches_ = 0;       // candidate searches since the stepper was made
-  SpatialHash edge_hash_;
   std::vector<Vec3> edge_lo_, edge_hi_;
+  std::vector<Vec3> node_lo_, node_hi_;             // m, the hierarchy's boxes
+  std::vector<std::array<Index, 2>> node_pairs_;    // the traversal's stack
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
   std::vector<Contact> contacts_;
   std::vector<SelfContact> self_contacts_;

@@ -100,6 +100,73 @@ void PbdStepper::prepare(const Model& model) {
       }
     std::sort(sg.edges.begin(), sg.edges.end());
     sg.edges.erase(std::unique(sg.edges.begin(), sg.edges.end()), sg.edges.end());
+    // Owners (the first triangle holding a particle or an edge), for the candidate search.
+    {
+      const Index T = static_cast<Index>(sg.triangles.size());
+      std::vector<Index> particle_owner(n, -1), edge_owner(sg.edges.size(), -1);
+      for (Index t = 0; t < T; ++t)
+        for (int e = 0; e < 3; ++e) {
+          const Index a = model.triangles[sg.triangles[t]][e], b = model.triangles[sg.triangles[t]][(e + 1) % 3];
+          if (particle_owner[a] < 0) particle_owner[a] = t;
+          const std::array<Index, 2> key{std::min(a, b), std::max(a, b)};
+          const auto k = std::lower_bound(sg.edges.begin(), sg.edges.end(), key) - sg.edges.begin();
+          if (edge_owner[k] < 0) edge_owner[k] = t;
+        }
+      sg.owned_particle_start.assign(T + 1, 0);
+      sg.owned_edge_start.assign(T + 1, 0);
+      for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+        const Index i = model.group_particles[o];
+        if (particle_owner[i] >= 0)
+          ++sg.owned_particle_start[particle_owner[i] + 1];
+        else
+          sg.loose.push_back(i);
+      }
+      for (const Index t : edge_owner) ++sg.owned_edge_start[t + 1];
+      for (Index t = 0; t < T; ++t) {
+        sg.owned_particle_start[t + 1] += sg.owned_particle_start[t];
+        sg.owned_edge_start[t + 1] += sg.owned_edge_start[t];
+      }
+      sg.owned_particles.resize(sg.owned_particle_start[T]);
+      sg.owned_edges.resize(sg.owned_edge_start[T]);
+      std::vector<Index> at(sg.owned_particle_start.begin(), sg.owned_particle_start.end() - 1);
+      for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+        const Index i = model.group_particles[o];
+        if (particle_owner[i] >= 0) sg.owned_particles[at[particle_owner[i]]++] = i;
+      }
+      at.assign(sg.owned_edge_start.begin(), sg.owned_edge_start.end() - 1);
+      for (Index k = 0; k < static_cast<Index>(edge_owner.size()); ++k) sg.owned_edges[at[edge_owner[k]]++] = k;
+      // The hierarchy: the triangles split at the median of their rest centroids along the
+      // longest side of their box, recursively (ties by index: the same tree on every run).
+      std::vector<Vec3> centroid(T);
+      for (Index t = 0; t < T; ++t) {
+        const Triangle& tri = model.triangles[sg.triangles[t]];
+        centroid[t] = (model.rest_positions.col(tri[0]) + model.rest_positions.col(tri[1]) +
+                       model.rest_positions.col(tri[2])) / 3;
+      }
+      std::vector<Index> order(T);
+      for (Index t = 0; t < T; ++t) order[t] = t;
+      sg.bvh_child.clear();
+      sg.bvh_size.clear();
+      const auto build = [&](auto&& self, Index begin, Index end) -> Index {
+        const Index node = static_cast<Index>(sg.bvh_child.size());
+        sg.bvh_child.push_back({-1 - order[begin], -1});
+        sg.bvh_size.push_back(end - begin);
+        if (end - begin == 1) return node;
+        Vec3 lo = centroid[order[begin]], hi = lo;
+        for (Index k = begin; k < end; ++k) lo = lo.cwiseMin(centroid[order[k]]), hi = hi.cwiseMax(centroid[order[k]]);
+        int axis;
+        (hi - lo).maxCoeff(&axis);
+        const Index mid = begin + (end - begin) / 2;
+        std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end, [&](Index u, Index v) {
+          return centroid[u][axis] < centroid[v][axis] || (centroid[u][axis] == centroid[v][axis] && u < v);
+        });
+        const Index left = self(self, begin, mid);
+        const Index right = self(self, mid, end);
+        sg.bvh_child[node] = {left, right};
+        return node;
+      };
+      if (T > 0) build(build, 0, T);
+    }
     most_triangles = std::max({most_triangles, sg.triangles.size(), sg.edges.size()});
     self_groups_.push_back(std::move(sg));
   }
