@@ -126,8 +126,8 @@ def test_bad_self_collision_input():
 
 @pytest.fixture(scope="module", params=["coloured", "sequential"])
 def drape(request, tmp_path_factory) -> tuple[list[float], int]:
-    """The bundled cloth_sphere scene (30 x 30 XPBD cloth, 30 sub-steps of one iteration) with the
-    soft bending of a drapier cloth, compliance 1000 1/(N m): its kinetic + gravitational energy per
+    """The bundled cloth_sphere scene (30 x 30 XPBD cloth, 30 sub-steps of one iteration, the soft
+    bending of a drapier cloth, compliance 1000 1/(N m)): its kinetic + gravitational energy per
     frame over the first 0.75 s (falling, hitting the sphere, the hem folding at frames 16-30), and
     the edge-triangle crossings at the end; with the coloured sweep (the default) and the
     sequential one (the constraints in the order they were built)."""
