@@ -346,6 +346,29 @@ def test_default_times_are_the_keys(rigid_gltf):
     assert csb.load_animation(rigid_gltf, animation="slide").meshes[0].vertices.shape == (3, 3, 3)
 
 
+def test_an_animation_is_chosen_by_index_or_name(tmp_path):
+    g = Gltf()
+    pos = g.accessor(TRIANGLE, "VEC3")
+    idx = g.accessor([0, 1, 2], "SCALAR", np.uint32)
+    times = g.accessor([0.0, 1.0], "SCALAR")
+    up, side = g.accessor([[0, 0, 0], [0, 1, 0]], "VEC3"), g.accessor([[0, 0, 0], [1, 0, 0]], "VEC3")
+    path = g.write(tmp_path / "two.gltf", {
+        "scenes": [{"nodes": [0]}],
+        "nodes": [{"name": "plate", "mesh": 0}],
+        "meshes": [{"name": "plate", "primitives": [{"attributes": {"POSITION": pos}, "indices": idx}]}],
+        "animations": [{"name": name, "samplers": [{"input": times, "output": out, "interpolation": "LINEAR"}],
+                        "channels": [{"sampler": 0, "target": {"node": 0, "path": "translation"}}]}
+                       for name, out in (("up", up), ("side", side))],
+    })
+    with pytest.warns(csb.AnimationWarning, match=r"2 animation\(s\) \('up': 1 s, 1 animated node\(s\); 'side'"):
+        csb.load_mesh(path)
+    for choice in (1, "side"):
+        anim = csb.load_animation(path, [1.0], animation=choice)
+        assert anim.name == "side"
+        np.testing.assert_array_equal(anim.meshes[0].vertices[0], f32(TRIANGLE) + [1, 0, 0])
+    np.testing.assert_array_equal(csb.load_animation(path, [1.0]).meshes[0].vertices[0], f32(TRIANGLE) + [0, 1, 0])
+
+
 def test_a_skinned_column_follows_its_bones(skinned_gltf):
     times = [0.0, 0.3, 0.75, 1.2, 1.5]
     anim = csb.load_animation(skinned_gltf, times)

@@ -1,4 +1,5 @@
 #include "csb/io.hpp"
+#include "csb/memory_budget.hpp"
 
 #include <assimp/Exporter.hpp>
 #include <assimp/Importer.hpp>
@@ -691,8 +692,16 @@ Animation load_animation(const std::string& path, const std::vector<Real>* times
   }
 
   const auto placements = mesh_placements(scene);
-  const auto rest = global_transforms(scene, nullptr, 0.0);
   const std::size_t T = out.times.size();
+  // The vertices at every time are held twice at the peak (here and in the caller's copy).
+  double vertices = 0;
+  for (const auto& placement : placements) vertices += scene->mMeshes[placement.second]->mNumVertices;
+  const double need = 2.0 * static_cast<double>(T) * vertices * 3 * sizeof(Real), have = physical_memory_bytes();
+  if (have > 0 && need > have)
+    throw InvalidArgument(path + ": times: " + std::to_string(T) + " times of " + detail::str(vertices) +
+                          " vertices would need about " + detail::str(need / 1e9) + " GB, more than this machine's " +
+                          detail::str(have / 1e9) + " GB of memory; ask for fewer times");
+  const auto rest = global_transforms(scene, nullptr, 0.0);
   std::vector<std::map<const aiNode*, Mat4>> posed(T);
   for (std::size_t k = 0; k < T; ++k) posed[k] = global_transforms(scene, anim, out.times[k] * tps);
 
