@@ -160,7 +160,8 @@ struct ContactSummary {
   Index self_continuous = 0;  // of which found by the continuous test after the sweeps
   Index self_failsafe = 0;    // particles the self-collision fail-safe stopped (p = x) this sub-step
   Index self_unresolved = 0;  // impacts the fail-safe could not stop (only prescribed particles moved)
-  std::int64_t self_searches = 0;  // candidate-pair searches (spatial hash builds) since the stepper was made
+  std::int64_t self_searches = 0;  // candidate-pair searches since the stepper was made
+  Index self_skipped = 0;     // triangles left out of self-collision: spread over more than the cloth's size in a step
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
 };
@@ -408,6 +409,8 @@ class PbdStepper : public Integrator {
     // `edges`, first < second).
     std::vector<std::array<Index, 2>> pt, ee;
     bool searched = false;               // pt and ee were found for this model
+    Real size = 0;                       // m, the group's rest bounding-box diagonal
+    Index skipped = 0;                   // triangles left out of the last search (beyond `size`)
     // Owners: each particle and edge belongs to the first triangle (in `triangles`) holding it;
     // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
     std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;

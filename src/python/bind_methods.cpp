@@ -163,6 +163,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["self_failsafe"] = sum.self_failsafe;
         d["self_unresolved"] = sum.self_unresolved;
         d["self_searches"] = sum.self_searches;
+        d["self_skipped"] = sum.self_skipped;
         d["max_depth"] = sum.max_depth;
         d["max_penetration"] = sum.max_penetration;
         d["particle"] = particle;
@@ -176,7 +177,8 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
          "that pushed their particle), self_count (self-contacts: proximity point-triangle, and continuous), "
          "self_continuous (found by the continuous test), self_failsafe (particles "
          "the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), self_searches (candidate-pair "
-         "searches since the stepper was made), max_depth "
+         "searches since the stepper was made), self_skipped (triangles left out: spread over more than the cloth's size "
+         "within a step), max_depth "
          "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
          "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")

@@ -504,7 +504,7 @@ class PbdStepper(Integrator):
         """
     def contacts(self) -> dict:
         """
-        The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (self-contacts: proximity point-triangle, and continuous), self_continuous (found by the continuous test), self_failsafe (particles the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), self_searches (candidate-pair searches since the stepper was made), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
+        The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (self-contacts: proximity point-triangle, and continuous), self_continuous (found by the continuous test), self_failsafe (particles the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), self_searches (candidate-pair searches since the stepper was made), self_skipped (triangles left out: spread over more than the cloth's size within a step), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
         """
     def detach(self, collider: int, particles: collections.abc.Iterable | None = None) -> None:
         """

@@ -14,7 +14,9 @@
 // test finds nothing (a pair whose particles all stay cannot meet: x has no intersection). So the
 // end of the sub-step has no new intersection, with one exception, counted and reported as
 // `self_unresolved`: a pair that meets only because prescribed particles (pins moved by the
-// user, kinematic grabs) drive it through, which no motion of the free particles can undo. Each
+// user, kinematic grabs) drive it through, which no motion of the free particles can undo; and
+// features left out because they spread over more than the cloth's rest size within a step
+// (`self_skipped`: a runaway the divergence guard stops by default). Each
 // particle the fail-safe stops is counted (`self_failsafe`): it loses its velocity for that
 // sub-step, visibly, which is why the responses come first. The guarantee is the one of the
 // pairs: a particle touching a triangle it belongs to, or two edges with a common end, are not
@@ -90,7 +92,10 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
-    const Vec3 xi = x.col(i), pi = p_.col(i), end = xi + ahead * (pi - xi);
+    const Vec3 xi = x.col(i), pi = p_.col(i);
+    // The look-ahead only while it stays within the cloth's size (a fast particle searches again).
+    Vec3 end = xi + ahead * (pi - xi);
+    if (!((end - xi).cwiseAbs().maxCoeff() <= g.size)) end = pi;
     particle_lo_.col(i) = xi.cwiseMin(pi).cwiseMin(end).array() - pad;
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
   }
@@ -98,12 +103,25 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
     lo = lo.cwiseMin(particle_lo_.col(i));
     hi = hi.cwiseMax(particle_hi_.col(i));
   };
+  // A feature whose box spans more than the cloth's rest size (plus the widening) has been torn
+  // across the cloth or flung beyond it within a step: no contact or continuous test can follow
+  // it (the divergence guard stops such a step by default). It is left out of this search (an
+  // empty box) and counted (self_skipped), so that a particle flung 1e12 m away costs one search,
+  // not one pair with every feature on every sub-step.
+  const Real reach = g.size + 2 * pad;
+  g.skipped = 0;
+  const auto keep = [&](Vec3& lo, Vec3& hi) {
+    if ((hi - lo).maxCoeff() <= reach) return true;  // false for NaN too
+    lo = inf, hi = -inf;
+    return false;
+  };
   const std::size_t T = g.triangles.size(), E = g.edges.size();
   box_lo_.resize(T);
   box_hi_.resize(T);
   for (std::size_t t = 0; t < T; ++t) {
     Vec3 lo = inf, hi = -inf;
     for (const Index i : model.triangles[g.triangles[t]]) unite(i, lo, hi);
+    g.skipped += !keep(lo, hi);
     box_lo_[t] = lo, box_hi_[t] = hi;
   }
   edge_lo_.resize(E);
@@ -111,6 +129,7 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
   for (std::size_t e = 0; e < E; ++e) {
     Vec3 lo = inf, hi = -inf;
     for (const Index i : g.edges[e]) unite(i, lo, hi);
+    keep(lo, hi);
     edge_lo_[e] = lo, edge_hi_[e] = hi;
   }
   g.pt.clear();
@@ -187,6 +206,7 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
   }
   if (!g.loose.empty()) hash_.build(g.cell, box_lo_, box_hi_);
   for (const Index q : g.loose) {  // particles of the group in no triangle
+    if (!((particle_hi_.col(q) - particle_lo_.col(q)).maxCoeff() <= reach)) continue;
     if (++stamp_ == 0) std::fill(stamps_.begin(), stamps_.end(), 0), stamp_ = 1;
     hash_.query(particle_lo_.col(q), particle_hi_.col(q), [&](Index t) {
       if (stamps_[t] == stamp_) return;
@@ -203,6 +223,7 @@ bool PbdStepper::self_candidates_hold(const Model& model, const SelfGroup& g, co
   const Real h = g.thickness;
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
+    if (!((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= g.size + 3 * h)) continue;  // left out
     const Vec3 lo = particle_lo_.col(i).array() + h, hi = particle_hi_.col(i).array() - h;
     const Vec3 xi = x.col(i), pi = p_.col(i);
     if ((xi.array() < lo.array()).any() || (xi.array() > hi.array()).any() || (pi.array() < lo.array()).any() ||
@@ -290,6 +311,8 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
   }
   contact_summary_.self_count = static_cast<Index>(self_contacts_.size());
   contact_summary_.self_searches = self_searches_;
+  contact_summary_.self_skipped = 0;
+  for (const SelfGroup& g : self_groups_) contact_summary_.self_skipped += g.skipped;
 }
 
 // The self-contacts' projections in one sweep (with the other contacts, after the constraints).

@@ -92,6 +92,7 @@ void PbdStepper::prepare(const Model& model) {
                             "' exceeds the size of its cloth (" + str((hi - lo).norm()) +
                             " m, its rest bounding-box diagonal): give a thickness of the order of the cloth's "
                             "thickness, well under its edges");
+    sg.size = (hi - lo).norm();
     sg.cell = 1.5 * (edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self);
     for (const Index t : sg.triangles)
       for (int e = 0; e < 3; ++e) {
