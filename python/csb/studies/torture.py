@@ -6,13 +6,12 @@ The scenes (SI units; XPBD; every cloth self-colliding through ModelBuilder.enab
   about the cloth's axis at π/3 rad/s each for 10 s (NVIDIA Newton's cloth-twist example), by the
   stepper's kinematic grabs, one per held particle;
 * ``rotating_sphere``: a cloth dropped onto a sphere turning about the vertical axis, with
-  friction; it needs colliders that move (the stepper's ``move_collider``), and says so when
-  the build has none;
+  friction, turned by the stepper's ``move_collider``;
 * ``stack``: ten cloth layers a few cm apart, in one self-colliding group, dropped on the ground;
 * ``funnel``: a cloth dragged by its centre through a funnel (a triangle-mesh frustum) whose hole
   is narrower than the cloth;
-* ``soft_drape``: the bundled cloth_sphere scene with the soft bending of a drapier cloth,
-  compliance 1000 1/(N m), with the coloured sweep and the sequential one.
+* ``soft_drape``: the bundled cloth_sphere scene (the soft bending of a drapier cloth,
+  compliance 1000 1/(N m)), with the coloured sweep and the sequential one.
 
 :func:`run` steps a scene one sub-step at a time (a PbdStepper of ``substeps=1`` whose dt is the
 scene's sub-step: without grabs, the same positions to the bit as the scene's stepper of
@@ -67,7 +66,6 @@ class TortureScene:
     held: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))   # grabbed particles
     hands: Callable[[float], np.ndarray] | None = None       # t (s) -> (len(held), 3) targets, m
     colliders: Callable[[Any, _core.Model, float], None] | None = None   # (stepper, model, t (s)): poses at t
-    unavailable: str = ""               # why this build cannot run the scene ('' when it can)
 
     @property
     def num_particles(self) -> int:
@@ -141,9 +139,8 @@ def rotating_sphere(*, n: int = 30, size: float = 1.2, seconds: float = 3.0, spi
     round it, for ``seconds`` s. The sphere turns through the stepper's moving colliders: before
     each sub-step, ``PbdStepper.move_collider(model, 0, R_y(spin t), 0)`` gives the pose it
     reaches at the sub-step's end t (a turn about its own centre, the origin, so it stays where
-    it is and only its surface moves). A build without moving colliders cannot run the scene
-    (``unavailable`` says so): a sphere that does not turn would be cloth_sphere. Sub-steps and
-    iterations are cloth_sphere's (30 x 1 per 1/60 s)."""
+    it is and only its surface moves). Sub-steps and iterations are cloth_sphere's (30 x 1 per
+    1/60 s)."""
     def build(self_collision: bool) -> _core.Model:
         b = ModelBuilder()
         inst = b.add_mesh(_core.cloth_grid(size, size, n, n, "xz", [0.0, 0.5, 0.0]), density=0.2,
@@ -160,11 +157,8 @@ def rotating_sphere(*, n: int = 30, size: float = 1.2, seconds: float = 3.0, spi
         stepper.move_collider(model, 0, rotation, (0.0, 0.0, 0.0))
 
     model, control = _pair(build)
-    scene = TortureScene("rotating_sphere", f"{n} x {n} cloth on a sphere turning at {spin:.3g} rad/s", model, control,
-                         seconds, substeps, dict(method="xpbd", iterations=iterations), colliders=colliders)
-    if not hasattr(_core.PbdStepper, "move_collider"):
-        scene.unavailable = "this build of csb has no moving colliders (PbdStepper.move_collider)"
-    return scene
+    return TortureScene("rotating_sphere", f"{n} x {n} cloth on a sphere turning at {spin:.3g} rad/s", model, control,
+                        seconds, substeps, dict(method="xpbd", iterations=iterations), colliders=colliders)
 
 
 def stack(*, layers: int = 10, n: int = 20, size: float = 0.5, gap: float = 0.03, height: float = 0.1,
@@ -387,8 +381,6 @@ def run(scene: TortureScene, *, self_collision: bool = True, check: str = "subst
     - frames: with ``record``, the positions at the end of every frame (and the start), (F+1, N, 3);
     - final: the positions at the end.
     """
-    if scene.unavailable:
-        raise _core.Error(f"{scene.name}: {scene.unavailable}")
     if check not in ("substep", "frame", "none"):
         raise _core.ParameterError(f"check must be 'substep', 'frame' or 'none', got {check!r}")
     if count not in ("substep", "frame"):
@@ -560,11 +552,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     rows = []
     for name in args.scenes:
-        scene = build(name, quick=args.quick)
-        if scene.unavailable:
-            print(f"{name}: not run: {scene.unavailable}")
-            continue
-        rows.append(row(measure(scene)))
+        rows.append(row(measure(build(name, quick=args.quick))))
     print(markdown(rows))
     return 0
 
