@@ -12,11 +12,11 @@
 // after kResponseRounds rounds of responses, what is still found is stopped: its particles that
 // can move are put back where they started the sub-step (p = x), the fail-safe, repeated until the
 // test finds nothing (a pair whose particles all stay cannot meet: x has no intersection). So the
-// end of the sub-step has no new intersection, with one exception, counted and reported as
-// `self_unresolved`: a pair that meets only because prescribed particles (pins moved by the
+// end of the sub-step has no new intersection, with two exceptions, counted and reported:
+// `self_unresolved`, a pair that meets only because prescribed particles (pins moved by the
 // user, kinematic grabs) drive it through, which no motion of the free particles can undo; and
-// features left out because they spread over more than the cloth's rest size within a step
-// (`self_skipped`: a runaway the divergence guard stops by default). Each
+// `self_skipped`, triangles left out because they spread over more than the cloth's rest size
+// within a step (a runaway, which the divergence guard stops by default). Each
 // particle the fail-safe stops is counted (`self_failsafe`): it loses its velocity for that
 // sub-step, visibly, which is why the responses come first. The guarantee is the one of the
 // pairs: a particle touching a triangle it belongs to, or two edges with a common end, are not
@@ -72,19 +72,20 @@ Real approach_speed(const SelfContact& k, const Vec3& n, const Positions& x, con
 
 // The candidate pairs of a group, found once per step and kept while they hold. Each particle gets
 // a box: over its start x, its prediction p and where the prediction leads in a step's time
-// (x + k (p - x), k the sub-steps of a step), widened by 1.5 h on each side. A feature's box is the union
-// of its particles'; the triangles' boxes go in a spatial hash, and a pair is kept if its boxes
-// overlap, the features share no particle, and one of its particles can move.
+// (x + k (p - x), k the sub-steps of a step; not beyond the cloth's size), widened by 1.5 h on
+// each side. A feature's box is the union of its particles'; a pair is kept if its boxes overlap,
+// the features share no particle, and one of its particles can move.
 //
 // The pairs hold for a sub-step as long as every particle's x and p lie in its box shrunk by h
-// (self_candidates_hold; h/2 of slack for the path to bend away from the straight line): then the features' swept boxes over x -> p, widened by h, lie in their
-// boxes, so every pair that can touch during the sub-step (swept boxes overlapping) or is within
-// 2h at the prediction (the proximity contacts) is a candidate. When a particle leaves its box (the
-// cloth swung off the straight line, or a hard push by the constraints) the pairs are found again
-// from where it is. One search a step instead of one a sub-step: the search, not the tests, was
-// most of the cost (66 % of a 1,600-particle cape's step at 10 sub-steps). The widening and the
-// hash cells (1.5 times the mean edge plus 2h) were chosen on that cape: against 2h and 1 times,
-// 7.0-7.7 ms a step instead of 9.2-11 (2 sub-steps of 5 iterations, three alternating runs).
+// (self_candidates_hold; h/2 of slack for the path to bend away from the straight line): then
+// the features' swept boxes over x -> p, widened by h, lie in their boxes, so every pair that can
+// touch during the sub-step (swept boxes overlapping) or is within 2h at the prediction (the
+// proximity contacts) is a candidate. When a particle leaves its box (the cloth swung off the
+// straight line, or a hard push by the constraints) the pairs are found again from where it is.
+// One search a step instead of one a sub-step: the search, not the tests, was most of the cost
+// (66 % of a 1,600-particle cape's step at 10 sub-steps); widened by 1.5 h rather than 2 h, the
+// boxes overlap less and the cape's step took 7.0-7.7 ms instead of 9.2-11 (2 sub-steps of 5
+// iterations, three alternating runs).
 void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Positions& x) {
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   const Real pad = 1.5 * g.thickness;

@@ -62,9 +62,10 @@ void PbdStepper::prepare(const Model& model) {
     delta_.resize(3, n);
     count_.resize(n);
   }
-  // Collisions: the triangles and edges of each self-colliding group; hash cells of about a
-  // feature's widened box, 1.5 times the mean edge plus twice the thickness (Teschner et al. 2003
-  // find a cell near the mean primitive size best; self_contacts.cpp says how 1.5 was chosen).
+  // Collisions: the triangles and edges of each self-colliding group, their owners and their
+  // hierarchy (self_contacts.cpp); hash cells, for the group's particles in no triangle, of about
+  // a feature's widened box, 1.5 times the mean edge plus twice the thickness (Teschner et al.
+  // 2003 find a cell near the mean primitive size best).
   self_groups_.clear();
   std::size_t most_triangles = 0;
   for (Index g = 0; g < model.num_groups(); ++g) {
