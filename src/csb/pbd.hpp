@@ -432,6 +432,11 @@ class PbdStepper : public Integrator {
     Real toi;
   };
   std::vector<SelfImpact> impacts_;
+  template <class F>
+  int in_chunks(std::size_t n, F&& chunk);
+  static constexpr std::size_t kParallelPairs = 8192;  // candidate pairs worth a fork of the team
+  std::vector<std::vector<SelfImpact>> impact_parts_;  // per thread: point-triangle, edge-edge
+  std::vector<std::vector<SelfContact>> contact_parts_; // per thread: proximity contacts
   Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::int64_t self_searches_ = 0;       // candidate searches since the stepper was made

@@ -70,6 +70,23 @@ Real approach_speed(const SelfContact& k, const Vec3& n, const Positions& x, con
 
 }  // namespace
 
+// Runs chunk(t, T) for t = 0 .. T - 1 on the stepper's team, T its threads when the work (n
+// pairs) is large enough to pay for a fork, else 1; impact_parts_ and contact_parts_ are sized
+// for T. Chunk t takes the t-th of T equal runs of each list and writes only its own part; the
+// caller joins the parts in t's order, so the result is the same for any T. Returns T.
+template <class F>
+int PbdStepper::in_chunks(std::size_t n, F&& chunk) {
+  const int T = threads_used_ > 1 && n >= kParallelPairs ? threads_used_ : 1;
+  if (impact_parts_.size() < 2 * static_cast<std::size_t>(T)) impact_parts_.resize(2 * T);
+  if (contact_parts_.size() < static_cast<std::size_t>(T)) contact_parts_.resize(T);
+  const auto job = [&](int t) { chunk(t, T); };
+  if (T == 1)
+    job(0);
+  else
+    team_.get().run(T, spin_, job);
+  return T;
+}
+
 // The candidate pairs of a group, found once per step and kept while they hold. Each particle gets
 // a box: over its start x, its prediction p and where the prediction leads in a step's time
 // (x + k (p - x), k the sub-steps of a step; not beyond the cloth's size), widened by 1.5 h on
@@ -284,7 +301,11 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
     const Real hs = g.thickness;
     if (!g.searched || !self_candidates_hold(model, g, x)) find_self_candidates(model, g, x);
     sweep_self_boxes(model, g, x, hs);  // a pair within 2h at the prediction: its widened boxes overlap
-    for (const auto& [q, t] : g.pt) {
+    const int parts = in_chunks(g.pt.size(), [&](int part, int parts_count) {
+    auto& out = contact_parts_[part];
+    out.clear();
+    for (std::size_t k = g.pt.size() * part / parts_count; k < g.pt.size() * (part + 1) / parts_count; ++k) {
+      const auto [q, t] = g.pt[k];
       if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
       const Triangle& tri = model.triangles[g.triangles[t]];
       const Vec3 xq = x.col(q), pq = p_.col(q);
@@ -304,11 +325,13 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
       const Vec3 c = closest_point_on_triangle(pq, p1, p_.col(tri[1]), p_.col(tri[2]), &b);
       const Vec3 off = pq - c;
       if ((off - off.dot(np) * np).norm() > hs) continue;
-      self_contacts_.push_back(
-          {PairKind::PointTriangle, false, {q, tri[0], tri[1], tri[2]}, {1, -b[0], -b[1], -b[2]}, np, side,
-           std::min(hs, side * d0)});
-      self_contacts_.back().approach = approach_speed(self_contacts_.back(), side * np, x, p_, h);
+      out.push_back({PairKind::PointTriangle, false, {q, tri[0], tri[1], tri[2]}, {1, -b[0], -b[1], -b[2]}, np, side,
+                     std::min(hs, side * d0)});
+      out.back().approach = approach_speed(out.back(), side * np, x, p_, h);
     }
+    });
+    for (int part = 0; part < parts; ++part)
+      self_contacts_.insert(self_contacts_.end(), contact_parts_[part].begin(), contact_parts_[part].end());
   }
   contact_summary_.self_count = static_cast<Index>(self_contacts_.size());
   contact_summary_.self_searches = self_searches_;
@@ -354,21 +377,32 @@ void PbdStepper::project_self_contacts(const Model& model, bool jacobi) {
 void PbdStepper::find_self_impacts(const Model& model, const SelfGroup& g, const Positions& x) {
   impacts_.clear();
   sweep_self_boxes(model, g, x, 0);
-  const auto test = [&](PairKind kind, const std::array<Index, 4>& id) {
+  const auto test = [&](PairKind kind, const std::array<Index, 4>& id, std::vector<SelfImpact>& out) {
     std::array<Vec3, 4> x0, dx;
     for (int k = 0; k < 4; ++k) x0[k] = x.col(id[k]), dx[k] = p_.col(id[k]) - x.col(id[k]);
     const Impact hit = additive_ccd(kind, x0, dx, kSeparation, 0);
-    if (hit.hit) impacts_.push_back({kind, id, hit.toi});
+    if (hit.hit) out.push_back({kind, id, hit.toi});
   };
-  for (const auto& [q, t] : g.pt) {
-    if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
-    const Triangle& tri = model.triangles[g.triangles[t]];
-    test(PairKind::PointTriangle, {q, tri[0], tri[1], tri[2]});
-  }
-  for (const auto& [a, b] : g.ee) {
-    if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) continue;
-    test(PairKind::EdgeEdge, {g.edges[a][0], g.edges[a][1], g.edges[b][0], g.edges[b][1]});
-  }
+  const int parts = in_chunks(g.pt.size() + g.ee.size(), [&](int t, int T) {
+    auto& pt_out = impact_parts_[2 * t];
+    auto& ee_out = impact_parts_[2 * t + 1];
+    pt_out.clear();
+    ee_out.clear();
+    for (std::size_t k = g.pt.size() * t / T; k < g.pt.size() * (t + 1) / T; ++k) {
+      const auto [q, tri_index] = g.pt[k];
+      if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[tri_index], box_hi_[tri_index])) continue;
+      const Triangle& tri = model.triangles[g.triangles[tri_index]];
+      test(PairKind::PointTriangle, {q, tri[0], tri[1], tri[2]}, pt_out);
+    }
+    for (std::size_t k = g.ee.size() * t / T; k < g.ee.size() * (t + 1) / T; ++k) {
+      const auto [a, b] = g.ee[k];
+      if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) continue;
+      test(PairKind::EdgeEdge, {g.edges[a][0], g.edges[a][1], g.edges[b][0], g.edges[b][1]}, ee_out);
+    }
+  });
+  // In the candidates' order whatever the number of threads: point-triangle, then edge-edge.
+  for (int kind = 0; kind < 2; ++kind)
+    for (int t = 0; t < parts; ++t) impacts_.insert(impacts_.end(), impact_parts_[2 * t + kind].begin(), impact_parts_[2 * t + kind].end());
 }
 
 // After the sweeps: the continuous test, up to kResponseRounds rounds of continuous contacts
