@@ -205,7 +205,8 @@ class PbdStepper : public Integrator {
   // Threads the last step() used (1 for the sequential ordering).
   int threads_used() const { return threads_used_; }
   // Bytes of the per-model workspace (from the vectors' capacities): predicted and previous
-  // positions, Jacobi buffers, the coloured batches and per-constraint coefficients, multipliers.
+  // positions, Jacobi buffers, the coloured batches and per-constraint coefficients, multipliers,
+  // self-collision (features, hierarchy, candidate pairs, contacts).
   std::size_t workspace_bytes() const;
 
   // Grabs particle `particle` of `model` with the hand at `target` (m); returns a handle. The

@@ -237,6 +237,18 @@ std::size_t PbdStepper::workspace_bytes() const {
   for (const FamilyTerms& t : family_terms_) s += capacity_bytes(t.k) + capacity_bytes(t.alpha) + capacity_bytes(t.gamma);
   s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.bending) +
        capacity_bytes(coloured_order_.volume) + capacity_bytes(coloured_order_.attachment);
+  // Self-collision: the groups' features, owners, hierarchy and candidate pairs, the contacts and
+  // the boxes.
+  for (const SelfGroup& g : self_groups_)
+    s += capacity_bytes(g.triangles) + capacity_bytes(g.edges) + capacity_bytes(g.pt) + capacity_bytes(g.ee) +
+         capacity_bytes(g.owned_particle_start) + capacity_bytes(g.owned_particles) + capacity_bytes(g.owned_edge_start) +
+         capacity_bytes(g.owned_edges) + capacity_bytes(g.loose) + capacity_bytes(g.bvh_child) + capacity_bytes(g.bvh_size);
+  s += capacity_bytes(self_contacts_) + capacity_bytes(impacts_) + capacity_bytes(box_lo_) + capacity_bytes(box_hi_) +
+       capacity_bytes(edge_lo_) + capacity_bytes(edge_hi_) + capacity_bytes(node_lo_) + capacity_bytes(node_hi_) +
+       capacity_bytes(node_pairs_) + capacity_bytes(stopped_) + positions(particle_lo_) + positions(particle_hi_) +
+       positions(sweep_lo_) + positions(sweep_hi_);
+  for (const auto& v : impact_parts_) s += capacity_bytes(v);
+  for (const auto& v : contact_parts_) s += capacity_bytes(v);
   return s + coloured_.bytes();
 }
 
