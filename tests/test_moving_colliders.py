@@ -148,6 +148,20 @@ def test_a_plane_moving_up_hits_a_ball_and_it_leaves_at_u_plus_e_times_the_closi
     assert state.x[0, 1] >= u * 6 * dt - 1e-12  # above the floor
 
 
+def rise_through_cloth(method: str, dt: float, add_collider):
+    """A 0.4 m cloth of 8 x 8 at y = 0 and a collider (added by add_collider(builder), the model's
+    collider 0) that moves up by 100 m/s x dt in one step of one sub-step, without gravity: the
+    model, the state after that step and the stepper."""
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(0.4, 0.4, 8, 8, center=[0, 0, 0]), mass=0.1)
+    add_collider(b)
+    model = b.build()
+    state = model.initial_state()
+    stepper = csb.PbdStepper(method=method, dt=dt, substeps=1, iterations=4, gravity=[0, 0, 0])
+    stepper.move_collider(model, 0, np.eye(3), [0.0, 100.0 * dt, 0.0])
+    stepper.step(model, state, 1)
+    return model, state, stepper
+
 @pytest.mark.parametrize("method", METHODS)
 def test_a_thin_plate_at_100_m_s_does_not_pass_through_a_cloth(method):
     """A 1 cm thick, 1 m wide plate moves up at 100 m/s from 1 m below a 0.4 m cloth: 1.67 m in
@@ -155,15 +169,9 @@ def test_a_thin_plate_at_100_m_s_does_not_pass_through_a_cloth(method):
     plate's frame runs from above the plate to below it and enters the top face: every particle
     ends on the plate's top face (its thickness 0: C = (p - q)·n >= 0, the contacts projected
     last in each sweep), to round-off of the 0.67 m coordinate (1e-12 m)."""
-    b = csb.ModelBuilder()
-    b.add_mesh(csb.cloth_grid(0.4, 0.4, 8, 8, center=[0, 0, 0]), mass=0.1)
-    b.add_box(center=[0, -1.0, 0], half_extents=[0.5, 0.005, 0.5], name="plate")
-    model = b.build()
-    state = model.initial_state()
     dt = 1 / 60
-    stepper = csb.PbdStepper(method=method, dt=dt, substeps=1, iterations=4, gravity=[0, 0, 0])
-    stepper.move_collider(model, 0, np.eye(3), [0.0, 100.0 * dt, 0.0])
-    stepper.step(model, state, 1)
+    _, state, _ = rise_through_cloth(method, dt, lambda b: b.add_box(center=[0, -1.0, 0], half_extents=[0.5, 0.005, 0.5],
+                                                                        name="plate"))
     top = -1.0 + 100.0 * dt + 0.005
     assert state.x[:, 1].min() >= top - 1e-12
 
@@ -442,15 +450,8 @@ def test_a_mesh_sheet_at_100_m_s_does_not_pass_through_a_cloth(method):
     on, the top, at least the sheet's skin (1e-9 of its size) above it, to round-off (1e-12 m)."""
     sheet = csb.Mesh(np.array([[-0.5, -1.0, -0.5], [0.5, -1.0, -0.5], [0.5, -1.0, 0.5], [-0.5, -1.0, 0.5]]),
                      np.array([[0, 2, 1], [0, 3, 2]]), name="sheet")
-    b = csb.ModelBuilder()
-    b.add_mesh(csb.cloth_grid(0.4, 0.4, 8, 8, center=[0, 0, 0]), mass=0.1)
-    b.add_collider_mesh(sheet, name="sheet")
-    model = b.build()
-    state = model.initial_state()
     dt = 1 / 60
-    stepper = csb.PbdStepper(method=method, dt=dt, substeps=1, iterations=4, gravity=[0, 0, 0])
-    stepper.move_collider(model, 0, np.eye(3), [0.0, 100.0 * dt, 0.0])
-    stepper.step(model, state, 1)
+    model, state, stepper = rise_through_cloth(method, dt, lambda b: b.add_collider_mesh(sheet, name="sheet"))
     assert state.x[:, 1].min() >= -1.0 + 100.0 * dt - 1e-12
     assert stepper.contacts()["count"] == model.num_particles
 

@@ -425,6 +425,7 @@ class PbdStepper : public Integrator {
   void find_self_candidates(const Model& model, SelfGroup& g, const Positions& x);
   bool self_candidates_hold(const Model& model, const SelfGroup& g, const Positions& x) const;
   void sweep_self_boxes(const Model& model, const SelfGroup& g, const Positions& x, Real pad);
+  void unite_self_boxes(const Model& model, const SelfGroup& g, const Positions& lo, const Positions& hi);
   void find_self_impacts(const Model& model, const SelfGroup& g, const Positions& x);
   void resolve_self_collisions(const Model& model, const Positions& x, Real h);
   struct SelfImpact {

@@ -61,11 +61,24 @@ bool contact_normal(const SelfContact& k, const Vec3& y1, const Vec3& y2, const 
   return true;
 }
 
+// Σ_k c_k y_k: the separation d of contact k's particles at positions y (m).
+template <class Y>
+Vec3 separation(const SelfContact& k, const Y& y) {
+  const auto& c = k.weights;
+  const auto& id = k.particles;
+  return c[0] * y(id[0]) + c[1] * y(id[1]) + c[2] * y(id[2]) + c[3] * y(id[3]);
+}
+
+// Σ_k c_k² w_k: the inverse mass a contact's correction or impulse along its normal meets.
+Real contact_inverse_mass(const SelfContact& k, const Real* w) {
+  const auto& c = k.weights;
+  const auto& id = k.particles;
+  return c[0] * c[0] * w[id[0]] + c[1] * c[1] * w[id[1]] + c[2] * c[2] * w[id[2]] + c[3] * c[3] * w[id[3]];
+}
+
 // The approach speed of a contact along n in the motion x -> p over h, m/s.
 Real approach_speed(const SelfContact& k, const Vec3& n, const Positions& x, const Positions& p, Real h) {
-  Vec3 d = Vec3::Zero();
-  for (int e = 0; e < 4; ++e) d += k.weights[e] * (p.col(k.particles[e]) - x.col(k.particles[e]));
-  return d.dot(n) / h;
+  return separation(k, [&](Index i) { return Vec3(p.col(i) - x.col(i)); }).dot(n) / h;
 }
 
 }  // namespace
@@ -117,39 +130,21 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
     particle_lo_.col(i) = xi.cwiseMin(pi).cwiseMin(end).array() - pad;
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
   }
-  const auto unite = [&](Index i, Vec3& lo, Vec3& hi) {
-    lo = lo.cwiseMin(particle_lo_.col(i));
-    hi = hi.cwiseMax(particle_hi_.col(i));
-  };
   // A feature whose box spans more than the cloth's rest size (plus the widening) has been torn
   // across the cloth or flung beyond it within a step: no contact or continuous test can follow
   // it (the divergence guard stops such a step by default). It is left out of this search (an
   // empty box) and counted (self_skipped), so that a particle flung 1e12 m away costs one search,
   // not one pair with every feature on every sub-step.
   const Real reach = g.size + 2 * pad;
-  g.skipped = 0;
   const auto keep = [&](Vec3& lo, Vec3& hi) {
     if ((hi - lo).maxCoeff() <= reach) return true;  // false for NaN too
     lo = inf, hi = -inf;
     return false;
   };
-  const std::size_t T = g.triangles.size(), E = g.edges.size();
-  box_lo_.resize(T);
-  box_hi_.resize(T);
-  for (std::size_t t = 0; t < T; ++t) {
-    Vec3 lo = inf, hi = -inf;
-    for (const Index i : model.triangles[g.triangles[t]]) unite(i, lo, hi);
-    g.skipped += !keep(lo, hi);
-    box_lo_[t] = lo, box_hi_[t] = hi;
-  }
-  edge_lo_.resize(E);
-  edge_hi_.resize(E);
-  for (std::size_t e = 0; e < E; ++e) {
-    Vec3 lo = inf, hi = -inf;
-    for (const Index i : g.edges[e]) unite(i, lo, hi);
-    keep(lo, hi);
-    edge_lo_[e] = lo, edge_hi_[e] = hi;
-  }
+  unite_self_boxes(model, g, particle_lo_, particle_hi_);
+  g.skipped = 0;
+  for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(box_lo_[t], box_hi_[t]);
+  for (std::size_t e = 0; e < g.edges.size(); ++e) keep(edge_lo_[e], edge_hi_[e]);
   g.pt.clear();
   g.ee.clear();
   // One search, of triangle pairs, gives both kinds: a particle's box lies in its owner
@@ -259,21 +254,23 @@ void PbdStepper::sweep_self_boxes(const Model& model, const SelfGroup& g, const 
     sweep_lo_.col(i) = x.col(i).cwiseMin(p_.col(i)).array() - pad;
     sweep_hi_.col(i) = x.col(i).cwiseMax(p_.col(i)).array() + pad;
   }
+  unite_self_boxes(model, g, sweep_lo_, sweep_hi_);
+}
+
+// Each triangle's and edge's box (box_lo_/box_hi_, edge_lo_/edge_hi_) as the union of its
+// particles' boxes [lo, hi].
+void PbdStepper::unite_self_boxes(const Model& model, const SelfGroup& g, const Positions& lo, const Positions& hi) {
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
-  const auto unite = [&](Index i, Vec3& lo, Vec3& hi) {
-    lo = lo.cwiseMin(sweep_lo_.col(i));
-    hi = hi.cwiseMax(sweep_hi_.col(i));
+  const auto unite = [&](const auto& ids, Vec3& l, Vec3& u) {
+    l = inf, u = -inf;
+    for (const Index i : ids) l = l.cwiseMin(lo.col(i)), u = u.cwiseMax(hi.col(i));
   };
-  for (std::size_t t = 0; t < g.triangles.size(); ++t) {
-    Vec3 lo = inf, hi = -inf;
-    for (const Index i : model.triangles[g.triangles[t]]) unite(i, lo, hi);
-    box_lo_[t] = lo, box_hi_[t] = hi;
-  }
-  for (std::size_t e = 0; e < g.edges.size(); ++e) {
-    Vec3 lo = inf, hi = -inf;
-    for (const Index i : g.edges[e]) unite(i, lo, hi);
-    edge_lo_[e] = lo, edge_hi_[e] = hi;
-  }
+  box_lo_.resize(g.triangles.size());
+  box_hi_.resize(g.triangles.size());
+  for (std::size_t t = 0; t < g.triangles.size(); ++t) unite(model.triangles[g.triangles[t]], box_lo_[t], box_hi_[t]);
+  edge_lo_.resize(g.edges.size());
+  edge_hi_.resize(g.edges.size());
+  for (std::size_t e = 0; e < g.edges.size(); ++e) unite(g.edges[e], edge_lo_[e], edge_hi_[e]);
 }
 
 // Proximity contacts at the start of the sub-step, from the candidates, with two rules that keep
@@ -302,33 +299,33 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
     if (!g.searched || !self_candidates_hold(model, g, x)) find_self_candidates(model, g, x);
     sweep_self_boxes(model, g, x, hs);  // a pair within 2h at the prediction: its widened boxes overlap
     const int parts = in_chunks(g.pt.size(), [&](int part, int parts_count) {
-    auto& out = contact_parts_[part];
-    out.clear();
-    for (std::size_t k = g.pt.size() * part / parts_count; k < g.pt.size() * (part + 1) / parts_count; ++k) {
-      const auto [q, t] = g.pt[k];
-      if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
-      const Triangle& tri = model.triangles[g.triangles[t]];
-      const Vec3 xq = x.col(q), pq = p_.col(q);
-      const Vec3 x1 = x.col(tri[0]);
-      Vec3 n0 = (x.col(tri[1]) - x1).cross(x.col(tri[2]) - x1);
-      const Vec3 p1 = p_.col(tri[0]);
-      Vec3 np = (p_.col(tri[1]) - p1).cross(p_.col(tri[2]) - p1);
-      const Real l0 = n0.norm(), lp = np.norm();
-      if (!(l0 > 0) || !(lp > 0)) continue;  // a collapsed triangle has no side
-      n0 /= l0;
-      np /= lp;
-      if (!(n0.dot(np) > 0)) continue;  // the triangle flipped: a sliver, no side
-      const Real d0 = (xq - x1).dot(n0);
-      const Real side = d0 >= 0 ? 1 : -1;
-      if (side * (pq - p1).dot(np) >= 2 * hs) continue;
-      Vec3 b;
-      const Vec3 c = closest_point_on_triangle(pq, p1, p_.col(tri[1]), p_.col(tri[2]), &b);
-      const Vec3 off = pq - c;
-      if ((off - off.dot(np) * np).norm() > hs) continue;
-      out.push_back({PairKind::PointTriangle, false, {q, tri[0], tri[1], tri[2]}, {1, -b[0], -b[1], -b[2]}, np, side,
-                     std::min(hs, side * d0)});
-      out.back().approach = approach_speed(out.back(), side * np, x, p_, h);
-    }
+      auto& out = contact_parts_[part];
+      out.clear();
+      for (std::size_t k = g.pt.size() * part / parts_count; k < g.pt.size() * (part + 1) / parts_count; ++k) {
+        const auto [q, t] = g.pt[k];
+        if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
+        const Triangle& tri = model.triangles[g.triangles[t]];
+        const Vec3 xq = x.col(q), pq = p_.col(q);
+        const Vec3 x1 = x.col(tri[0]);
+        Vec3 n0 = (x.col(tri[1]) - x1).cross(x.col(tri[2]) - x1);
+        const Vec3 p1 = p_.col(tri[0]);
+        Vec3 np = (p_.col(tri[1]) - p1).cross(p_.col(tri[2]) - p1);
+        const Real l0 = n0.norm(), lp = np.norm();
+        if (!(l0 > 0) || !(lp > 0)) continue;  // a collapsed triangle has no side
+        n0 /= l0;
+        np /= lp;
+        if (!(n0.dot(np) > 0)) continue;  // the triangle flipped: a sliver, no side
+        const Real d0 = (xq - x1).dot(n0);
+        const Real side = d0 >= 0 ? 1 : -1;
+        if (side * (pq - p1).dot(np) >= 2 * hs) continue;
+        Vec3 b;
+        const Vec3 c = closest_point_on_triangle(pq, p1, p_.col(tri[1]), p_.col(tri[2]), &b);
+        const Vec3 off = pq - c;
+        if ((off - off.dot(np) * np).norm() > hs) continue;
+        out.push_back({PairKind::PointTriangle, false, {q, tri[0], tri[1], tri[2]}, {1, -b[0], -b[1], -b[2]}, np, side,
+                       std::min(hs, side * d0)});
+        out.back().approach = approach_speed(out.back(), side * np, x, p_, h);
+      }
     });
     for (int part = 0; part < parts; ++part)
       self_contacts_.insert(self_contacts_.end(), contact_parts_[part].begin(), contact_parts_[part].end());
@@ -355,7 +352,7 @@ void PbdStepper::project_self_contacts(const Model& model, bool jacobi) {
     if (!contact_normal(k, p1, p2, p3, n)) continue;
     const Real C = (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3).dot(n) - k.thickness;
     if (C >= 0) continue;
-    const Real denom = c[0] * c[0] * w[id[0]] + c[1] * c[1] * w[id[1]] + c[2] * c[2] * w[id[2]] + c[3] * c[3] * w[id[3]];
+    const Real denom = contact_inverse_mass(k, w);
     if (!(denom > 0)) continue;
     const Vec3 step = (-C * relaxation(relax, id) / denom) * n;
     k.pushed = true;
@@ -474,18 +471,12 @@ Real PbdStepper::self_penetration(const Positions& x) const {
   Real worst = 0;
   for (const SelfContact& k : self_contacts_) {
     const auto& id = k.particles;
-    const auto& c = k.weights;
-    const Vec3 d = c[0] * x.col(id[0]) + c[1] * x.col(id[1]) + c[2] * x.col(id[2]) + c[3] * x.col(id[3]);
     Vec3 n;
     if (!contact_normal(k, x.col(id[1]), x.col(id[2]), x.col(id[3]), n)) continue;
-    worst = std::max(worst, k.thickness - d.dot(n));
+    worst = std::max(worst, k.thickness - separation(k, [&](Index i) { return Vec3(x.col(i)); }).dot(n));
   }
   return worst;
 }
-
-}  // namespace csb
-
-namespace csb {
 
 // Self-contacts are inelastic (16): a contact that pushed its pair this sub-step may take away
 // its approach but not make it separate. The projection moved the pair by up to its depth, and
@@ -510,7 +501,7 @@ void PbdStepper::settle_self_contact_velocities(const Model& model, State& state
     for (int e = 0; e < 4; ++e) vn += c[e] * velocity(id[e]).dot(n);
     const Real target = std::max(k.approach, Real(0));
     if (!(vn > target)) continue;
-    const Real denom = c[0] * c[0] * w[id[0]] + c[1] * c[1] * w[id[1]] + c[2] * c[2] * w[id[2]] + c[3] * c[3] * w[id[3]];
+    const Real denom = contact_inverse_mass(k, w);
     if (!(denom > 0)) continue;
     const Vec3 impulse = ((target - vn) / denom) * n;
     for (int e = 0; e < 4; ++e) {
