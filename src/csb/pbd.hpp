@@ -267,12 +267,22 @@ class PbdStepper : public Integrator {
   void attach(const Model& model, const State& state, Index collider, const std::vector<Index>& particles);
   void detach(Index collider, const std::vector<Index>& particles = {});
   const std::vector<ColliderAttachment>& attachments() const { return attachments_; }
+  // Deforming mesh colliders (collision.hpp): the vertices (m, 3 x V, the model frame, in the
+  // mesh's order) mesh collider `collider` reaches at the end of the next step(), each moving
+  // there on a straight line over the step's sub-steps (then carried by the collider's pose, if
+  // moved too). Contacts test particles against the moving triangles continuously; particles
+  // attached to the collider follow their triangle. Throws InvalidArgument naming the collider
+  // (and the vertex) for a collider that is not a mesh, a wrong vertex count or a non-finite vertex.
+  void deform_collider(const Model& model, Index collider, const Positions& vertices);
+  // A mesh collider's vertices at the end of the last step (model frame, m): the model's until deformed.
+  Positions collider_vertices(const Model& model, Index collider) const;
 
  private:
   struct ColliderMotion {
     ColliderPose from, to;     // at the end of the last step, at the end of the next
     ColliderPose start, end;   // of the current sub-step
     bool moving = false;       // either pose is not the identity (else every operation is the static one)
+    DeformingMesh deform;      // a mesh collider's vertices, once deform_collider was called
   };
   std::vector<ColliderMotion> collider_motion_;  // per collider of the model, empty until one is moved or attached to
   std::vector<ColliderAttachment> attachments_;
@@ -280,6 +290,8 @@ class PbdStepper : public Integrator {
   void size_collider_motion(const Model& model, const char* what);
   void move_colliders(const Model& model, int sub);  // the sub-step's poses; attached particles' predictions
   void end_collider_motion(const Model& model, const State& state);
+  void deform_substep(const Collider& c, ColliderMotion& m, Real s0, Real s1);  // vertices and swept grid
+  std::vector<Vec3> deform_lo_, deform_hi_;  // m, the swept triangles' boxes
 
   void prepare(const Model& model);
   void predict(const Model& model, State& state, Real h);

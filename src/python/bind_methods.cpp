@@ -250,10 +250,30 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
           d["collider"] = a.collider;
           d["particle"] = a.particle;
           d["local"] = std::vector<double>{a.local.x(), a.local.y(), a.local.z()};
+          d["triangle"] = a.triangle;
+          d["frame"] = std::vector<double>{a.frame.x(), a.frame.y(), a.frame.z()};
           out.append(d);
         }
         return out;
-      }, "The particles attached to colliders: collider, particle, local (m, its position in the collider's frame).");
+      }, "The particles attached to colliders: collider, particle, local (m, its position in the collider's frame); "
+         "on a mesh collider also triangle (the nearest when attached, -1 otherwise) and frame (u, v, w): local = a + "
+         "u (b - a) + v (c - a) + w n in that triangle (w in m), the point that follows the mesh when it deforms.")
+      .def("deform_collider", [](PbdStepper& s, const Model& model, IntArg collider, py::handle vertices) {
+        const Index c = index_arg(collider, "deform_collider: collider");
+        s.deform_collider(model, c, to_positions(vertices, "deform_collider: collider " + std::to_string(c) + ": vertices"));
+      }, py::arg("model"), py::arg("collider"), py::arg("vertices"),
+         "Sets the vertices (V x 3, m, the collider's model frame, in the order of model.colliders[collider]"
+         "['vertices']) mesh collider `collider` reaches at the end of the next step: each moves there on a straight "
+         "line over the step's sub-steps (then carried by its pose, if moved). Particles are tested against the moving "
+         "triangles continuously; friction and restitution see the surface's velocity; attached particles follow "
+         "their triangle. The first call deforms from the model's vertices.")
+      .def("collider_vertices", [](const PbdStepper& s, const Model& model, IntArg collider) {
+        const Positions v = s.collider_vertices(model, index_arg(collider, "collider_vertices: collider"));
+        py::array_t<double> out({static_cast<py::ssize_t>(v.cols()), py::ssize_t(3)});
+        if (v.cols()) std::memcpy(out.mutable_data(), v.data(), sizeof(double) * v.size());
+        return out;
+      }, py::arg("model"), py::arg("collider"),
+         "A mesh collider's vertices (V x 3, m, model frame) at the end of the last step: the model's until deformed.");
 
   m.def("tear", [](py::object model_obj, py::object state_obj, double max_strain, IntArg max_tears_arg) {
     const Model& model = model_obj.cast<const Model&>();

@@ -502,9 +502,17 @@ class PbdStepper(Integrator):
         """
         The pose (rotation, translation in m) of a collider at the end of the last step.
         """
+    def collider_vertices(self, model: Model, collider: int) -> numpy.typing.NDArray[numpy.float64]:
+        """
+        A mesh collider's vertices (V x 3, m, model frame) at the end of the last step: the model's until deformed.
+        """
     def contacts(self) -> dict:
         """
         The contacts of the last sub-step: count (particle-collider, speculative ones included), active (those that pushed their particle), self_count (self-contacts: proximity point-triangle, and continuous), self_continuous (found by the continuous test), self_failsafe (particles the fail-safe stopped), self_unresolved (impacts only prescribed particles drive), self_searches (candidate-pair searches since the stepper was made), self_skipped (triangles left out: spread over more than the cloth's size within a step), max_depth (m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).
+        """
+    def deform_collider(self, model: Model, collider: int, vertices: typing.Any) -> None:
+        """
+        Sets the vertices (V x 3, m, the collider's model frame, in the order of model.colliders[collider]['vertices']) mesh collider `collider` reaches at the end of the next step: each moves there on a straight line over the step's sub-steps (then carried by its pose, if moved). Particles are tested against the moving triangles continuously; friction and restitution see the surface's velocity; attached particles follow their triangle. The first call deforms from the model's vertices.
         """
     def detach(self, collider: int, particles: collections.abc.Iterable | None = None) -> None:
         """
@@ -543,7 +551,7 @@ class PbdStepper(Integrator):
     @property
     def attachments(self) -> list:
         """
-        The particles attached to colliders: collider, particle, local (m, its position in the collider's frame).
+        The particles attached to colliders: collider, particle, local (m, its position in the collider's frame); on a mesh collider also triangle (the nearest when attached, -1 otherwise) and frame (u, v, w): local = a + u (b - a) + v (c - a) + w n in that triangle (w in m), the point that follows the mesh when it deforms.
         """
     @property
     def grabs(self) -> list:

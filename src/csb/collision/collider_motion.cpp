@@ -1,7 +1,8 @@
 // csb — moving colliders and attachments: the position-based stepper owns a rigid pose per
 // collider (the Model stays immutable), interpolated over the sub-steps of a step like a kinematic
-// grab's hand; contacts are generated along the particle's motion relative to the collider
-// (collision.hpp), and attached particles follow the pose.
+// grab's hand, and for a deforming mesh collider its vertices, interpolated linearly; contacts
+// are generated along the particle's motion relative to the collider (collision.hpp), and
+// attached particles follow the pose, or on a deforming mesh their triangle.
 #include "csb/pbd.hpp"
 #include "csb/format.hpp"
 #include "csb/step/internal.hpp"
@@ -84,6 +85,29 @@ void PbdStepper::move_collider(const Model& model, Index collider, const Mat3& r
   m.to.translation = translation;
 }
 
+void PbdStepper::deform_collider(const Model& model, Index collider, const Positions& vertices) {
+  const UseGuard::Scope in_use(use_, "PbdStepper.deform_collider");
+  const Collider& c = collider_at(model, collider, "deform_collider");
+  const std::string what = "deform_collider: collider " + std::to_string(collider) + " ('" + c.name + "')";
+  if (c.kind != ColliderKind::Mesh)
+    throw InvalidArgument(what + " is a " + kind_name(c.kind) + ": only a mesh collider deforms (move_collider moves any collider rigidly)");
+  validate_collider_vertices(*c.mesh, vertices, what);
+  size_collider_motion(model, "deform_collider");
+  DeformingMesh& d = collider_motion_[collider].deform;
+  if (!d.active()) d.from = c.mesh->vertices;  // the first deformation starts from the model's shape
+  d.to = vertices;
+}
+
+Positions PbdStepper::collider_vertices(const Model& model, Index collider) const {
+  const Collider& c = collider_at(model, collider, "collider_vertices");
+  if (c.kind != ColliderKind::Mesh)
+    throw InvalidArgument("collider_vertices: collider " + std::to_string(collider) + " ('" + c.name + "') is a " +
+                          kind_name(c.kind) + ", not a mesh");
+  if (collider < static_cast<Index>(collider_motion_.size()) && collider_motion_[collider].deform.active())
+    return collider_motion_[collider].deform.from;
+  return c.mesh->vertices;
+}
+
 ColliderPose PbdStepper::collider_pose(Index collider) const {
   if (collider < 0) throw InvalidArgument("collider_pose: collider " + std::to_string(collider) + " is out of range");
   if (collider >= static_cast<Index>(collider_motion_.size())) return {};
@@ -107,13 +131,20 @@ void PbdStepper::attach(const Model& model, const State& state, Index collider, 
         throw InvalidArgument("attach: particle " + std::to_string(i) + " is already held (" +
                               (g.handle < 0 ? "attached to a collider" : "grab " + std::to_string(g.handle)) + ")");
   }
-  (void)c;
   const ColliderPose& now = collider_motion_[collider].from;  // where the collider is in `state`
+  const DeformingMesh& deform = collider_motion_[collider].deform;
   for (const Index i : particles) {
     ColliderAttachment a;
     a.collider = collider;
     a.particle = i;
     a.local = now.to_model(state.x.col(i));
+    if (c.kind == ColliderKind::Mesh) {
+      a.triangle = triangle_frame(deform.active() ? deform.from : c.mesh->vertices, c.mesh->triangles, a.local, a.frame);
+      if (a.triangle < 0)
+        throw InvalidArgument("attach: collider " + std::to_string(collider) + " ('" + c.name +
+                              "'): every triangle of the mesh is degenerate now; no triangle to hold particle " +
+                              std::to_string(i));
+    }
     a.handle = next_attachment_--;
     Grab g;  // kinematic: inverse mass 0 while attached, as a grab of compliance 0
     g.handle = a.handle;
@@ -159,11 +190,14 @@ void PbdStepper::move_colliders(const Model& model, int sub) {
     throw InvalidArgument("step: this stepper holds poses for " + std::to_string(collider_motion_.size()) +
                           " colliders, but the model has " + std::to_string(model.colliders.size()));
   const Real s0 = Real(sub) / settings_.substeps, s1 = Real(sub + 1) / settings_.substeps;
-  for (ColliderMotion& m : collider_motion_) {
+  for (std::size_t c = 0; c < collider_motion_.size(); ++c) {
+    ColliderMotion& m = collider_motion_[c];
     m.moving = !(m.from.identity() && m.to.identity());
-    if (!m.moving) continue;
-    m.start = interpolate_pose(m.from, m.to, s0);
-    m.end = interpolate_pose(m.from, m.to, s1);
+    if (m.moving) {
+      m.start = interpolate_pose(m.from, m.to, s0);
+      m.end = interpolate_pose(m.from, m.to, s1);
+    }
+    if (m.deform.active()) deform_substep(model.colliders[c], m, s0, s1);
   }
   for (const ColliderAttachment& a : attachments_) {
     if (a.particle >= model.num_particles())
@@ -171,8 +205,48 @@ void PbdStepper::move_colliders(const Model& model, int sub) {
                             std::to_string(a.collider) + ": this model has " + std::to_string(model.num_particles()) +
                             " particles");
     const ColliderMotion& m = collider_motion_[a.collider];
-    p_.col(a.particle) = m.moving ? m.end.to_world(a.local) : a.local;
+    if (m.deform.active())  // on the skin: its triangle's frame at the end of the sub-step
+      p_.col(a.particle) = from_triangle_frame(m.deform.end, model.colliders[a.collider].mesh->triangles[a.triangle], a.frame);
+    else
+      p_.col(a.particle) = m.moving ? m.end.to_world(a.local) : a.local;
   }
+}
+
+namespace {
+
+// A mesh's vertices `fraction` of the way from `from` to `to` (model frame), exactly `to` at 1,
+// carried to the world by `pose` (if moved).
+void deformed_vertices(const Positions& from, const Positions& to, Real fraction, bool moved, const ColliderPose& pose,
+                       Positions& out) {
+  if (fraction >= 1)
+    out = to;
+  else
+    out = from + fraction * (to - from);
+  if (moved)
+    for (Index v = 0; v < out.cols(); ++v) out.col(v) = pose.to_world(Vec3(out.col(v)));
+}
+
+}  // namespace
+
+// A deforming collider's vertices at the sub-step's start and end (world) and the grid over its
+// triangles swept between them, rebuilt each sub-step (its cost: docs/design.md).
+void PbdStepper::deform_substep(const Collider& c, ColliderMotion& m, Real s0, Real s1) {
+  DeformingMesh& d = m.deform;
+  deformed_vertices(d.from, d.to, s0, m.moving, m.start, d.start);
+  deformed_vertices(d.from, d.to, s1, m.moving, m.end, d.end);
+  const std::vector<Triangle>& tris = c.mesh->triangles;
+  deform_lo_.resize(tris.size());
+  deform_hi_.resize(tris.size());
+  for (std::size_t t = 0; t < tris.size(); ++t) {
+    Vec3 lo = d.start.col(tris[t][0]), hi = lo;
+    for (int k = 0; k < 3; ++k) {
+      lo = lo.cwiseMin(d.start.col(tris[t][k])).cwiseMin(d.end.col(tris[t][k]));
+      hi = hi.cwiseMax(d.start.col(tris[t][k])).cwiseMax(d.end.col(tris[t][k]));
+    }
+    deform_lo_[t] = lo;
+    deform_hi_[t] = hi;
+  }
+  build_box_grid(deform_lo_, deform_hi_, d.grid);
 }
 
 // The end of a step: the poses reached become the next step's start. A collider can carry a
@@ -187,6 +261,12 @@ void PbdStepper::end_collider_motion(const Model& model, const State& state) {
         const Vec3 local = m.to.to_model(state.x.col(i));
         fastest = std::max(fastest, (m.to.to_world(local) - m.from.to_world(local)).norm());
       }
+    DeformingMesh& d = m.deform;
+    if (d.active()) {  // a deforming mesh's surface moves at most as fast as its fastest vertex
+      for (Index v = 0; v < d.to.cols(); ++v)
+        fastest = std::max(fastest, (m.to.to_world(Vec3(d.to.col(v))) - m.from.to_world(Vec3(d.from.col(v)))).norm());
+      d.from = d.to;
+    }
     m.from = m.to;
   }
   guard_v0_ = std::max(guard_v0_, 2 * fastest / settings_.dt);

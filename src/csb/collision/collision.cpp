@@ -1,4 +1,6 @@
 #include "csb/collision/collision.hpp"
+#include "csb/collision/ccd.hpp"
+#include "csb/format.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -135,16 +137,26 @@ Vec3 closest_point_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, cons
 }
 
 TriangleGrid build_triangle_grid(const Positions& x, const std::vector<Triangle>& triangles) {
+  std::vector<Vec3> lo(triangles.size()), hi(triangles.size());
+  for (std::size_t t = 0; t < triangles.size(); ++t) {
+    Vec3 tl = x.col(triangles[t][0]), th = tl;
+    for (int k = 1; k < 3; ++k) tl = tl.cwiseMin(x.col(triangles[t][k])), th = th.cwiseMax(x.col(triangles[t][k]));
+    lo[t] = tl;
+    hi[t] = th;
+  }
   TriangleGrid g;
-  const Index T = static_cast<Index>(triangles.size());
+  build_box_grid(lo, hi, g);
+  return g;
+}
+
+void build_box_grid(const std::vector<Vec3>& boxes_lo, const std::vector<Vec3>& boxes_hi, TriangleGrid& g) {
+  const Index T = static_cast<Index>(boxes_lo.size());
   Vec3 lo = Vec3::Constant(std::numeric_limits<Real>::infinity()), hi = -lo;
   Real mean_size = 0;
-  for (const auto& t : triangles) {
-    Vec3 tl = x.col(t[0]), th = tl;
-    for (int k = 1; k < 3; ++k) tl = tl.cwiseMin(x.col(t[k])), th = th.cwiseMax(x.col(t[k]));
-    lo = lo.cwiseMin(tl);
-    hi = hi.cwiseMax(th);
-    mean_size += (th - tl).maxCoeff();
+  for (Index t = 0; t < T; ++t) {
+    lo = lo.cwiseMin(boxes_lo[t]);
+    hi = hi.cwiseMax(boxes_hi[t]);
+    mean_size += (boxes_hi[t] - boxes_lo[t]).maxCoeff();
   }
   mean_size /= std::max<Index>(T, 1);
   const Vec3 extent = hi - lo;
@@ -167,16 +179,16 @@ TriangleGrid build_triangle_grid(const Positions& x, const std::vector<Triangle>
   const Index cells = g.dims[0] * g.dims[1] * g.dims[2];
   g.cell_start.assign(cells + 1, 0);
   // Two passes (count, then fill), triangles in index order: each cell's list is ascending.
+  std::vector<Index> cursor;
   for (int pass = 0; pass < 2; ++pass) {
-    std::vector<Index> cursor;
     if (pass == 1) {
       for (Index k = 0; k < cells; ++k) g.cell_start[k + 1] += g.cell_start[k];
       g.items.resize(g.cell_start[cells]);
       cursor.assign(g.cell_start.begin(), g.cell_start.end() - 1);
     }
     for (Index t = 0; t < T; ++t) {
-      Vec3 tl = x.col(triangles[t][0]), th = tl;
-      for (int k = 1; k < 3; ++k) tl = tl.cwiseMin(x.col(triangles[t][k])), th = th.cwiseMax(x.col(triangles[t][k]));
+      const Vec3& tl = boxes_lo[t];
+      const Vec3& th = boxes_hi[t];
       for (Index i = cell_of(tl[0], 0); i <= cell_of(th[0], 0); ++i)
         for (Index j = cell_of(tl[1], 1); j <= cell_of(th[1], 1); ++j)
           for (Index k = cell_of(tl[2], 2); k <= cell_of(th[2], 2); ++k) {
@@ -188,7 +200,6 @@ TriangleGrid build_triangle_grid(const Positions& x, const std::vector<Triangle>
           }
     }
   }
-  return g;
 }
 
 namespace {
@@ -248,10 +259,12 @@ bool segment_triangle(const Vec3& x, const Vec3& d, const Vec3& a, const Vec3& b
   return t >= -tol && t <= 1 + tol;
 }
 
-bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, Real reach,
-                  std::vector<std::uint32_t>& stamps, std::uint32_t& stamp, Vec3& q, Vec3& n) {
-  const TriangleGrid& g = m.grid;
-  const Vec3 lo = x.cwiseMin(p).array() - reach, hi = x.cwiseMax(p).array() + reach;
+// Calls visit(t) once for every triangle listed in a cell of grid g that the box [lo, hi]
+// overlaps (every one of the T triangles, in index order, when the box spans more cells than
+// there are triangles), in the cells' order. Returns false, visiting none, if the box misses the grid.
+template <class Visit>
+bool for_each_candidate(const TriangleGrid& g, Index T, const Vec3& lo, const Vec3& hi,
+                        std::vector<std::uint32_t>& stamps, std::uint32_t& stamp, Visit&& visit) {
   std::array<Index, 3> c0, c1;
   for (int k = 0; k < 3; ++k) {
     const Real a = std::floor((lo[k] - g.origin[k]) / g.cell), b = std::floor((hi[k] - g.origin[k]) / g.cell);
@@ -260,14 +273,35 @@ bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, R
     c1[k] = static_cast<Index>(std::min<Real>(b, g.dims[k] - 1));
   }
   if (++stamp == 0) std::fill(stamps.begin(), stamps.end(), 0), stamp = 1;
-  const Vec3 d = p - x;
+  const auto once = [&](Index t) {
+    if (stamps[t] == stamp) return;
+    stamps[t] = stamp;
+    visit(t);
+  };
   const double cells = double(c1[0] - c0[0] + 1) * (c1[1] - c0[1] + 1) * (c1[2] - c0[2] + 1);
+  if (cells > static_cast<double>(T)) {
+    // A segment longer than the mesh is wide: fewer tests visiting every triangle once.
+    for (Index t = 0; t < T; ++t) once(t);
+  } else {
+    for (Index k = c0[2]; k <= c1[2]; ++k)
+      for (Index j = c0[1]; j <= c1[1]; ++j)
+        for (Index i = c0[0]; i <= c1[0]; ++i) {
+          const Index id = (k * g.dims[1] + j) * g.dims[0] + i;
+          for (Index e = g.cell_start[id]; e < g.cell_start[id + 1]; ++e) once(g.items[e]);
+        }
+  }
+  return true;
+}
+
+bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, Real reach,
+                  std::vector<std::uint32_t>& stamps, std::uint32_t& stamp, Vec3& q, Vec3& n) {
+  (void)r;
+  const Vec3 lo = x.cwiseMin(p).array() - reach, hi = x.cwiseMax(p).array() + reach;
+  const Vec3 d = p - x;
   Real best_t = std::numeric_limits<Real>::infinity(), best_dist = std::numeric_limits<Real>::infinity();
   Index hit = -1, near = -1;
   Vec3 near_point = Vec3::Zero();
   const auto visit = [&](Index t) {
-    if (stamps[t] == stamp) return;
-    stamps[t] = stamp;
     const Triangle& tri = m.triangles[t];
     const Vec3 a = m.vertices.col(tri[0]), b = m.vertices.col(tri[1]), c = m.vertices.col(tri[2]);
     Real s;
@@ -278,17 +312,7 @@ bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, R
       if (dist < best_dist) best_dist = dist, near = t, near_point = cp;
     }
   };
-  if (cells > static_cast<double>(m.triangles.size())) {
-    // A segment longer than the mesh is wide: fewer tests visiting every triangle once.
-    for (Index t = 0; t < static_cast<Index>(m.triangles.size()); ++t) visit(t);
-  } else {
-    for (Index k = c0[2]; k <= c1[2]; ++k)
-      for (Index j = c0[1]; j <= c1[1]; ++j)
-        for (Index i = c0[0]; i <= c1[0]; ++i) {
-          const Index id = (k * g.dims[1] + j) * g.dims[0] + i;
-          for (Index e = g.cell_start[id]; e < g.cell_start[id + 1]; ++e) visit(g.items[e]);
-        }
-  }
+  if (!for_each_candidate(m.grid, static_cast<Index>(m.triangles.size()), lo, hi, stamps, stamp, visit)) return false;
   if (hit >= 0) {
     // The ray crossed the sheet: the contact plane is the triangle's, facing the side x is on
     // (or, for x on the sheet, against the motion).
@@ -301,7 +325,7 @@ bool mesh_contact(const ColliderMesh& m, const Vec3& x, const Vec3& p, Real r, R
   if (near >= 0 && best_dist < reach) {
     q = near_point;
     const Vec3& nf = m.normals[near];
-    if (best_dist > 1e-12 * g.cell) {
+    if (best_dist > 1e-12 * m.grid.cell) {
       n = (p - q) / best_dist;  // no crossing: p is on x's side, and p - q points away from the sheet
     } else {
       const Real side = (x - q).dot(nf);
@@ -358,6 +382,147 @@ bool generate_contact(const Collider& c, Index collider_index, Index i, const Ve
   k.approach_speed = (p - x).dot(k.normal) / h;
   out.push_back(k);
   return true;
+}
+
+namespace {
+
+// Unit normal of triangle (a, b, c) from its winding; zero for a degenerate one.
+Vec3 face_normal(const Vec3& a, const Vec3& b, const Vec3& c) {
+  const Vec3 n = (b - a).cross(c - a);
+  const Real len = n.norm();
+  return len > 0 ? Vec3(n / len) : Vec3::Zero();
+}
+
+Vec3 blend(const Positions& v, const Triangle& t, const Vec3& w) {
+  return w[0] * v.col(t[0]) + w[1] * v.col(t[1]) + w[2] * v.col(t[2]);
+}
+
+// The separation the continuous test keeps: an impact is the distance falling to this fraction
+// of the start's (self-collision's choice, self_contacts.cpp).
+constexpr Real kDeformingSeparation = 0.1;
+
+}  // namespace
+
+void validate_collider_vertices(const ColliderMesh& mesh, const Positions& vertices, const std::string& what) {
+  if (vertices.cols() != mesh.vertices.cols())
+    throw InvalidArgument(what + ": " + std::to_string(vertices.cols()) + " vertices given, but the mesh has " +
+                          std::to_string(mesh.vertices.cols()));
+  for (Index v = 0; v < vertices.cols(); ++v)
+    if (!vertices.col(v).allFinite())
+      throw InvalidArgument(what + ": vertex " + std::to_string(v) + " must be finite (m), got " +
+                            detail::str(Vec3(vertices.col(v))));
+}
+
+bool generate_deforming_contact(const Collider& c, const DeformingMesh& d, Index collider_index, Index i,
+                                const Vec3& x, const Vec3& p, Real r, Real margin, Real h, std::vector<Contact>& out,
+                                std::vector<std::uint32_t>& stamps, std::uint32_t& stamp) {
+  const ColliderMesh& m = *c.mesh;
+  const Real thickness = std::max(r, m.skin);
+  const Real reach = thickness + margin;
+  const Vec3 lo = x.cwiseMin(p).array() - reach, hi = x.cwiseMax(p).array() + reach;
+  const Vec3 dp = p - x;
+  Real best_toi = std::numeric_limits<Real>::infinity(), best_dist = std::numeric_limits<Real>::infinity();
+  Index hit = -1, near = -1;
+  Vec3 hit_bary = Vec3::Zero(), hit_normal = Vec3::Zero(), near_bary = Vec3::Zero(), near_point = Vec3::Zero();
+  const auto visit = [&](Index t) {
+    const Triangle& tri = m.triangles[t];
+    const std::array<Vec3, 4> x0{x, d.start.col(tri[0]), d.start.col(tri[1]), d.start.col(tri[2])};
+    const std::array<Vec3, 4> dx{dp, d.end.col(tri[0]) - x0[1], d.end.col(tri[1]) - x0[2], d.end.col(tri[2]) - x0[3]};
+    const Impact im = additive_ccd(PairKind::PointTriangle, x0, dx, kDeformingSeparation, 0);
+    if (im.hit && im.toi < best_toi) {
+      // Where the pair is at the reported time: the particle is still apart from the triangle
+      // (at least 1/10 of its start distance, ccd.hpp), so its side there is defined.
+      std::array<Vec3, 4> at;
+      for (int k = 0; k < 4; ++k) at[k] = x0[k] + im.toi * dx[k];
+      Vec3 bary;
+      const Vec3 cp = closest_point_on_triangle(at[0], at[1], at[2], at[3], &bary);
+      const Vec3 nt = face_normal(at[1], at[2], at[3]);
+      if (nt != Vec3::Zero()) {  // a triangle collapsed then is left to its neighbours
+        Real side = (at[0] - cp).dot(nt);
+        if (side == 0) side = -(dx[0] - (bary[0] * dx[1] + bary[1] * dx[2] + bary[2] * dx[3])).dot(nt);
+        best_toi = im.toi;
+        hit = t;
+        hit_bary = bary;
+        hit_normal = side >= 0 ? nt : Vec3(-nt);
+      }
+    }
+    if (hit < 0) {
+      Vec3 bary;
+      const Vec3 cp = closest_point_on_triangle(p, d.end.col(tri[0]), d.end.col(tri[1]), d.end.col(tri[2]), &bary);
+      const Real dist = (p - cp).norm();
+      if (dist < best_dist) best_dist = dist, near = t, near_point = cp, near_bary = bary;
+    }
+  };
+  if (!for_each_candidate(d.grid, static_cast<Index>(m.triangles.size()), lo, hi, stamps, stamp, visit)) return false;
+  Contact k;
+  k.particle = i;
+  k.collider = collider_index;
+  k.thickness = thickness;
+  Index t;
+  Vec3 bary;
+  if (hit >= 0) {
+    // The end triangle's plane, facing the side the particle was on at the impact (a triangle
+    // that turned over within the sub-step keeps that side).
+    t = hit;
+    bary = hit_bary;
+    const Triangle& tri = m.triangles[t];
+    Vec3 n1 = face_normal(d.end.col(tri[0]), d.end.col(tri[1]), d.end.col(tri[2]));
+    if (n1 == Vec3::Zero()) n1 = hit_normal;
+    k.normal = n1.dot(hit_normal) >= 0 ? n1 : Vec3(-n1);
+    k.point = blend(d.end, tri, bary);
+  } else if (near >= 0 && best_dist < reach) {
+    t = near;
+    bary = near_bary;
+    k.point = near_point;
+    const Triangle& tri = m.triangles[t];
+    if (best_dist > 1e-12 * d.grid.cell) {
+      k.normal = (p - k.point) / best_dist;  // no crossing: p is on x's side
+    } else {
+      Vec3 nf = face_normal(d.end.col(tri[0]), d.end.col(tri[1]), d.end.col(tri[2]));
+      if (nf == Vec3::Zero()) return false;
+      const Real side = (x - blend(d.start, tri, bary)).dot(nf);
+      k.normal = side > 0 ? nf : side < 0 ? Vec3(-nf) : (dp.dot(nf) > 0 ? Vec3(-nf) : nf);
+    }
+  } else {
+    return false;
+  }
+  // The motion of the point q + r n the triangle holds (see collision.hpp).
+  const Triangle& tri = m.triangles[t];
+  const Vec3 q0 = blend(d.start, tri, bary);
+  const Vec3 f0 = face_normal(d.start.col(tri[0]), d.start.col(tri[1]), d.start.col(tri[2]));
+  const Vec3 f1 = face_normal(d.end.col(tri[0]), d.end.col(tri[1]), d.end.col(tri[2]));
+  const Real s1 = k.normal.dot(f1) >= 0 ? 1 : -1, s0 = f0.dot(f1) >= 0 ? s1 : -s1;
+  k.surface_motion = (k.point - q0) + k.thickness * (s1 * f1 - s0 * f0);
+  k.approach_speed = (dp - (k.point - q0)).dot(k.normal) / h;
+  out.push_back(k);
+  return true;
+}
+
+Index triangle_frame(const Positions& v, const std::vector<Triangle>& triangles, const Vec3& x, Vec3& frame) {
+  Index best = -1;
+  Real best_d2 = std::numeric_limits<Real>::infinity();
+  for (Index t = 0; t < static_cast<Index>(triangles.size()); ++t) {
+    const Triangle& tri = triangles[t];
+    const Vec3 a = v.col(tri[0]), b = v.col(tri[1]), c = v.col(tri[2]);
+    if (face_normal(a, b, c) == Vec3::Zero()) continue;
+    const Real d2 = (x - closest_point_on_triangle(x, a, b, c, nullptr)).squaredNorm();
+    if (d2 < best_d2) best_d2 = d2, best = t;
+  }
+  if (best < 0) return -1;
+  const Triangle& tri = triangles[best];
+  const Vec3 a = v.col(tri[0]), e1 = v.col(tri[1]) - a, e2 = v.col(tri[2]) - a;
+  const Vec3 n = face_normal(a, v.col(tri[1]), v.col(tri[2]));
+  const Real w = (x - a).dot(n);
+  const Vec3 y = x - a - w * n;  // in the triangle's plane: u e1 + v e2 by the normal equations
+  const Real g11 = e1.dot(e1), g12 = e1.dot(e2), g22 = e2.dot(e2), det = g11 * g22 - g12 * g12;
+  const Real b1 = e1.dot(y), b2 = e2.dot(y);
+  frame = Vec3((g22 * b1 - g12 * b2) / det, (g11 * b2 - g12 * b1) / det, w);
+  return best;
+}
+
+Vec3 from_triangle_frame(const Positions& v, const Triangle& t, const Vec3& frame) {
+  const Vec3 a = v.col(t[0]), b = v.col(t[1]), c = v.col(t[2]);
+  return a + frame[0] * (b - a) + frame[1] * (c - a) + frame[2] * face_normal(a, b, c);
 }
 
 }  // namespace csb

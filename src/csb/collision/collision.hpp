@@ -44,6 +44,25 @@
 // particle's displacement relative to it and restitution on the relative normal velocity
 // (contacts.cpp); a particle that does not slide moves with the collider as if fixed to it.
 // For an unmoved collider that motion is zero and every operation is the static collider's.
+//
+// Deforming mesh colliders (a skinned character). The stepper can also be given a mesh
+// collider's vertices, in its model frame, for the end of the next step (deform_collider). Each
+// vertex goes to them from where it was on a straight line over the step's sub-steps, carried
+// to the world by the sub-step's pose: within a sub-step every vertex moves on the segment from
+// its world position at the start to the one at the end, at constant speed, and so does the
+// particle's prediction. The contact test is then the point against the moving triangle:
+//   - continuous: additive CCD (ccd.hpp; Li, Kaufman and Jiang 2021) of the particle against
+//     each triangle near its path, swept from its start to its end positions, reports the first
+//     time the distance falls to 1/10 of the start's; the earliest such triangle gives the
+//     contact, its plane at the end of the sub-step facing the side the particle was on at that
+//     time, q the point of the end triangle with the barycentric coordinates of the closest point
+//     then. A particle cannot cross a triangle without this report, however fast the triangle;
+//   - otherwise p ending within r + margin of the end triangles: the nearest end triangle's
+//     closest point q, n from q to p (the particle did not cross: p is on its side).
+// The surface motion of the contact is that of the point q + r n held by the triangle: the
+// barycentric blend of its vertices' motions plus r times its oriented unit normal's change over
+// the sub-step (for a triangle moved rigidly, the rigid collider's B s - A s). The triangles'
+// grid is rebuilt each sub-step over their swept boxes (start and end positions).
 #pragma once
 
 #include "csb/mesh.hpp"
@@ -157,13 +176,49 @@ void validate_pose(const Mat3& rotation, const Vec3& translation, const std::str
 
 // A particle attached to a collider: kinematic (inverse mass 0 in the projections, like a
 // kinematic grab), its prediction the collider's pose applied to `local`, where it was in the
-// collider's model frame when attached.
+// collider's model frame when attached. On a mesh collider it is also held in the frame of its
+// nearest triangle (a, b, c) with unit normal n when attached: local = a + u (b - a) + v (c - a)
+// + w n, (u, v, w) = `frame`; while the mesh deforms it follows that triangle (the skin).
 struct ColliderAttachment {
   Index collider = 0;
   Index particle = 0;
   Vec3 local = Vec3::Zero();        // m, model frame of the collider
   int handle = 0;                   // of the kinematic grab that holds it (< 0)
+  Index triangle = -1;              // mesh colliders: the nearest triangle when attached
+  Vec3 frame = Vec3::Zero();        // (u, v: dimensionless; w: m) in that triangle's frame
 };
+
+// A mesh collider's deformation held by the stepper: its vertices in the model frame at the end
+// of the last step and of the next (m; both empty until deformed), and, for the current
+// sub-step, in the world at its start and end with the grid over the swept triangles.
+struct DeformingMesh {
+  Positions from, to;               // m, model frame, 3 x V
+  Positions start, end;             // m, world, 3 x V
+  TriangleGrid grid;                // over the boxes of the triangles at start and end
+  bool active() const { return to.cols() > 0; }
+};
+
+// Throws InvalidArgument naming `what` (the collider) and the first bad vertex unless `vertices`
+// are as many as the mesh's and finite.
+void validate_collider_vertices(const ColliderMesh& mesh, const Positions& vertices, const std::string& what);
+
+// The grid over triangles given by their bounding boxes (m; one per triangle), as
+// build_triangle_grid sizes it; `grid`'s storage is reused.
+void build_box_grid(const std::vector<Vec3>& lo, const std::vector<Vec3>& hi, TriangleGrid& grid);
+
+// The contact of particle i (x -> p over the sub-step, thickness r, margin in m) with mesh
+// collider c deforming from d.start to d.end over the sub-step (see above); `h` (s) only serves
+// approach_speed. Returns whether a contact was added.
+bool generate_deforming_contact(const Collider& c, const DeformingMesh& d, Index collider_index, Index i,
+                                const Vec3& x, const Vec3& p, Real r, Real margin, Real h, std::vector<Contact>& out,
+                                std::vector<std::uint32_t>& stamps, std::uint32_t& stamp);
+
+// The nearest triangle of a mesh with `vertices` to x, and x in that triangle's frame
+// (ColliderAttachment::frame). Returns -1 if every triangle is degenerate.
+Index triangle_frame(const Positions& vertices, const std::vector<Triangle>& triangles, const Vec3& x, Vec3& frame);
+
+// The point with `frame` coordinates in triangle t of `vertices` (the inverse of triangle_frame).
+Vec3 from_triangle_frame(const Positions& vertices, const Triangle& t, const Vec3& frame);
 
 // generate_contact against collider c at pose A at the sub-step's start and B at its end: the
 // ray A⁻¹ x -> B⁻¹ p in the model frame, the contact carried to the world by B (see above).

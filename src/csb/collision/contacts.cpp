@@ -27,6 +27,11 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
       if (w[i] <= 0) continue;
       const Vec3 xi = x.col(i), pi = p_.col(i);
       for (Index c = 0; c < static_cast<Index>(model.colliders.size()); ++c) {
+        if (!collider_motion_.empty() && collider_motion_[c].deform.active()) {  // against the moving triangles
+          generate_deforming_contact(model.colliders[c], collider_motion_[c].deform, c, i, xi, pi, model.thickness[i],
+                                     margin_[model.group[i]], h, contacts_, stamps_, stamp_);
+          continue;
+        }
         if (!collider_motion_.empty() && collider_motion_[c].moving) {  // along the motion relative to it
           const ColliderMotion& m = collider_motion_[c];
           generate_moving_contact(model.colliders[c], m.start, m.end, c, i, xi, pi, model.thickness[i],
