@@ -1,6 +1,7 @@
 """Animated mesh files (glTF, FBX, Collada, ... through Assimp): every mesh's vertices at given
 times, from the file's node animations (keys interpolated linearly, rotations by slerp) and skins
-(linear blend skinning), and, for a mesh its nodes move rigidly, keyframes that drive a collider."""
+(linear blend skinning), and, for a mesh its nodes move rigidly, keyframes that drive a collider;
+a skinned mesh's vertices drive a deforming collider (PbdStepper.deform_collider)."""
 
 from __future__ import annotations
 
@@ -133,7 +134,9 @@ def load_animation(
     :func:`csb.load_mesh` reads (the nodes' transforms applied, the file's unit scale among them),
     one array per placement of a mesh, not welded. A mesh its nodes move rigidly carries
     :class:`RigidKeyframes` for ``PbdStepper.move_collider`` or a scene's collider ``motion``; a
-    skinned mesh can be read but not yet used as a (deforming) collider.
+    skinned (deforming) mesh's vertices drive a deforming collider, ``PbdStepper.deform_collider``
+    (in the collider's vertex order: the model welds the file's split vertices), which a scene's
+    ``[[collider]] type = "mesh"`` with ``animation = true`` does by itself.
 
     Raises FileNotFoundError and :class:`csb.MeshError` as :func:`csb.load_mesh` does, and
     :class:`csb.ParameterError` for a file without animation, an unknown animation, and bad times.

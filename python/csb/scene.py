@@ -223,10 +223,34 @@ def _quat_matrix(q: np.ndarray) -> np.ndarray:
     ])
 
 
+@dataclass(frozen=True, eq=False)
+class DeformationSpec:
+    """The vertices of a mesh collider over time, from its file's skinned animation: at
+    ``times[k]`` (s) vertex v of the shape as declared (scale, rotation, translation applied) is at
+    ``vertices[k, v]`` (m; the file's vertices, every mesh of it in order, not welded). Between
+    samples each vertex moves linearly; before the first and after the last the pose is held."""
+
+    times: np.ndarray        # (T,) s, increasing
+    vertices: np.ndarray     # (T, V, 3) m
+    triangles: np.ndarray    # (F, 3) indices into the V vertices
+
+    def at(self, t: float) -> np.ndarray:
+        """The (V, 3) vertices (m) at time t (s)."""
+        times = self.times
+        if t <= times[0] or len(times) == 1:
+            return self.vertices[0].copy()
+        if t >= times[-1]:
+            return self.vertices[-1].copy()
+        k = int(np.searchsorted(times, t, side="right")) - 1
+        f = (t - times[k]) / (times[k + 1] - times[k])
+        return self.vertices[k] + f * (self.vertices[k + 1] - self.vertices[k])
+
+
 @dataclass(frozen=True)
 class ColliderSpec:
     """A collider (Müller 2007 §4.3): its shape's parameters (m), its material, and optionally its
-    keyframed motion (the position-based methods only)."""
+    keyframed motion or, for a mesh with a skinned animation, its deformation (the
+    position-based methods only)."""
 
     name: str
     type: str                         # "plane", "sphere", "capsule", "box", "mesh"
@@ -235,6 +259,7 @@ class ColliderSpec:
     friction_kinetic: float = 0.0     # Coulomb μk <= μs
     restitution: float = 0.0          # e in [0, 1]
     motion: MotionSpec | None = None
+    deformation: DeformationSpec | None = None
 
 
 _COLLIDERS = ("plane", "sphere", "capsule", "box", "mesh")
@@ -276,7 +301,10 @@ class Simulation:
     Colliders move by the scene's keyframes (``motion`` of a ``[[collider]]``) or, overriding
     them, by ``collider_motion[name] = f`` where ``f(t)`` returns ``(R, translation)`` at time t (s):
     a 3 x 3 rotation matrix and a translation in m applied to the collider as declared. step()
-    asks for the pose at the end of each step (the stepper interpolates over its sub-steps)."""
+    asks for the pose at the end of each step (the stepper interpolates over its sub-steps).
+    A mesh collider deforms by its file's skinned animation (``animation = true``) or by
+    ``collider_deformation[name] = f``, ``f(t)`` the (V, 3) vertices (m) of the collider as
+    ``model.colliders[i]["vertices"]`` numbers them, at time t (s) (PbdStepper.deform_collider)."""
 
     scene: "Scene"
     model: _core.Model
@@ -285,6 +313,7 @@ class Simulation:
     meshes: dict[str, MeshInstance]
     colliders: dict[str, int] = field(default_factory=dict)   # name -> index in the model
     collider_motion: dict[str, Callable[[float], tuple[Any, Any]]] = field(default_factory=dict)
+    collider_deformation: dict[str, Callable[[float], Any]] = field(default_factory=dict)
 
     @property
     def gravity(self) -> Vec3:
@@ -308,11 +337,28 @@ class Simulation:
                 "position-based methods (pbd, xpbd, jakobsen); its colliders would be static")
         return sorted(motions.items())
 
+    def _deformations(self) -> list[tuple[int, Callable[[float], Any]]]:
+        deformations: dict[int, Callable[[float], Any]] = {}
+        for name, f in self.collider_deformation.items():
+            if name not in self.colliders:
+                raise _core.ParameterError(
+                    f"collider_deformation: no collider named {name!r} (the scene has: {', '.join(self.colliders) or 'none'})")
+            if not callable(f):
+                raise _core.ParameterError(f"collider_deformation[{name!r}] must be a function of t (s) returning "
+                                           "the (V, 3) vertices (m)")
+            deformations[self.colliders[name]] = f
+        if deformations and not isinstance(self.stepper, _core.PbdStepper):
+            raise _core.ParameterError(
+                f"method '{self.stepper.name()}' cannot deform colliders: deforming colliders, like moving ones, are "
+                "part of the position-based methods (pbd, xpbd, jakobsen); its colliders would be static")
+        return sorted(deformations.items())
+
     def step(self, steps: int = 1) -> None:
         """Advance `steps` steps, each after putting every moving collider at its pose for the
         step's end (t + dt)."""
         motions = self._motions()
-        if not motions:
+        deformations = self._deformations()
+        if not motions and not deformations:
             self.stepper.step(self.model, self.state, steps)
             return
         stepper: _core.PbdStepper = self.stepper  # type: ignore[assignment]
@@ -323,6 +369,11 @@ class Simulation:
                 try:
                     R, tr = pose(t)
                     stepper.move_collider(self.model, index, R, tr)
+                except _core.ParameterError as e:
+                    raise _core.ParameterError(f"collider '{names[index]}' at t = {t:.6g} s: {e}") from None
+            for index, vertices in deformations:
+                try:
+                    stepper.deform_collider(self.model, index, vertices(t))
                 except _core.ParameterError as e:
                     raise _core.ParameterError(f"collider '{names[index]}' at t = {t:.6g} s: {e}") from None
             stepper.step(self.model, self.state, 1)
@@ -426,13 +477,17 @@ class Scene:
         except _core.ParameterError as e:  # e.g. a particle that starts inside a collider
             raise SceneError(f"{self.path}: {e}") from None
         stepper = stepper if stepper is not None else self.solver.stepper()
-        moving = [c.name for c in self.colliders if c.motion is not None]
+        moving = [c.name for c in self.colliders if c.motion is not None or c.deformation is not None]
         if (moving or to_collider) and not isinstance(stepper, _core.PbdStepper):
             what = f"collider '{moving[0]}' has a motion" if moving else f"mesh '{to_collider[0][0]}' is attached to a collider"
             raise SceneError(
-                f"{self.path}: {what}, but method '{stepper.name()}' cannot move colliders or attach particles "
-                "to them (the position-based methods pbd, xpbd and jakobsen can)")
+                f"{self.path}: {what}, but method '{stepper.name()}' cannot move or deform colliders or attach "
+                "particles to them (the position-based methods pbd, xpbd and jakobsen can)")
         sim = Simulation(self, model, model.initial_state(), stepper, instances, colliders)
+        for c in self.colliders:
+            if c.deformation is not None:
+                index = colliders[c.name]
+                sim.collider_deformation[c.name] = _follow(c.deformation, model.colliders[index]["vertices"])
         for mesh_name, collider, chosen in to_collider:
             if collider not in colliders:
                 raise SceneError(f"{self.path}: mesh '{mesh_name}' attach.collider: no collider named {collider!r} "
@@ -463,6 +518,9 @@ def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> int:
         elif c.type == "box":
             return builder.add_box(center=a["center"], half_extents=a["half_extents"],
                                    rotation=_rotation(a["rotate"]), **material)
+        elif c.deformation is not None:  # its shape at t = 0, declared frame applied already
+            d = c.deformation
+            return builder.add_collider_mesh(Mesh(d.at(0.0), d.triangles, name=c.name), **material)
         else:
             with warnings.catch_warnings():
                 if a["animation"] is not False:  # asked for: the collider follows the animation
@@ -472,6 +530,21 @@ def _add_collider(scene: Scene, builder: ModelBuilder, c: ColliderSpec) -> int:
             return builder.add_collider_mesh(mesh, **material)
     except _core.ParameterError as e:
         raise SceneError(f"{scene.path}: collider '{c.name}': {e}") from None
+
+
+def _follow(d: DeformationSpec, collider_vertices: np.ndarray) -> Callable[[float], np.ndarray]:
+    """f(t): the collider's vertices at t from the file's: the model welded the file's vertices
+    (seams split them), so each of its vertices takes the file's vertex at the same place at t = 0
+    (exactly, else the nearest: the weld's tolerance)."""
+    rest = d.at(0.0)
+    first: dict[tuple[float, ...], int] = {}
+    for j, v in enumerate(map(tuple, rest)):
+        first.setdefault(v, j)
+    source = np.empty(len(collider_vertices), dtype=np.int64)
+    for k, v in enumerate(collider_vertices):
+        j = first.get(tuple(v))
+        source[k] = j if j is not None else int(np.argmin(np.sum((rest - v) ** 2, axis=1)))
+    return lambda t: d.at(t)[source]
 
 
 def _make_mesh(spec: MeshSpec) -> Mesh | _core.TetMesh:
@@ -701,7 +774,7 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
         params["rotate"] = t.vector("rotate", (0.0, 0.0, 0.0))
         params["translate"] = t.vector("translate", (0.0, 0.0, 0.0))
         # animation = true (the file's first animation) or the animation's name: the collider
-        # follows the file's rigid node animation as its motion.
+        # follows the file's rigid node animation as its motion, or deforms with its skinning.
         params["animation"] = t.raw("animation", False)
         if not (isinstance(params["animation"], bool) or (isinstance(params["animation"], str) and params["animation"])):
             raise t.error("animation", f"must be true, false or an animation's name, got {params['animation']!r}")
@@ -714,12 +787,13 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
     motion_t = t.table("motion")
     if motion_t is not None:
         motion = _read_motion(motion_t)
+    deformation = None
     if kind == "mesh" and params["animation"] is not False:
         if motion is not None:
             raise t.error("animation", "a collider follows either its motion table or its file's animation, not both")
-        motion = _animation_motion(t, params)
+        motion, deformation = _animation_motion(t, params)
     t.finish()
-    return ColliderSpec(name, kind, params, mus, muk, e, motion)
+    return ColliderSpec(name, kind, params, mus, muk, e, motion, deformation)
 
 
 # Where a file's animation is sampled for a collider's keyframes besides its keys (Hz): between
@@ -728,11 +802,12 @@ def _read_collider(source: _Source, data: Any, k: int, base: Path) -> ColliderSp
 _ANIMATION_RATE = 30.0
 
 
-def _animation_motion(t: _Table, params: dict[str, Any]) -> MotionSpec:
+def _animation_motion(t: _Table, params: dict[str, Any]) -> tuple[MotionSpec | None, DeformationSpec | None]:
     """The keyframes of a mesh collider that follows its file's rigid node animation: the
     animation's motion of the mesh from its rest pose (:func:`csb.load_animation`), conjugated by
     the collider's declared scale, rotation and translation so that it moves the shape as
-    declared."""
+    declared. A file with a mesh that deforms (skinning, a scaling key) gives instead every mesh's
+    vertices at the samples, as declared: the collider deforms."""
     from .animation import _rotation_vectors, load_animation
 
     which = params["animation"]
@@ -744,11 +819,18 @@ def _animation_motion(t: _Table, params: dict[str, Any]) -> MotionSpec:
         anim = keys if len(times) == len(keys.times) else load_animation(params["file"], times, animation=choice)
     except (_core.ParameterError, _core.MeshError, FileNotFoundError) as e:
         raise t.error("animation", str(e)) from None
-    deforming = [m.name for m in anim.meshes if m.keyframes is None]
-    if deforming:
-        raise t.error("animation", f"mesh(es) {', '.join(map(repr, deforming))} of the file deform (skinning, or a "
-                      "scaling key): a collider follows a rigid node animation only (csb.load_animation reads "
-                      "deforming animation, which cannot yet drive a collider)")
+    A = _rotation(params["rotate"]) @ np.diag(params["scale"])
+    b = np.asarray(params["translate"], dtype=float)
+    if any(m.keyframes is None for m in anim.meshes):
+        vertices, triangles, offset = [], [], 0
+        for m in anim.meshes:
+            vertices.append(m.vertices @ A.T + b)
+            triangles.append(np.asarray(m.triangles) + offset)
+            offset += m.vertices.shape[1]
+        tris = np.concatenate(triangles)
+        if np.prod(np.sign(params["scale"])) < 0:  # a mirroring scale: outward stays outward (transformed())
+            tris = tris[:, [0, 2, 1]]
+        return None, DeformationSpec(np.asarray(anim.times, dtype=float), np.concatenate(vertices, axis=1), tris)
     first = anim.meshes[0].keyframes
     assert first is not None
     for m in anim.meshes[1:]:
@@ -761,8 +843,6 @@ def _animation_motion(t: _Table, params: dict[str, Any]) -> MotionSpec:
                           "a collider follows one rigid motion (split the file, one collider per mesh)")
     # The declared shape is x_d = A x + b (A = rotation · diag(scale)); the file moves x to
     # R_k x + p_k, hence x_d to (A R_k A⁻¹) x_d + A p_k + b - A R_k A⁻¹ b.
-    A = _rotation(params["rotate"]) @ np.diag(params["scale"])
-    b = np.asarray(params["translate"], dtype=float)
     A_inv = np.linalg.inv(A)
     matrices = np.array([A @ R @ A_inv for R in first.matrices])
     for k, M in enumerate(matrices):
@@ -771,7 +851,7 @@ def _animation_motion(t: _Table, params: dict[str, Any]) -> MotionSpec:
                           "motion that is not rigid; scale the file uniformly")
     translation = [A @ p + b - M @ b for p, M in zip(first.translation, matrices)]
     return MotionSpec(tuple(float(x) for x in anim.times), tuple(tuple(float(c) for c in v) for v in translation),
-                      tuple(tuple(float(c) for c in v) for v in _rotation_vectors(matrices)))
+                      tuple(tuple(float(c) for c in v) for v in _rotation_vectors(matrices))), None
 
 
 def _read_motion(t: _Table) -> MotionSpec:
