@@ -150,22 +150,53 @@ void check_implicit_step(const std::string& method, const Model& model, const St
                           std::to_string(np));
   if (!state.x.allFinite() || !state.v.allFinite())
     throw InvalidArgument("state.x and state.v must be finite (the state has non-finite positions or velocities)");
-  if (std::any_of(model.self_collision_thickness.begin(), model.self_collision_thickness.end(),
-                  [](Real h) { return h > 0; }))
-    throw InvalidArgument(method + " models contacts with colliders, not self-collision, but the model has "
-                          "self-collision (a group's self_collision_thickness > 0): its incremental potential has "
-                          "no self-contact term");
 }
 
-void run_implicit_steps(State& state, std::int64_t steps, int substeps, Real dt,
-                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep) {
+bool ImplicitSelfCollision::active(const Model& model) {
+  if (model_id_ != model.id) {
+    self_.prepare(model);
+    model_id_ = model.id;
+  }
+  return !self_.empty();
+}
+
+void ImplicitSelfCollision::before(const State& state, int sub) {
+  start_ = state.x;
+  if (sub == 0) fresh_ = true;
+}
+
+void ImplicitSelfCollision::after(const Model& model, State& state, int substeps, Real h) {
+  const Real* w = model.inv_mass.data();
+  end_ = state.x;
+  if (fresh_) self_.forget_candidates();  // the last step's candidates: not its bits
+  fresh_ = false;
+  self_.begin(model, start_, end_, w, substeps, h, false);
+  self_.resolve(model, start_, end_, w, substeps, h);
+  for (Index i = 0; i < model.num_particles(); ++i)
+    if (!(end_.col(i) == state.x.col(i))) {
+      state.v.col(i) += (end_.col(i) - state.x.col(i)) / h;
+      state.x.col(i) = end_.col(i);
+    }
+  if (!self_.contacts().empty())
+    self_.settle_velocities(
+        state.x, w, [&](Index i) { return Vec3(state.v.col(i)); }, [&](Index i, const Vec3& dv) { state.v.col(i) += dv; });
+}
+
+void run_implicit_steps(const Model& model, State& state, std::int64_t steps, int substeps, Real dt,
+                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep,
+                        ImplicitSelfCollision* self) {
+  if (self && !self->active(model)) self = nullptr;
   for (std::int64_t step = 0; step < steps; ++step) {
     if (step > 0 && interrupt && interrupt())
       throw Interrupted("interrupted after " + std::to_string(step) + " of " + std::to_string(steps) +
                         " steps (t = " + str(state.t) + " s): the state is left at the end of that step");
     State start = state;
     try {
-      for (int sub = 0; sub < substeps; ++sub) substep(sub);
+      for (int sub = 0; sub < substeps; ++sub) {
+        if (self) self->before(state, sub);
+        substep(sub);
+        if (self) self->after(model, state, substeps, dt / substeps);
+      }
     } catch (...) {
       state = std::move(start);
       throw;
@@ -405,8 +436,8 @@ void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t s
   const UseGuard::Scope in_use(use_, "BackwardEuler.step");
   check_implicit_step(name(), model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
-  run_implicit_steps(state, steps, settings_.substeps, settings_.dt, interrupt,
-                     [&](int) { solve_one(model, state, h); });
+  run_implicit_steps(model, state, steps, settings_.substeps, settings_.dt, interrupt,
+                     [&](int) { solve_one(model, state, h); }, &self_collision_);
 }
 
 void BackwardEulerStepper::solve_one(const Model& model, State& state, Real h) {

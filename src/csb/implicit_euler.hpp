@@ -46,6 +46,7 @@
 #pragma once
 
 #include "csb/collision/penalty.hpp"
+#include "csb/collision/self_collision.hpp"
 #include "csb/integrator.hpp"
 #include "csb/reference.hpp"
 #include "csb/use_guard.hpp"
@@ -125,15 +126,41 @@ class IncrementalPotential {
 };
 
 // The checks every implicit method's step (implicit Euler, Projective Dynamics, VBD) makes before
-// it touches the state: steps >= 0, a state of the model's size and finite, and no self-collision
-// (the incremental potential has no self-contact term). InvalidArgument naming `method` and what
-// is wrong.
+// it touches the state: steps >= 0, a state of the model's size and finite. InvalidArgument
+// naming `method` and what is wrong.
 void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps);
-// `steps` steps of dt, each `substeps` calls of substep(sub); `interrupt`, asked between steps,
-// stops them with Interrupted (the state at the end of the last step); a step that throws leaves
-// the state where the step started.
-void run_implicit_steps(State& state, std::int64_t steps, int substeps, Real dt,
-                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep);
+
+// Self-collision in an implicit method: the collision-processing layer of Bridson, Fedkiw and
+// Anderson (2002) after each sub-step's solve. The solve's positions are the end of the sub-step's
+// motion x -> p; the continuous test, its responses and the fail-safe (SelfCollision,
+// collision/self_collision.hpp, which says exactly what is guaranteed) move p until it has no new
+// intersection, the particles they move change velocity by the move over h, and the contacts that
+// pushed are made inelastic, as in the position-based steppers. The incremental potential itself
+// has no self-contact term: the layer acts on the solve's result, not inside it. The candidate
+// pairs are found afresh at each step's start, so a step's bits do not depend on the steps before.
+class ImplicitSelfCollision {
+ public:
+  bool active(const Model& model);  // the model has self-collision (prepared for it on first use)
+  // Around sub-step `sub` of `substeps` (h seconds each): before() keeps its start, after() runs
+  // the layer on the state the solve left (positions and velocities).
+  void before(const State& state, int sub);
+  void after(const Model& model, State& state, int substeps, Real h);
+  const SelfCollisionCounts& counts() const { return self_.counts(); }
+
+ private:
+  SelfCollision self_;
+  std::uint64_t model_id_ = 0;
+  bool fresh_ = true;  // find the candidates again: a step's first sub-step
+  Positions start_, end_;
+};
+
+// `steps` steps of dt, each `substeps` calls of substep(sub), with the self-collision layer after
+// each when the model has self-collision (self may be null: none); `interrupt`, asked between
+// steps, stops them with Interrupted (the state at the end of the last step); a step that throws
+// leaves the state where the step started.
+void run_implicit_steps(const Model& model, State& state, std::int64_t steps, int substeps, Real dt,
+                        const std::function<bool()>& interrupt, const std::function<void(int)>& substep,
+                        ImplicitSelfCollision* self);
 
 struct Residual {
   Real norm = 0;     // N, 2-norm of the residual over the dynamic particles
@@ -161,8 +188,8 @@ class BackwardEulerStepper final : public Integrator {
   // Each step solved to convergence; SimulationError if Newton does not converge in
   // max_iterations, the state left at the end of the last completed step (budgeted form: each
   // step ends after its budget; SimulationError only for a non-finite residual). Contacts with
-  // colliders are a penalty in E (collision/penalty.hpp); self-collision is not modelled, and a
-  // model with it is an InvalidArgument. One thread at a time
+  // colliders are a penalty in E (collision/penalty.hpp); self-collision is the layer after each
+  // sub-step's solve (ImplicitSelfCollision). One thread at a time
   // (use_guard.hpp): a second thread stepping the same stepper meanwhile gets ConcurrentUse.
   //
   // What a step keeps for the next (the workspace below) changes its cost, never its bits: each
@@ -173,11 +200,14 @@ class BackwardEulerStepper final : public Integrator {
   // The last backward Euler step's (of dt/substeps) Newton solve.
   const BackwardEulerStats& last() const { return last_; }
   Real max_residual() const { return max_residual_; }  // N, over all steps so far
+  // What self-collision did in the last sub-step (ImplicitSelfCollision).
+  const SelfCollisionCounts& self_collision() const { return self_collision_.counts(); }
   std::int64_t total_iterations() const { return total_iterations_; }
 
  private:
   void solve_one(const Model& model, State& state, Real h);
   PenaltyContacts contacts_;
+  ImplicitSelfCollision self_collision_;
 
   // The Newton matrix's storage and assembly, and the sparse LDLᵀ's symbolic analysis (AMD
   // order, elimination tree) of each sparsity pattern it has had, kept across Newton iterations

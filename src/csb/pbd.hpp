@@ -28,6 +28,7 @@
 #include "csb/material.hpp"
 #include "csb/model.hpp"
 #include "csb/collision/ccd.hpp"
+#include "csb/collision/self_collision.hpp"
 #include "csb/collision/spatial_hash.hpp"
 #include "csb/solver/team.hpp"
 #include "csb/use_guard.hpp"
@@ -130,28 +131,6 @@ struct Grab {
   bool pinned = false;         // the model pins the particle: released, it stops where it is
 };
 
-// A self-contact of a cloth (Müller 2007 §4.4; continuous contacts after Bridson, Fedkiw,
-// Anderson 2002): two features of its own group, a point and a triangle or two edges, kept apart
-// along a normal. The separation is d = Σ_k c_k p_k over the four particles (point–triangle: q,
-// t0, t1, t2 with c = (1, -b0, -b1, -b2), b the barycentric coordinates of q's nearest point;
-// edge–edge: a0, a1, b0, b1 with c = (1 - u, u, -(1 - v), -v) at the closest points' parameters),
-// and the inequality C = d·n - thickness >= 0 with n:
-//  - a proximity contact (point–triangle, made at the start of the sub-step): the triangle's
-//    current unit normal times `side`, the side q was on at the start of the sub-step;
-//  - a continuous contact (found by the continuous test after the sweeps): `normal`, fixed, d's
-//    direction at the time of impact.
-struct SelfContact {
-  PairKind kind = PairKind::PointTriangle;
-  bool continuous = false;
-  std::array<Index, 4> particles{};
-  std::array<Real, 4> weights{};    // c
-  Vec3 normal = Vec3::UnitY();      // unit
-  Real side = 1;                    // proximity: ±1 along the triangle's normal
-  Real thickness = 0;               // m: the group's, or the pair's distance at the start of the sub-step if less
-  Real approach = 0;                // m/s, d's normal speed in the motion x -> p when made (< 0: approaching)
-  bool pushed = false;              // the contact moved its particles this sub-step
-};
-
 // What the collision detection of the last sub-step found.
 struct ContactSummary {
   Index count = 0;            // particle-collider contacts, speculative ones included
@@ -161,6 +140,8 @@ struct ContactSummary {
   Index self_failsafe = 0;    // particles the self-collision fail-safe stopped (p = x) this sub-step
   Index self_unresolved = 0;  // impacts the fail-safe could not stop (only prescribed particles moved)
   std::int64_t self_searches = 0;  // candidate-pair searches since the stepper was made
+  std::int64_t self_candidates = 0;  // point-triangle and edge-edge candidate pairs now kept
+  std::int64_t self_tests = 0;  // continuous tests (additive CCD) run since the stepper was made
   Index self_skipped = 0;     // triangles left out of self-collision: spread over more than the cloth's size in a step
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
@@ -222,7 +203,7 @@ class PbdStepper : public Integrator {
   // The contacts of the last sub-step (with their XPBD multipliers, normal corrections) and
   // a summary of them.
   const std::vector<Contact>& contacts() const { return contacts_; }
-  const std::vector<SelfContact>& self_contacts() const { return self_contacts_; }
+  const std::vector<SelfContact>& self_contacts() const { return self_.contacts(); }
   const ContactSummary& contact_summary() const { return contact_summary_; }
   // What this method cannot read of `model`'s material (material.hpp); empty once
   // material_reported(model) was called: the Python binding warns once per model and stepper.
@@ -290,7 +271,7 @@ class PbdStepper : public Integrator {
   void size_collider_motion(const Model& model, const char* what);
   void move_colliders(const Model& model, int sub);  // the sub-step's poses; attached particles' predictions
   void end_collider_motion(const Model& model, const State& state);
-  void deform_substep(const Collider& c, ColliderMotion& m, Real s0, Real s1);  // vertices and swept grid
+  void deform_substep(const Collider& c, ColliderMotion& m, int sub, Real s0, Real s1);  // vertices, swept grid
   std::vector<Vec3> deform_lo_, deform_hi_;  // m, the swept triangles' boxes
 
   void prepare(const Model& model);
@@ -356,12 +337,12 @@ class PbdStepper : public Integrator {
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
   void generate_contacts(const Model& model, const Positions& x, Real h);
-  void generate_self_contacts(const Model& model, const Positions& x, Real h);
   void set_relaxation(const Model& model);
   void project_contacts(const Model& model, bool jacobi);
   void project_self_contacts(const Model& model, bool jacobi);
-  Real self_penetration(const Positions& x) const;
+  void resolve_self_collisions(const Model& model, const Positions& x, Real h);
   void settle_self_contact_velocities(const Model& model, State& state, Real h);
+  void report_self_collision();
   void settle_contact_moves(bool average);
   void apply_friction(const Model& model, const Positions& x);
   void apply_restitution(const Model& model, State& state, Real h);
@@ -410,59 +391,10 @@ class PbdStepper : public Integrator {
   void apply_grab_targets(Real fraction);
   void project_grabs(const Positions& x_start);
   Grab& find_grab(int handle);
-  // Collisions: per-sub-step contacts, and per self-colliding group its triangles and hash cell.
-  struct SelfGroup {
-    Index group = 0;
-    Real thickness = 0;                  // h, m
-    Real cell = 1;                       // m, hash cell edge
-    std::vector<Index> triangles;        // into model.triangles
-    std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
-    // The candidate pairs (self_contacts.cpp, find_self_candidates):
-    // point-triangle (particle, triangle index into `triangles`) and edge-edge (indices into
-    // `edges`, first < second).
-    std::vector<std::array<Index, 2>> pt, ee;
-    bool searched = false;               // pt and ee were found for this model
-    Real size = 0;                       // m, the group's rest bounding-box diagonal
-    Index skipped = 0;                   // triangles left out of the last search (beyond `size`)
-    // Owners: each particle and edge belongs to the first triangle (in `triangles`) holding it;
-    // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
-    std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;
-    // The triangles' bounding-volume hierarchy, built once from the rest shape: per node its two
-    // children (a leaf: {-1 - triangle, -1}), children after their parent; and its triangles' count.
-    std::vector<std::array<Index, 2>> bvh_child;
-    std::vector<Index> bvh_size;
-  };
-  std::vector<SelfGroup> self_groups_;
-  // Continuous self-collision (self_contacts.cpp).
-  void find_self_candidates(const Model& model, SelfGroup& g, const Positions& x);
-  bool self_candidates_hold(const Model& model, const SelfGroup& g, const Positions& x) const;
-  void sweep_self_boxes(const Model& model, const SelfGroup& g, const Positions& x, Real pad);
-  void unite_self_boxes(const Model& model, const SelfGroup& g, const Positions& lo, const Positions& hi);
-  void find_self_impacts(const Model& model, const SelfGroup& g, const Positions& x);
-  void resolve_self_collisions(const Model& model, const Positions& x, Real h);
-  struct SelfImpact {
-    PairKind kind;
-    std::array<Index, 4> particles;
-    Real toi;
-  };
-  std::vector<SelfImpact> impacts_;
-  template <class F>
-  int in_chunks(std::size_t n, F&& chunk);
-  static constexpr std::size_t kParallelPairs = 8192;  // candidate pairs worth a fork of the team
-  std::vector<std::vector<SelfImpact>> impact_parts_;  // per thread: point-triangle, edge-edge
-  std::vector<std::vector<SelfContact>> contact_parts_; // per thread: proximity contacts
-  Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
-  Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
-  std::int64_t self_searches_ = 0;       // candidate searches since the stepper was made
-  std::vector<Vec3> edge_lo_, edge_hi_;
-  std::vector<Vec3> node_lo_, node_hi_;             // m, the hierarchy's boxes
-  std::vector<std::array<Index, 2>> node_pairs_;    // the traversal's stack
-  std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
+  // Collisions: per-sub-step contacts with the colliders, and self-collision.
+  SelfCollision self_;
   std::vector<Contact> contacts_;
-  std::vector<SelfContact> self_contacts_;
   ContactSummary contact_summary_;
-  SpatialHash hash_;
-  std::vector<Vec3> box_lo_, box_hi_;
   std::vector<Real> margin_;  // m, per group
   std::vector<std::uint32_t> stamps_;
   std::uint32_t stamp_ = 0;

@@ -178,7 +178,9 @@ void bind_implicit(py::module_& m) {
         return py::array_t<double>(static_cast<py::ssize_t>(h.size()), h.data());
       }, "N, the last step's largest residual component before each Newton step and at the end")
       .def_property_readonly("max_residual", &BackwardEulerStepper::max_residual, "N, over all steps so far")
-      .def_property_readonly("total_iterations", &BackwardEulerStepper::total_iterations, "Newton iterations, all steps");
+      .def_property_readonly("total_iterations", &BackwardEulerStepper::total_iterations, "Newton iterations, all steps")
+      .def_property_readonly("self_collision", [](const BackwardEulerStepper& s) { return self_collision_dict(s.self_collision()); },
+           "what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches and tests since the model was first stepped");
 }
 
 }  // namespace csb::python

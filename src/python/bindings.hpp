@@ -262,6 +262,21 @@ inline py::dict violation_dict(const Violation& v) {
   return d;
 }
 
+// What self-collision did in an implicit method's last sub-step (the keys of PbdStepper.contacts()'
+// self_* entries, without the prefix).
+inline py::dict self_collision_dict(const SelfCollisionCounts& c) {
+  py::dict d;
+  d["contacts"] = c.contacts;
+  d["continuous"] = c.continuous;
+  d["failsafe"] = c.failsafe;
+  d["unresolved"] = c.unresolved;
+  d["skipped"] = c.skipped;
+  d["candidates"] = c.candidates;
+  d["searches"] = c.searches;
+  d["tests"] = c.tests;
+  return d;
+}
+
 inline py::array vec3_array(const Vec3& v) {
   py::array_t<double> a(3);
   for (int k = 0; k < 3; ++k) a.mutable_at(k) = v[k];

@@ -47,13 +47,77 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
     contact_summary_.max_depth =
         std::max(contact_summary_.max_depth, k.thickness - (p_.col(k.particle) - k.point).dot(k.normal));
   contact_summary_.count = static_cast<Index>(contacts_.size());
-  if (!self_groups_.empty()) generate_self_contacts(model, x, h);
+  if (!self_.empty()) {
+    const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+    self_.set_threads(threads_used_, [this](int threads, const std::function<void(int)>& job) {
+      team_.get().run(threads, spin_, job);
+    });
+    self_.begin(model, x, p_, w, settings_.substeps, h, true);
+    report_self_collision();
+  }
+}
+
+// The self-collision's counts in the contact summary.
+void PbdStepper::report_self_collision() {
+  const SelfCollisionCounts& c = self_.counts();
+  contact_summary_.self_count = c.contacts;
+  contact_summary_.self_continuous = c.continuous;
+  contact_summary_.self_failsafe = c.failsafe;
+  contact_summary_.self_unresolved = c.unresolved;
+  contact_summary_.self_searches = c.searches;
+  contact_summary_.self_candidates = c.candidates;
+  contact_summary_.self_tests = c.tests;
+  contact_summary_.self_skipped = c.skipped;
+}
+
+// After the sweeps and friction: self-collision's continuous test, responses and fail-safe
+// (collision/self_collision.cpp), the last word on p.
+void PbdStepper::resolve_self_collisions(const Model& model, const Positions& x, Real h) {
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  self_.resolve(model, x, p_, w, settings_.substeps, h);
+  report_self_collision();
+}
+
+// After the velocity update: self-contacts are inelastic (16), see SelfCollision::settle_velocities;
+// the Verlet front end's velocity is (x - x_prev)/h, changed through x_prev.
+void PbdStepper::settle_self_contact_velocities(const Model& model, State& state, Real h) {
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  if (settings_.front_end == FrontEnd::Verlet)
+    self_.settle_velocities(
+        state.x, w, [&](Index i) { return Vec3((state.x.col(i) - x_prev_.col(i)) / h); },
+        [&](Index i, const Vec3& dv) { x_prev_.col(i) -= h * dv; });
+  else
+    self_.settle_velocities(
+        state.x, w, [&](Index i) { return Vec3(state.v.col(i)); }, [&](Index i, const Vec3& dv) { state.v.col(i) += dv; });
+}
+
+// The self-contacts' projections in one sweep (self_contact_step, collision/self_collision.cpp),
+// Gauss-Seidel on p or, with Jacobi, from the sweep's start into the averaged moves.
+void PbdStepper::project_self_contacts(const Model& model, bool jacobi) {
+  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+  const Real* from = jacobi ? p_start_.data() : p_.data();
+  const Real* relax = jacobi && !relax_.empty() ? relax_.data() : nullptr;  // XPBD, averaged Jacobi
+  for (SelfContact& k : self_.contacts()) {
+    Vec3 step;
+    if (!self_contact_step(k, from, w, relaxation(relax, k.particles), step)) continue;
+    k.pushed = true;
+    for (int e = 0; e < 4; ++e) {
+      const Index i = k.particles[e];
+      const Vec3 dp = (w[i] * k.weights[e]) * step;
+      if (jacobi) {
+        delta_.col(i) += dp;
+        count_[i] += 1;
+      } else {
+        p_.col(i) += dp;
+      }
+    }
+  }
 }
 
 // The contacts' projections in one sweep, after the other constraints so that non-penetration
 // has the last word in Gauss-Seidel: self-contacts, then collider contacts. Each is hard
 // (stiffness 1, Müller 2007 §4.3; XPBD with α = 0).
-// Self-contacts: project_self_contacts (self_contacts.cpp).
+// Self-contacts: project_self_contacts (above).
 // Collider contact: C = (p - q)·n - r, ∇C = n, Δp = -C n (PBD, Jakobsen); XPBD tracks the
 // multiplier, Δλ = -C/w, clamped to λ >= 0 (a contact only pushes), Δp = w Δλ n.
 void PbdStepper::project_contacts(const Model& model, bool jacobi) {
@@ -68,7 +132,7 @@ void PbdStepper::project_contacts(const Model& model, bool jacobi) {
       p_.col(i) += dp;
     }
   };
-  if (!self_contacts_.empty()) project_self_contacts(model, jacobi);
+  if (!self_.contacts().empty()) project_self_contacts(model, jacobi);
   const bool xpbd = settings_.method == Method::Xpbd;
   for (Contact& k : contacts_) {
     const Index i = k.particle;
@@ -174,7 +238,7 @@ void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
     worst = std::max(worst, k.thickness - (state.x.col(k.particle) - k.point).dot(k.normal));
     contact_summary_.active += k.normal_correction > 0;
   }
-  worst = std::max(worst, self_penetration(state.x));
+  worst = std::max(worst, self_.penetration(state.x));
   contact_summary_.max_penetration = worst;
 }
 

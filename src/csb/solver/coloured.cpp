@@ -220,7 +220,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   Real* o = Jacobi ? delta : p;
   const Real* x = x_start.data();
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
-  const bool contacts = !contacts_.empty() || !self_contacts_.empty();
+  const bool contacts = !contacts_.empty() || !self_.contacts().empty();
   bool families = false;  // constraint families: projected after the coloured batches, on one thread
   for (const auto& f : model.families) families = families || f->size() > 0;
   const bool tail = model.balloons.size() > 0 || contacts || families;

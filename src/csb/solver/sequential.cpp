@@ -54,7 +54,7 @@ void PbdStepper::project_sequential(const Model& model, const Positions& x_start
         break;
     }
     project_families(model, w, from, jacobi ? delta : p, count, x_start.data(), relax);
-    if (!contacts_.empty() || !self_contacts_.empty()) project_contacts(model, jacobi);
+    if (!contacts_.empty() || !self_.contacts().empty()) project_contacts(model, jacobi);
     if (jacobi) {
       // Averaged Jacobi moves each particle by the mean of the corrections it received (XPBD: by
       // the sum of its relaxed ones); summed Jacobi by their sum, which overshoots where
@@ -117,7 +117,7 @@ void PbdStepper::set_relaxation(const Model& model) {
   else
     jacobi_counts(model, relax_);
   for (const Contact& k : contacts_) relax_[k.particle] += 1;
-  for (const SelfContact& k : self_contacts_)
+  for (const SelfContact& k : self_.contacts())
     for (Index i : k.particles) relax_[i] += 1;
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
   for (Index i = 0; i < model.num_particles(); ++i) relax_[i] = w[i] > 0 && relax_[i] > 0 ? 1 / relax_[i] : 1;

@@ -69,9 +69,9 @@ std::int64_t PbdStepper::projections_per_step(const Model& model) const {
 //     project, `iterations` sweeps (9)-(11)              project (solver/sequential.cpp, solver/coloured.cpp)
 //     check finite                 -                     fail_non_finite (step/checks.cpp)
 //     friction                     (16), on p            apply_friction (collision/contacts.cpp)
-//     continuous self-collision    -                     resolve_self_collisions (collision/self_contacts.cpp)
+//     continuous self-collision    -                     resolve_self_collisions (collision/contacts.cpp)
 //     velocities and positions     (12)-(15)             commit (step/integrate.cpp)
-//     inelastic self-contacts      (16)                  settle_self_contact_velocities (collision/self_contacts.cpp)
+//     inelastic self-contacts      (16)                  settle_self_contact_velocities (collision/contacts.cpp)
 //     restitution                  (16)                  apply_restitution (collision/contacts.cpp)
 //   end of a step                  -                     end_step: time, hands, divergence guard
 //
@@ -109,10 +109,10 @@ void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
   project(model, state.x);                                                  // (9)-(11)
   if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
   if (!contacts_.empty()) apply_friction(model, state.x);                   // (16), on p
-  if (!self_groups_.empty()) resolve_self_collisions(model, state.x, h);   // the last word on p
+  if (!self_.empty()) resolve_self_collisions(model, state.x, h);          // the last word on p
   commit(state, h, 0, model.num_particles());                               // (12)-(15)
-  if (!self_contacts_.empty()) settle_self_contact_velocities(model, state, h);  // (16), inelastic
-  if (!contacts_.empty() || !self_contacts_.empty()) apply_restitution(model, state, h);  // (16)
+  if (!self_.contacts().empty()) settle_self_contact_velocities(model, state, h);  // (16), inelastic
+  if (!contacts_.empty() || !self_.contacts().empty()) apply_restitution(model, state, h);  // (16)
 }
 
 // Sub-steps first .. first + count - 1 of a step, one at a time (each checked for finiteness),
@@ -204,7 +204,7 @@ bool PbdStepper::begin_steps(const Model& model, State& state) {
   // all sub-steps of a step in one fork of the team; otherwise the sub-steps run here, the team
   // forked for each projection.
   return settings_.ordering == Ordering::Coloured && grabs_.empty() && model.colliders.empty() && collider_motion_.empty() &&
-         self_groups_.empty() && (verlet || settings_.damping <= 0);
+         self_.empty() && (verlet || settings_.damping <= 0);
 }
 
 // The end of a step: its count and time, the hands' starting points for the next, the

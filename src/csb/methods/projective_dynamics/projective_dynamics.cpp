@@ -378,8 +378,8 @@ void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int6
     stats_.factorization_time += stats_.last_factorization_time;
     ++stats_.factorizations;
   }
-  run_implicit_steps(state, steps, settings_.substeps, settings_.dt, interrupt,
-                     [&](int sub) { solve_one(model, state, h, sub); });
+  run_implicit_steps(model, state, steps, settings_.substeps, settings_.dt, interrupt,
+                     [&](int sub) { solve_one(model, state, h, sub); }, &self_collision_);
 }
 
 namespace {

@@ -39,7 +39,8 @@
 // contact's plane is moved onto it, and one inside an analytic collider that no contact foresaw
 // (dragged there by its neighbours) out to its surface, so the constant matrix stays factored;
 // friction and restitution follow the step (PenaltyContacts::finish_projected). Hard constraints (α = 0: no
-// finite weight) and self-collision are refused, as BackwardEulerStepper does.
+// finite weight) are refused, as BackwardEulerStepper does; self-collision is the layer after each
+// sub-step's solve (ImplicitSelfCollision, implicit_euler.hpp).
 //
 // Chebyshev (Wang 2015, Eq. 11-12 and his Algorithm 1 for PD with a direct global solve): with
 // q̂ the plain iteration's result from q⁽ᵏ⁾,
@@ -65,6 +66,7 @@
 #pragma once
 
 #include "csb/collision/penalty.hpp"
+#include "csb/implicit_euler.hpp"
 
 #include "csb/integrator.hpp"
 #include "csb/solver/team.hpp"
@@ -114,14 +116,15 @@ class ProjectiveDynamicsStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const ProjectiveDynamicsSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
-  // InvalidArgument for a model PD cannot step (hard constraints, self-collision, nothing that
-  // moves) or a state of another size or not finite; SimulationError
+  // InvalidArgument for a model PD cannot step (hard constraints, nothing that moves) or a state of another size or not finite; SimulationError
   // naming the step when a position becomes non-finite, the state left at the end of the last
   // completed step. One thread at a time (use_guard.hpp).
   void step(const Model& model, State& state, std::int64_t steps = 1,
             const std::function<bool()>& interrupt = {}) override;
 
   const ProjectiveDynamicsStats& stats() const { return stats_; }
+  // What self-collision did in the last sub-step (ImplicitSelfCollision).
+  const SelfCollisionCounts& self_collision() const { return self_collision_.counts(); }
 
  private:
   struct Cache;  // the terms, L's factorisation and the gather CSR of one model and sub-step length
@@ -133,6 +136,7 @@ class ProjectiveDynamicsStepper final : public Integrator {
   UseGuard use_;
   ProjectiveDynamicsStats stats_;
   PenaltyContacts contacts_;  // the sub-step's contacts with the colliders
+  ImplicitSelfCollision self_collision_;
 };
 
 }  // namespace csb

@@ -317,6 +317,7 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
   }
 
   const Real h = settings_.dt / settings_.substeps;
+  const bool self = self_collision_.active(model);
   for (std::int64_t s = 0; s < steps; ++s) {
     if (s > 0 && interrupt && interrupt())
       throw Interrupted("interrupted after " + std::to_string(s) + " of " + std::to_string(steps) +
@@ -324,7 +325,11 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
     plan.rollback.x = state.x;  // the same size each step: no allocation
     plan.rollback.v = state.v;
     try {
-      for (int sub = 0; sub < settings_.substeps; ++sub) substep(model, state, plan, h);
+      for (int sub = 0; sub < settings_.substeps; ++sub) {
+        if (self) self_collision_.before(state, sub);
+        substep(model, state, plan, h);
+        if (self) self_collision_.after(model, state, settings_.substeps, h);
+      }
     } catch (...) {
       state.x = plan.rollback.x;
       state.v = plan.rollback.v;

@@ -50,7 +50,8 @@
 // velocity. Contacts with the colliders are the implicit methods' penalty (collision/penalty.hpp),
 // generated once per sub-step from xⁿ towards x̃: each adds (k/2) min(C, 0)² to its vertex's block,
 // k n nᵀ to its Hessian while active (the paper's penalty contact), with friction and restitution
-// after the sub-step. Self-collision is refused.
+// after the sub-step. Self-collision is the layer after each sub-step's solve
+// (ImplicitSelfCollision, implicit_euler.hpp).
 #pragma once
 
 #include "csb/collision/penalty.hpp"
@@ -96,7 +97,7 @@ class VbdStepper final : public Integrator {
   Real dt() const override { return settings_.dt; }
   const VbdSettings& settings() const { return settings_; }
   const UseGuard& use_guard() const { return use_; }
-  // Throws InvalidArgument for a hard constraint, self-collision, a particle in two
+  // Throws InvalidArgument for a hard constraint, a particle in two
   // balloons, states of the wrong size or non-finite; SimulationError naming the step and the
   // particle when a position becomes non-finite (the state left at the end of the last step).
   void step(const Model& model, State& state, std::int64_t steps = 1,
@@ -107,6 +108,8 @@ class VbdStepper final : public Integrator {
   Residual last_residual(const Model& model) const;
   int threads_used() const { return threads_used_; }
   Index num_colours() const;  // of the last model stepped (0 before a step)
+  // What self-collision did in the last sub-step (ImplicitSelfCollision).
+  const SelfCollisionCounts& self_collision() const { return self_collision_.counts(); }
 
   struct Plan;  // per model: colouring, each particle's constraints, scratch (vbd.cpp)
 
@@ -119,6 +122,7 @@ class VbdStepper final : public Integrator {
   UseGuard use_;
   int threads_used_ = 1;
   bool spin_ = false;  // the team's threads may spin at the barriers (free cores for each)
+  ImplicitSelfCollision self_collision_;
 };
 
 }  // namespace csb

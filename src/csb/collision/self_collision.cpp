@@ -21,15 +21,17 @@
 // sub-step, visibly, which is why the responses come first. The guarantee is the one of the
 // pairs: a particle touching a triangle it belongs to, or two edges with a common end, are not
 // tested (they meet only by a triangle collapsing).
-#include "csb/pbd.hpp"
+#include "csb/collision/self_collision.hpp"
+
 #include "csb/collision/collision.hpp"
-#include "csb/step/internal.hpp"
+#include "csb/format.hpp"
 
 #include <algorithm>
+#include <limits>
 
 namespace csb {
 
-using namespace stepper_detail;
+using detail::str;
 
 namespace {
 
@@ -45,20 +47,6 @@ constexpr Real kSeparation = 0.1;
 
 inline bool boxes_overlap(const Vec3& lo_a, const Vec3& hi_a, const Vec3& lo_b, const Vec3& hi_b) {
   return !((lo_a.array() > hi_b.array()).any() || (hi_a.array() < lo_b.array()).any());
-}
-
-// The normal n of contact k at positions y0..y3 (as SelfContact says); false if it has none there
-// (a collapsed triangle).
-bool contact_normal(const SelfContact& k, const Vec3& y1, const Vec3& y2, const Vec3& y3, Vec3& n) {
-  if (k.continuous) {
-    n = k.normal;
-    return true;
-  }
-  n = (y2 - y1).cross(y3 - y1);
-  const Real len = n.norm();
-  if (!(len > 0)) return false;
-  n *= k.side / len;
-  return true;
 }
 
 // Σ_k c_k y_k: the separation d of contact k's particles at positions y (m).
@@ -83,20 +71,160 @@ Real approach_speed(const SelfContact& k, const Vec3& n, const Positions& x, con
 
 }  // namespace
 
+void SelfCollision::prepare(const Model& model) {
+  // The triangles and edges of each self-colliding group, their owners and their hierarchy; hash
+  // cells, for the group's particles in no triangle, of about
+  // a feature's widened box, 1.5 times the mean edge plus twice the thickness (Teschner et al.
+  // 2003 find a cell near the mean primitive size best).
+  groups_.clear();
+  contacts_.clear();
+  counts_ = {};
+  const Index n = model.num_particles();
+  std::size_t most_triangles = 0;
+  for (Index g = 0; g < model.num_groups(); ++g) {
+    const Real h_self = model.self_collision_thickness[g];
+    if (!(h_self > 0)) continue;
+    Group sg;
+    sg.group = g;
+    sg.thickness = h_self;
+    Real edges = 0;
+    Vec3 lo = Vec3::Constant(std::numeric_limits<Real>::infinity()), hi = -lo;
+    for (Index t = 0; t < static_cast<Index>(model.triangles.size()); ++t) {
+      const Triangle& tri = model.triangles[t];
+      if (model.group[tri[0]] != g) continue;
+      sg.triangles.push_back(t);
+      for (int e = 0; e < 3; ++e) {
+        edges += (model.rest_positions.col(tri[e]) - model.rest_positions.col(tri[(e + 1) % 3])).norm();
+        lo = lo.cwiseMin(model.rest_positions.col(tri[e]));
+        hi = hi.cwiseMax(model.rest_positions.col(tri[e]));
+      }
+    }
+    // A layer thicker than the cloth is wide puts every triangle near every particle: the broad
+    // phase's work would grow as their product each sub-step. Refused by name.
+    if (!sg.triangles.empty() && h_self > (hi - lo).norm())
+      throw InvalidArgument("the self-collision thickness " + str(h_self) + " m of group '" + model.group_names[g] +
+                            "' exceeds the size of its cloth (" + str((hi - lo).norm()) +
+                            " m, its rest bounding-box diagonal): give a thickness of the order of the cloth's "
+                            "thickness, well under its edges");
+    sg.size = (hi - lo).norm();
+    sg.cell = 1.5 * (edges / (3.0 * std::max<std::size_t>(sg.triangles.size(), 1)) + 2 * h_self);
+    for (const Index t : sg.triangles)
+      for (int e = 0; e < 3; ++e) {
+        const Index a = model.triangles[t][e], b = model.triangles[t][(e + 1) % 3];
+        sg.edges.push_back({std::min(a, b), std::max(a, b)});
+      }
+    std::sort(sg.edges.begin(), sg.edges.end());
+    sg.edges.erase(std::unique(sg.edges.begin(), sg.edges.end()), sg.edges.end());
+    // Owners (the first triangle holding a particle or an edge), for the candidate search.
+    {
+      const Index T = static_cast<Index>(sg.triangles.size());
+      std::vector<Index> particle_owner(n, -1), edge_owner(sg.edges.size(), -1);
+      for (Index t = 0; t < T; ++t)
+        for (int e = 0; e < 3; ++e) {
+          const Index a = model.triangles[sg.triangles[t]][e], b = model.triangles[sg.triangles[t]][(e + 1) % 3];
+          if (particle_owner[a] < 0) particle_owner[a] = t;
+          const std::array<Index, 2> key{std::min(a, b), std::max(a, b)};
+          const auto k = std::lower_bound(sg.edges.begin(), sg.edges.end(), key) - sg.edges.begin();
+          if (edge_owner[k] < 0) edge_owner[k] = t;
+        }
+      sg.owned_particle_start.assign(T + 1, 0);
+      sg.owned_edge_start.assign(T + 1, 0);
+      for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+        const Index i = model.group_particles[o];
+        if (particle_owner[i] >= 0)
+          ++sg.owned_particle_start[particle_owner[i] + 1];
+        else
+          sg.loose.push_back(i);
+      }
+      for (const Index t : edge_owner) ++sg.owned_edge_start[t + 1];
+      for (Index t = 0; t < T; ++t) {
+        sg.owned_particle_start[t + 1] += sg.owned_particle_start[t];
+        sg.owned_edge_start[t + 1] += sg.owned_edge_start[t];
+      }
+      sg.owned_particles.resize(sg.owned_particle_start[T]);
+      sg.owned_edges.resize(sg.owned_edge_start[T]);
+      std::vector<Index> at(sg.owned_particle_start.begin(), sg.owned_particle_start.end() - 1);
+      for (Index o = model.group_offsets[g]; o < model.group_offsets[g + 1]; ++o) {
+        const Index i = model.group_particles[o];
+        if (particle_owner[i] >= 0) sg.owned_particles[at[particle_owner[i]]++] = i;
+      }
+      at.assign(sg.owned_edge_start.begin(), sg.owned_edge_start.end() - 1);
+      for (Index k = 0; k < static_cast<Index>(edge_owner.size()); ++k) sg.owned_edges[at[edge_owner[k]]++] = k;
+      // The hierarchy: the triangles split at the median of their rest centroids along the
+      // longest side of their box, recursively (ties by index: the same tree on every run).
+      std::vector<Vec3> centroid(T);
+      for (Index t = 0; t < T; ++t) {
+        const Triangle& tri = model.triangles[sg.triangles[t]];
+        centroid[t] = (model.rest_positions.col(tri[0]) + model.rest_positions.col(tri[1]) +
+                       model.rest_positions.col(tri[2])) / 3;
+      }
+      std::vector<Index> order(T);
+      for (Index t = 0; t < T; ++t) order[t] = t;
+      sg.bvh_child.clear();
+      sg.bvh_size.clear();
+      const auto build = [&](auto&& self, Index begin, Index end) -> Index {
+        const Index node = static_cast<Index>(sg.bvh_child.size());
+        sg.bvh_child.push_back({-1 - order[begin], -1});
+        sg.bvh_size.push_back(end - begin);
+        if (end - begin == 1) return node;
+        Vec3 lo = centroid[order[begin]], hi = lo;
+        for (Index k = begin; k < end; ++k) lo = lo.cwiseMin(centroid[order[k]]), hi = hi.cwiseMax(centroid[order[k]]);
+        int axis;
+        (hi - lo).maxCoeff(&axis);
+        const Index mid = begin + (end - begin) / 2;
+        std::nth_element(order.begin() + begin, order.begin() + mid, order.begin() + end, [&](Index u, Index v) {
+          return centroid[u][axis] < centroid[v][axis] || (centroid[u][axis] == centroid[v][axis] && u < v);
+        });
+        const Index left = self(self, begin, mid);
+        const Index right = self(self, mid, end);
+        sg.bvh_child[node] = {left, right};
+        return node;
+      };
+      if (T > 0) build(build, 0, T);
+    }
+    most_triangles = std::max({most_triangles, sg.triangles.size(), sg.edges.size()});
+    groups_.push_back(std::move(sg));
+  }
+  stamps_.assign(most_triangles, 0);
+  stamp_ = 0;
+  stopped_.assign(n, 0);
+}
+
+void SelfCollision::set_threads(int threads, Fork fork) {
+  threads_ = threads;
+  fork_ = std::move(fork);
+}
+
+std::size_t SelfCollision::bytes() const {
+  const auto b = [](const auto& v) { return v.capacity() * sizeof(typename std::decay_t<decltype(v)>::value_type); };
+  const auto positions = [](const Positions& m) { return static_cast<std::size_t>(m.size()) * sizeof(Real); };
+  std::size_t s = 0;
+  for (const Group& g : groups_)
+    s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
+         b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size);
+  s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
+       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + positions(particle_lo_) + positions(particle_hi_) +
+       positions(sweep_lo_) + positions(sweep_hi_);
+  for (const auto& v : impact_parts_) s += b(v);
+  for (const auto& v : contact_parts_) s += b(v);
+  return s;
+}
+
 // Runs chunk(t, T) for t = 0 .. T - 1 on the stepper's team, T its threads when the work (n
-// pairs) is large enough to pay for a fork, else 1; impact_parts_ and contact_parts_ are sized
+// pairs) is large enough to pay for a fork, else 1; impact_parts_, contact_parts_ and tests_parts_ are sized
 // for T. Chunk t takes the t-th of T equal runs of each list and writes only its own part; the
 // caller joins the parts in t's order, so the result is the same for any T. Returns T.
 template <class F>
-int PbdStepper::in_chunks(std::size_t n, F&& chunk) {
-  const int T = threads_used_ > 1 && n >= kParallelPairs ? threads_used_ : 1;
+int SelfCollision::in_chunks(std::size_t n, F&& chunk) {
+  const int T = threads_ > 1 && fork_ && n >= kParallelPairs ? threads_ : 1;
   if (impact_parts_.size() < 2 * static_cast<std::size_t>(T)) impact_parts_.resize(2 * T);
   if (contact_parts_.size() < static_cast<std::size_t>(T)) contact_parts_.resize(T);
+  if (tests_parts_.size() < static_cast<std::size_t>(T)) tests_parts_.resize(T);
   const auto job = [&](int t) { chunk(t, T); };
   if (T == 1)
     job(0);
   else
-    team_.get().run(T, spin_, job);
+    fork_(T, job);
   return T;
 }
 
@@ -116,14 +244,14 @@ int PbdStepper::in_chunks(std::size_t n, F&& chunk) {
 // (66 % of a 1,600-particle cape's step at 10 sub-steps); widened by 1.5 h rather than 2 h, the
 // boxes overlap less and the cape's step took 7.0-7.7 ms instead of 9.2-11 (2 sub-steps of 5
 // iterations, three alternating runs).
-void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Positions& x) {
-  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
+void SelfCollision::find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p,
+                                    const Real* w, int substeps) {
   const Real pad = 1.5 * g.thickness;
-  const Real ahead = static_cast<Real>(settings_.substeps);
+  const Real ahead = static_cast<Real>(substeps);
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
-    const Vec3 xi = x.col(i), pi = p_.col(i);
+    const Vec3 xi = x.col(i), pi = p.col(i);
     // The look-ahead only while it stays within the cloth's size (a fast particle searches again).
     Vec3 end = xi + ahead * (pi - xi);
     if (!((end - xi).cwiseAbs().maxCoeff() <= g.size)) end = pi;
@@ -141,7 +269,7 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
     lo = inf, hi = -inf;
     return false;
   };
-  unite_self_boxes(model, g, particle_lo_, particle_hi_);
+  unite_boxes(model, g, particle_lo_, particle_hi_);
   g.skipped = 0;
   for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(box_lo_[t], box_hi_[t]);
   for (std::size_t e = 0; e < g.edges.size(); ++e) keep(edge_lo_[e], edge_hi_[e]);
@@ -228,17 +356,17 @@ void PbdStepper::find_self_candidates(const Model& model, SelfGroup& g, const Po
     });
   }
   g.searched = true;
-  ++self_searches_;
+  ++counts_.searches;
 }
 
 // Whether the candidates of group g hold for the positions x and p_ now (see above).
-bool PbdStepper::self_candidates_hold(const Model& model, const SelfGroup& g, const Positions& x) const {
+bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const {
   const Real h = g.thickness;
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
     if (!((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= g.size + 3 * h)) continue;  // left out
     const Vec3 lo = particle_lo_.col(i).array() + h, hi = particle_hi_.col(i).array() - h;
-    const Vec3 xi = x.col(i), pi = p_.col(i);
+    const Vec3 xi = x.col(i), pi = p.col(i);
     if ((xi.array() < lo.array()).any() || (xi.array() > hi.array()).any() || (pi.array() < lo.array()).any() ||
         (pi.array() > hi.array()).any())
       return false;
@@ -246,20 +374,20 @@ bool PbdStepper::self_candidates_hold(const Model& model, const SelfGroup& g, co
   return true;
 }
 
-// The features' swept boxes over x -> p_ (triangles in box_lo_/box_hi_, edges in edge_lo_/edge_hi_,
+// The features' swept boxes over x -> p (triangles in box_lo_/box_hi_, edges in edge_lo_/edge_hi_,
 // particles in sweep_lo_/sweep_hi_), widened by `pad` (m).
-void PbdStepper::sweep_self_boxes(const Model& model, const SelfGroup& g, const Positions& x, Real pad) {
+void SelfCollision::sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad) {
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
-    sweep_lo_.col(i) = x.col(i).cwiseMin(p_.col(i)).array() - pad;
-    sweep_hi_.col(i) = x.col(i).cwiseMax(p_.col(i)).array() + pad;
+    sweep_lo_.col(i) = x.col(i).cwiseMin(p.col(i)).array() - pad;
+    sweep_hi_.col(i) = x.col(i).cwiseMax(p.col(i)).array() + pad;
   }
-  unite_self_boxes(model, g, sweep_lo_, sweep_hi_);
+  unite_boxes(model, g, sweep_lo_, sweep_hi_);
 }
 
 // Each triangle's and edge's box (box_lo_/box_hi_, edge_lo_/edge_hi_) as the union of its
 // particles' boxes [lo, hi].
-void PbdStepper::unite_self_boxes(const Model& model, const SelfGroup& g, const Positions& lo, const Positions& hi) {
+void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi) {
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   const auto unite = [&](const auto& ids, Vec3& l, Vec3& u) {
     l = inf, u = -inf;
@@ -288,16 +416,18 @@ void PbdStepper::unite_self_boxes(const Model& model, const SelfGroup& g, const 
 // triangle's plane on its side (or beyond it) and within h of the triangle sideways. (Edge–edge
 // proximity contacts, tried too, only added energy to the soft drape's whip, 10 E0 against 4 E0,
 // and cost a fifth more: edges are kept from crossing by the continuous test alone.)
-void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, Real h) {
-  self_contacts_.clear();
-  contact_summary_.self_continuous = 0;
-  contact_summary_.self_failsafe = contact_summary_.self_unresolved = 0;
-  if (particle_lo_.cols() != p_.cols())
-    for (Positions* m : {&particle_lo_, &particle_hi_, &sweep_lo_, &sweep_hi_}) m->resize(3, p_.cols());
-  for (SelfGroup& g : self_groups_) {
+void SelfCollision::begin(const Model& model, const Positions& x, const Positions& p, const Real* w, int substeps,
+                          Real h, bool proximity) {
+  contacts_.clear();
+  counts_.continuous = counts_.failsafe = counts_.unresolved = 0;
+  if (particle_lo_.cols() != p.cols())
+    for (Positions* m : {&particle_lo_, &particle_hi_, &sweep_lo_, &sweep_hi_}) m->resize(3, p.cols());
+  if (stopped_.size() != static_cast<std::size_t>(p.cols())) stopped_.assign(p.cols(), 0);
+  for (Group& g : groups_) {
     const Real hs = g.thickness;
-    if (!g.searched || !self_candidates_hold(model, g, x)) find_self_candidates(model, g, x);
-    sweep_self_boxes(model, g, x, hs);  // a pair within 2h at the prediction: its widened boxes overlap
+    if (!g.searched || !candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
+    if (!proximity) continue;
+    sweep_boxes(model, g, x, p, hs);  // a pair within 2h at the prediction: its widened boxes overlap
     const int parts = in_chunks(g.pt.size(), [&](int part, int parts_count) {
       auto& out = contact_parts_[part];
       out.clear();
@@ -305,11 +435,11 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
         const auto [q, t] = g.pt[k];
         if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
         const Triangle& tri = model.triangles[g.triangles[t]];
-        const Vec3 xq = x.col(q), pq = p_.col(q);
+        const Vec3 xq = x.col(q), pq = p.col(q);
         const Vec3 x1 = x.col(tri[0]);
         Vec3 n0 = (x.col(tri[1]) - x1).cross(x.col(tri[2]) - x1);
-        const Vec3 p1 = p_.col(tri[0]);
-        Vec3 np = (p_.col(tri[1]) - p1).cross(p_.col(tri[2]) - p1);
+        const Vec3 p1 = p.col(tri[0]);
+        Vec3 np = (p.col(tri[1]) - p1).cross(p.col(tri[2]) - p1);
         const Real l0 = n0.norm(), lp = np.norm();
         if (!(l0 > 0) || !(lp > 0)) continue;  // a collapsed triangle has no side
         n0 /= l0;
@@ -319,65 +449,78 @@ void PbdStepper::generate_self_contacts(const Model& model, const Positions& x, 
         const Real side = d0 >= 0 ? 1 : -1;
         if (side * (pq - p1).dot(np) >= 2 * hs) continue;
         Vec3 b;
-        const Vec3 c = closest_point_on_triangle(pq, p1, p_.col(tri[1]), p_.col(tri[2]), &b);
+        const Vec3 c = closest_point_on_triangle(pq, p1, p.col(tri[1]), p.col(tri[2]), &b);
         const Vec3 off = pq - c;
         if ((off - off.dot(np) * np).norm() > hs) continue;
         out.push_back({PairKind::PointTriangle, false, {q, tri[0], tri[1], tri[2]}, {1, -b[0], -b[1], -b[2]}, np, side,
                        std::min(hs, side * d0)});
-        out.back().approach = approach_speed(out.back(), side * np, x, p_, h);
+        out.back().approach = approach_speed(out.back(), side * np, x, p, h);
       }
     });
     for (int part = 0; part < parts; ++part)
-      self_contacts_.insert(self_contacts_.end(), contact_parts_[part].begin(), contact_parts_[part].end());
+      contacts_.insert(contacts_.end(), contact_parts_[part].begin(), contact_parts_[part].end());
   }
-  contact_summary_.self_count = static_cast<Index>(self_contacts_.size());
-  contact_summary_.self_searches = self_searches_;
-  contact_summary_.self_skipped = 0;
-  for (const SelfGroup& g : self_groups_) contact_summary_.self_skipped += g.skipped;
+  counts_.contacts = static_cast<Index>(contacts_.size());
+  counts_.skipped = 0;
+  counts_.candidates = 0;
+  for (const Group& g : groups_) {
+    counts_.skipped += g.skipped;
+    counts_.candidates += static_cast<std::int64_t>(g.pt.size() + g.ee.size());
+  }
 }
 
-// The self-contacts' projections in one sweep (with the other contacts, after the constraints).
-// C = d·n - thickness with n as SelfContact says; its gradient is taken with n and the weights c
-// fixed, ∇_k C = c_k n, so the correction is (Bridson, Fedkiw, Anderson 2002, §7.1)
-//   Δp_k = -C w_k c_k n / Σ_j c_j² w_j.
-void PbdStepper::project_self_contacts(const Model& model, bool jacobi) {
-  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
-  const Real* from = jacobi ? p_start_.data() : p_.data();
-  const Real* relax = jacobi && !relax_.empty() ? relax_.data() : nullptr;  // XPBD, averaged Jacobi
-  for (SelfContact& k : self_contacts_) {
-    const auto& id = k.particles;
-    const auto& c = k.weights;
-    const Eigen::Map<const Vec3> p0(from + 3 * id[0]), p1(from + 3 * id[1]), p2(from + 3 * id[2]), p3(from + 3 * id[3]);
-    Vec3 n;
-    if (!contact_normal(k, p1, p2, p3, n)) continue;
-    const Real C = (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3).dot(n) - k.thickness;
-    if (C >= 0) continue;
-    const Real denom = contact_inverse_mass(k, w);
-    if (!(denom > 0)) continue;
-    const Vec3 step = (-C * relaxation(relax, id) / denom) * n;
+// The self-contacts' projection (with the other contacts in a position-based stepper's sweep, after
+// the constraints; and in resolve's passes). C = d·n - thickness with n as SelfContact says; its
+// gradient is taken with n and the weights c fixed, ∇_k C = c_k n, so the correction is (Bridson,
+// Fedkiw, Anderson 2002, §7.1)
+//   Δp_k = -C w_k c_k n / Σ_j c_j² w_j,
+// times `scale` (a relaxation; 1 changes no bit).
+bool self_contact_step(const SelfContact& k, const Real* y, const Real* w, Real scale, Vec3& s) {
+  const auto& id = k.particles;
+  const auto& c = k.weights;
+  const Eigen::Map<const Vec3> p0(y + 3 * id[0]), p1(y + 3 * id[1]), p2(y + 3 * id[2]), p3(y + 3 * id[3]);
+  Vec3 n;
+  if (!self_contact_normal(k, p1, p2, p3, n)) return false;
+  const Real C = (c[0] * p0 + c[1] * p1 + c[2] * p2 + c[3] * p3).dot(n) - k.thickness;
+  if (C >= 0) return false;
+  const Real denom = contact_inverse_mass(k, w);
+  if (!(denom > 0)) return false;
+  s = (-C * scale / denom) * n;
+  return true;
+}
+
+bool self_contact_normal(const SelfContact& k, const Vec3& y1, const Vec3& y2, const Vec3& y3, Vec3& n) {
+  if (k.continuous) {
+    n = k.normal;
+    return true;
+  }
+  n = (y2 - y1).cross(y3 - y1);
+  const Real len = n.norm();
+  if (!(len > 0)) return false;
+  n *= k.side / len;
+  return true;
+}
+
+// One Gauss-Seidel pass over the contacts, in their order, on p.
+void SelfCollision::project(Positions& p, const Real* w) {
+  for (SelfContact& k : contacts_) {
+    Vec3 s;
+    if (!self_contact_step(k, p.data(), w, 1, s)) continue;
     k.pushed = true;
-    for (int e = 0; e < 4; ++e) {
-      const Vec3 dp = (w[id[e]] * c[e]) * step;
-      if (jacobi) {
-        delta_.col(id[e]) += dp;
-        count_[id[e]] += 1;
-      } else {
-        p_.col(id[e]) += dp;
-      }
-    }
+    for (int e = 0; e < 4; ++e) p.col(k.particles[e]) += (w[k.particles[e]] * k.weights[e]) * s;
   }
 }
 
 // The pairs of group g whose distance falls to kSeparation of its start along x -> p (additive
 // CCD), in the candidates' order, into impacts_. A pair whose swept boxes do not overlap cannot
 // meet and is skipped before the test.
-void PbdStepper::find_self_impacts(const Model& model, const SelfGroup& g, const Positions& x) {
+void SelfCollision::find_impacts(const Model& model, const Group& g, const Positions& x, const Positions& p) {
   impacts_.clear();
-  sweep_self_boxes(model, g, x, 0);
-  const auto test = [&](PairKind kind, const std::array<Index, 4>& id, std::vector<SelfImpact>& out) {
+  sweep_boxes(model, g, x, p, 0);
+  const auto test = [&](PairKind kind, const std::array<Index, 4>& id, std::vector<Found>& out) {
     std::array<Vec3, 4> x0, dx;
-    for (int k = 0; k < 4; ++k) x0[k] = x.col(id[k]), dx[k] = p_.col(id[k]) - x.col(id[k]);
-    const Impact hit = additive_ccd(kind, x0, dx, kSeparation, 0);
+    for (int k = 0; k < 4; ++k) x0[k] = x.col(id[k]), dx[k] = p.col(id[k]) - x.col(id[k]);
+    const csb::Impact hit = additive_ccd(kind, x0, dx, kSeparation, 0);
     if (hit.hit) out.push_back({kind, id, hit.toi});
   };
   const int parts = in_chunks(g.pt.size() + g.ee.size(), [&](int t, int T) {
@@ -385,39 +528,42 @@ void PbdStepper::find_self_impacts(const Model& model, const SelfGroup& g, const
     auto& ee_out = impact_parts_[2 * t + 1];
     pt_out.clear();
     ee_out.clear();
+    std::int64_t tests = 0;
     for (std::size_t k = g.pt.size() * t / T; k < g.pt.size() * (t + 1) / T; ++k) {
       const auto [q, tri_index] = g.pt[k];
       if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[tri_index], box_hi_[tri_index])) continue;
       const Triangle& tri = model.triangles[g.triangles[tri_index]];
       test(PairKind::PointTriangle, {q, tri[0], tri[1], tri[2]}, pt_out);
+      ++tests;
     }
     for (std::size_t k = g.ee.size() * t / T; k < g.ee.size() * (t + 1) / T; ++k) {
       const auto [a, b] = g.ee[k];
       if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) continue;
       test(PairKind::EdgeEdge, {g.edges[a][0], g.edges[a][1], g.edges[b][0], g.edges[b][1]}, ee_out);
+      ++tests;
     }
+    tests_parts_[t] = tests;
   });
   // In the candidates' order whatever the number of threads: point-triangle, then edge-edge.
   for (int kind = 0; kind < 2; ++kind)
     for (int t = 0; t < parts; ++t) impacts_.insert(impacts_.end(), impact_parts_[2 * t + kind].begin(), impact_parts_[2 * t + kind].end());
+  for (int t = 0; t < parts; ++t) counts_.tests += tests_parts_[t];
 }
 
 // After the sweeps: the continuous test, up to kResponseRounds rounds of continuous contacts
 // (each impact a contact along the pair's direction at the time of impact, kept at least at
 // min(h, its start distance); then kResponsePasses Gauss-Seidel passes over all self-contacts),
 // then the fail-safe for what is left (see the top of this file).
-void PbdStepper::resolve_self_collisions(const Model& model, const Positions& x, Real h) {
-  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
-  if (stopped_.size() != static_cast<std::size_t>(model.num_particles())) stopped_.assign(model.num_particles(), 0);
-  for (SelfGroup& g : self_groups_) {
+void SelfCollision::resolve(const Model& model, const Positions& x, Positions& p, const Real* w, int substeps, Real h) {
+  for (Group& g : groups_) {
     for (int round = 0;; ++round) {
-      if (!self_candidates_hold(model, g, x)) find_self_candidates(model, g, x);
-      find_self_impacts(model, g, x);
+      if (!candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
+      find_impacts(model, g, x, p);
       if (impacts_.empty()) break;
       if (round == kResponseRounds) break;
-      for (const SelfImpact& m : impacts_) {
+      for (const Found& m : impacts_) {
         std::array<Vec3, 4> at;  // the pair at the time of impact
-        for (int k = 0; k < 4; ++k) at[k] = x.col(m.particles[k]) + m.toi * (p_.col(m.particles[k]) - x.col(m.particles[k]));
+        for (int k = 0; k < 4; ++k) at[k] = x.col(m.particles[k]) + m.toi * (p.col(m.particles[k]) - x.col(m.particles[k]));
         std::array<Real, 4> c;
         if (m.kind == PairKind::PointTriangle) {
           Vec3 b;
@@ -435,44 +581,44 @@ void PbdStepper::resolve_self_collisions(const Model& model, const Positions& x,
         const Real len = d_at.norm();
         const Vec3 n = len > 0 ? Vec3(d_at / len) : Vec3(d_start.normalized());
         if (!n.allFinite()) continue;  // the features coincide at both times: no direction to push
-        self_contacts_.push_back({m.kind, true, m.particles, c, n, 1, std::min(g.thickness, std::sqrt(pair_distance2(m.kind, x0)))});
-        self_contacts_.back().approach = approach_speed(self_contacts_.back(), n, x, p_, h);
-        ++contact_summary_.self_continuous;
+        contacts_.push_back({m.kind, true, m.particles, c, n, 1, std::min(g.thickness, std::sqrt(pair_distance2(m.kind, x0)))});
+        contacts_.back().approach = approach_speed(contacts_.back(), n, x, p, h);
+        ++counts_.continuous;
       }
-      for (int pass = 0; pass < kResponsePasses; ++pass) project_self_contacts(model, false);
+      for (int pass = 0; pass < kResponsePasses; ++pass) project(p, w);
     }
     if (impacts_.empty()) continue;
     // The fail-safe: stop the free particles of every pair still found, until none is.
     std::vector<Index> stopped;
     while (!impacts_.empty()) {
       Index newly = 0;
-      for (const SelfImpact& m : impacts_)
+      for (const Found& m : impacts_)
         for (const Index i : m.particles)
           if (w[i] > 0 && !stopped_[i]) {
-            p_.col(i) = x.col(i);
+            p.col(i) = x.col(i);
             stopped_[i] = 1;
             stopped.push_back(i);
             ++newly;
           }
       if (newly == 0) {
-        contact_summary_.self_unresolved += static_cast<Index>(impacts_.size());
+        counts_.unresolved += static_cast<Index>(impacts_.size());
         break;
       }
-      contact_summary_.self_failsafe += newly;
-      find_self_impacts(model, g, x);  // p = x stays inside the swept boxes: the candidates hold
+      counts_.failsafe += newly;
+      find_impacts(model, g, x, p);  // p = x stays inside the swept boxes: the candidates hold
     }
     for (const Index i : stopped) stopped_[i] = 0;
   }
-  contact_summary_.self_count = static_cast<Index>(self_contacts_.size());
+  counts_.contacts = static_cast<Index>(contacts_.size());
 }
 
 // The deepest violation left by the self-contacts at x (m), for the contact summary.
-Real PbdStepper::self_penetration(const Positions& x) const {
+Real SelfCollision::penetration(const Positions& x) const {
   Real worst = 0;
-  for (const SelfContact& k : self_contacts_) {
+  for (const SelfContact& k : contacts_) {
     const auto& id = k.particles;
     Vec3 n;
-    if (!contact_normal(k, x.col(id[1]), x.col(id[2]), x.col(id[3]), n)) continue;
+    if (!self_contact_normal(k, x.col(id[1]), x.col(id[2]), x.col(id[3]), n)) continue;
     worst = std::max(worst, k.thickness - separation(k, [&](Index i) { return Vec3(x.col(i)); }).dot(n));
   }
   return worst;
@@ -487,16 +633,14 @@ Real PbdStepper::self_penetration(const Positions& x) const {
 // motion the contact was made from, v_n is brought down to max(a, 0) if above it: the pair leaves
 // no faster than it was separating before the contact acted. The change is an impulse along n
 // shared by the weights, Δv_k = w_k c_k Δ / Σ_j c_j² w_j, one pass in the contacts' order.
-void PbdStepper::settle_self_contact_velocities(const Model& model, State& state, Real h) {
-  const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();
-  const bool verlet = settings_.front_end == FrontEnd::Verlet;
-  const auto velocity = [&](Index i) { return verlet ? Vec3((state.x.col(i) - x_prev_.col(i)) / h) : Vec3(state.v.col(i)); };
-  for (const SelfContact& k : self_contacts_) {
+void SelfCollision::settle_velocities(const Positions& x_end, const Real* w, const std::function<Vec3(Index)>& velocity,
+                                      const std::function<void(Index, const Vec3&)>& add_velocity) const {
+  for (const SelfContact& k : contacts_) {
     if (!k.pushed) continue;
     const auto& id = k.particles;
     const auto& c = k.weights;
     Vec3 n;
-    if (!contact_normal(k, state.x.col(id[1]), state.x.col(id[2]), state.x.col(id[3]), n)) continue;
+    if (!self_contact_normal(k, x_end.col(id[1]), x_end.col(id[2]), x_end.col(id[3]), n)) continue;
     Real vn = 0;
     for (int e = 0; e < 4; ++e) vn += c[e] * velocity(id[e]).dot(n);
     const Real target = std::max(k.approach, Real(0));
@@ -504,13 +648,7 @@ void PbdStepper::settle_self_contact_velocities(const Model& model, State& state
     const Real denom = contact_inverse_mass(k, w);
     if (!(denom > 0)) continue;
     const Vec3 impulse = ((target - vn) / denom) * n;
-    for (int e = 0; e < 4; ++e) {
-      const Vec3 dv = (w[id[e]] * c[e]) * impulse;
-      if (verlet)
-        x_prev_.col(id[e]) -= h * dv;
-      else
-        state.v.col(id[e]) += dv;
-    }
+    for (int e = 0; e < 4; ++e) add_velocity(id[e], (w[id[e]] * c[e]) * impulse);
   }
 }
 

@@ -1,0 +1,161 @@
+// csb — cloth self-collision as a layer any stepper can run on its sub-step's motion x -> p:
+// the candidate pairs of each self-colliding group, point–triangle proximity contacts at the
+// prediction (the position-based steppers project them in their sweeps), and after the stepper's
+// solve the continuous test, responses, fail-safe and inelastic velocities that leave the
+// sub-step's end without a new intersection (self_collision.cpp says exactly what is claimed).
+// The position-based steppers (pbd, xpbd, jakobsen) run all of it; the implicit methods
+// (backward Euler, projective dynamics, VBD) run the continuous part on their solve's result, the
+// collision-processing layer of Bridson, Fedkiw and Anderson (2002) over any internal dynamics.
+#pragma once
+
+#include "csb/collision/ccd.hpp"
+#include "csb/collision/spatial_hash.hpp"
+#include "csb/model.hpp"
+#include "csb/types.hpp"
+
+#include <array>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+namespace csb {
+
+// A self-contact of a cloth (Müller 2007 §4.4; continuous contacts after Bridson, Fedkiw,
+// Anderson 2002): two features of its own group, a point and a triangle or two edges, kept apart
+// along a normal. The separation is d = Σ_k c_k p_k over the four particles (point–triangle: q,
+// t0, t1, t2 with c = (1, -b0, -b1, -b2), b the barycentric coordinates of q's nearest point;
+// edge–edge: a0, a1, b0, b1 with c = (1 - u, u, -(1 - v), -v) at the closest points' parameters),
+// and the inequality C = d·n - thickness >= 0 with n:
+//  - a proximity contact (point–triangle, made at the start of the sub-step): the triangle's
+//    current unit normal times `side`, the side q was on at the start of the sub-step;
+//  - a continuous contact (found by the continuous test after the sweeps): `normal`, fixed, d's
+//    direction at the time of impact.
+struct SelfContact {
+  PairKind kind = PairKind::PointTriangle;
+  bool continuous = false;
+  std::array<Index, 4> particles{};
+  std::array<Real, 4> weights{};    // c
+  Vec3 normal = Vec3::UnitY();      // unit
+  Real side = 1;                    // proximity: ±1 along the triangle's normal
+  Real thickness = 0;               // m: the group's, or the pair's distance at the start of the sub-step if less
+  Real approach = 0;                // m/s, d's normal speed in the motion x -> p when made (< 0: approaching)
+  bool pushed = false;              // the contact moved its particles this sub-step
+};
+
+// The normal n of contact k with its triangle at y1, y2, y3 (as SelfContact says); false if it has
+// none there (a collapsed triangle).
+bool self_contact_normal(const SelfContact& k, const Vec3& y1, const Vec3& y2, const Vec3& y3, Vec3& n);
+
+// Contact k's projection at positions y (3 x n, column-major) with inverse masses w: the step s
+// along the normal such that Δp_k = w_k c_k s (Bridson, Fedkiw, Anderson 2002, §7.1), times
+// `scale` (a relaxation); false if the contact holds or cannot move.
+bool self_contact_step(const SelfContact& k, const Real* y, const Real* w, Real scale, Vec3& s);
+
+// What self-collision did in the last sub-step, and since it was prepared.
+struct SelfCollisionCounts {
+  Index contacts = 0;             // self-contacts: proximity point-triangle, and continuous
+  Index continuous = 0;           // of which found by the continuous test
+  Index failsafe = 0;             // particles the fail-safe stopped (p = x) this sub-step
+  Index unresolved = 0;           // impacts the fail-safe could not stop (only prescribed particles moved)
+  Index skipped = 0;              // triangles left out: spread over more than the cloth's size in a step
+  std::int64_t candidates = 0;    // point-triangle and edge-edge candidate pairs now kept
+  std::int64_t searches = 0;      // candidate-pair searches since prepared
+  std::int64_t tests = 0;         // continuous tests (additive CCD) run since prepared
+};
+
+class SelfCollision {
+ public:
+  // Runs job(t) for t = 0 .. threads - 1, in parallel: the stepper's thread team.
+  using Fork = std::function<void(int threads, const std::function<void(int)>& job)>;
+
+  // The groups of the model with a self-collision thickness > 0: their triangles, edges, owners and
+  // hierarchies. InvalidArgument for a thickness larger than its cloth.
+  void prepare(const Model& model);
+  bool empty() const { return groups_.empty(); }
+  // The next begin() finds the candidate pairs afresh instead of keeping them while they hold.
+  void forget_candidates() {
+    for (Group& g : groups_) g.searched = false;
+  }
+  // The threads the per-sub-step tests may use (1: the caller's); the results do not depend on it.
+  void set_threads(int threads, Fork fork);
+
+  // The start of a sub-step of h seconds, one of `substeps` in a step, with the motion x -> p (the
+  // prediction) and inverse masses w: the candidate pairs kept or found again, the contacts
+  // cleared, and with `proximity` the point–triangle proximity contacts made.
+  void begin(const Model& model, const Positions& x, const Positions& p, const Real* w, int substeps, Real h,
+             bool proximity);
+  // After the stepper's solve: the continuous test along x -> p, responses and fail-safe, which
+  // move p (see self_collision.cpp).
+  void resolve(const Model& model, const Positions& x, Positions& p, const Real* w, int substeps, Real h);
+  // After the velocity update: the contacts that pushed take away their pair's approach but do not
+  // make it separate. velocity(i) gives particle i's velocity, add_velocity(i, dv) changes it.
+  void settle_velocities(const Positions& x_end, const Real* w, const std::function<Vec3(Index)>& velocity,
+                         const std::function<void(Index, const Vec3&)>& add_velocity) const;
+  // The deepest violation left by the contacts at x (m).
+  Real penetration(const Positions& x) const;
+
+  std::vector<SelfContact>& contacts() { return contacts_; }
+  const std::vector<SelfContact>& contacts() const { return contacts_; }
+  const SelfCollisionCounts& counts() const { return counts_; }
+  std::size_t bytes() const;  // the workspace held, for memory reports
+
+ private:
+  struct Group {
+    Index group = 0;
+    Real thickness = 0;                  // h, m
+    Real cell = 1;                       // m, hash cell edge
+    std::vector<Index> triangles;        // into model.triangles
+    std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
+    // The candidate pairs (find_candidates): point-triangle (particle, triangle index into
+    // `triangles`) and edge-edge (indices into `edges`, first < second).
+    std::vector<std::array<Index, 2>> pt, ee;
+    bool searched = false;               // pt and ee were found for this model
+    Real size = 0;                       // m, the group's rest bounding-box diagonal
+    Index skipped = 0;                   // triangles left out of the last search (beyond `size`)
+    // Owners: each particle and edge belongs to the first triangle (in `triangles`) holding it;
+    // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
+    std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;
+    // The triangles' bounding-volume hierarchy, built once from the rest shape: per node its two
+    // children (a leaf: {-1 - triangle, -1}), children after their parent; and its triangles' count.
+    std::vector<std::array<Index, 2>> bvh_child;
+    std::vector<Index> bvh_size;
+  };
+  struct Found {
+    PairKind kind;
+    std::array<Index, 4> particles;
+    Real toi;
+  };
+
+  void find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w,
+                       int substeps);
+  bool candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const;
+  void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
+  void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi);
+  void find_impacts(const Model& model, const Group& g, const Positions& x, const Positions& p);
+  void project(Positions& p, const Real* w);
+  template <class F>
+  int in_chunks(std::size_t n, F&& chunk);
+
+  static constexpr std::size_t kParallelPairs = 8192;  // candidate pairs worth a fork of the team
+  std::vector<Group> groups_;
+  std::vector<SelfContact> contacts_;
+  SelfCollisionCounts counts_;
+  int threads_ = 1;
+  Fork fork_;
+  std::vector<Found> impacts_;
+  std::vector<std::vector<Found>> impact_parts_;        // per thread: point-triangle, edge-edge
+  std::vector<std::vector<SelfContact>> contact_parts_;  // per thread: proximity contacts
+  std::vector<std::int64_t> tests_parts_;                // per thread: continuous tests run
+  Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
+  Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
+  std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
+  std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
+  std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes
+  std::vector<std::array<Index, 2>> node_pairs_;  // the traversal's stack
+  std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
+  SpatialHash hash_;                     // triangles, for the particles in no triangle
+  std::vector<std::uint32_t> stamps_;    // per triangle: queried for the current particle
+  std::uint32_t stamp_ = 0;
+};
+
+}  // namespace csb
