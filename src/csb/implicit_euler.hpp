@@ -42,7 +42,8 @@
 //
 // Both forms take the contacts with colliders as a penalty in E (collision/penalty.hpp: the
 // position-based pipeline's contacts, (k/2) min(C, 0)² each, k = κ m/h²), with friction and
-// restitution after the step; self-collision is refused.
+// restitution after the step; self-collision is the layer after each sub-step's solve
+// (ImplicitSelfCollision, below).
 #pragma once
 
 #include "csb/collision/penalty.hpp"

@@ -12,8 +12,8 @@ void bind_projective(py::module_& m) {
       "minimises backward Euler's incremental potential with every constraint's potential made projective, by "
       "`iterations` local projections and global solves with a matrix factored once per model and sub-step length. "
       "Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, "
-      "balloons and tethers. Holds contacts with colliders by projection after each global solve; refuses hard "
-      "constraints and self-collision.")
+      "balloons and tethers. Holds contacts with colliders by projection after each global solve and runs "
+      "self-collision as a layer after each sub-step's solve; refuses hard constraints.")
       .def(py::init([](double dt, IntArg substeps, IntArg iterations, py::handle gravity, bool chebyshev,
                        double spectral_radius, IntArg chebyshev_delay, double relaxation, IntArg threads,
                        bool record_residuals) {

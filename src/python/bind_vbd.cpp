@@ -9,7 +9,7 @@ void bind_vbd(py::module_& m) {
       "Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024): each sub-step minimises the backward Euler step's "
       "incremental potential over every compliant constraint by `iterations` sweeps of per-vertex Newton steps, "
       "colour by colour (a colour's vertices share no constraint and update in parallel). Reads compliance; "
-      "takes contacts with colliders as a penalty; refuses hard constraints and self-collision.")
+      "takes contacts with colliders as a penalty and self-collision as a layer after each sub-step's solve; refuses hard constraints.")
       .def(py::init([](double dt, IntArg substeps, IntArg iterations, py::handle gravity,
                        const std::string& initialization, double acceleration, IntArg threads,
                        double contact_stiffness) {

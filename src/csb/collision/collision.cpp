@@ -398,7 +398,7 @@ Vec3 blend(const Positions& v, const Triangle& t, const Vec3& w) {
 }
 
 // The separation the continuous test keeps: an impact is the distance falling to this fraction
-// of the start's (self-collision's choice, self_contacts.cpp).
+// of the start's (self-collision's choice, self_collision.cpp).
 constexpr Real kDeformingSeparation = 0.1;
 
 }  // namespace

@@ -3,7 +3,8 @@
 // replaced by a projective one, solved by local projections and a prefactored global solve. It
 // reads each constraint's compliance (exactly a spring's potential for distance constraints and
 // attachments, to first order for bending, volumes, balloons and the families), holds contacts with
-// the colliders by projection, and refuses hard constraints and self-collision.
+// the colliders by projection, runs self-collision as the layer after each sub-step's solve, and
+// refuses hard constraints.
 #include "csb/methods/projective_dynamics/projective_dynamics.hpp"
 #include "csb/methods/registry.hpp"
 

@@ -1,7 +1,8 @@
 // csb — Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024; csb/methods/vbd/vbd.hpp): block
 // coordinate descent, vertex by vertex and colour by colour, on the backward Euler step's
 // incremental potential. It reads each constraint's compliance as the potential C²/(2α), takes
-// contacts with the colliders as a penalty, and refuses hard constraints and self-collision.
+// contacts with the colliders as a penalty, runs self-collision as the layer after each
+// sub-step's solve, and refuses hard constraints.
 #include "csb/methods/registry.hpp"
 #include "csb/methods/vbd/vbd.hpp"
 
