@@ -19,6 +19,17 @@ that models constraints as springs refuses those of compliance 0; some refuse co
 switched to: the overlay says why, the method stays and ``m`` goes on past it; a method that
 diverges pauses the viewer with its error. Grabbing with the mouse works with the
 position-based methods only.
+
+Moving colliders move in the viewer and in :func:`render` as in ``csb run``: before every step
+each collider with a motion (its keyframes, or ``Simulation.collider_motion``) goes to its pose at
+the step's end, the scene's particles attached to a collider are attached to each stepper the
+viewer makes (the first, and on a reset or a method switch), and every frame draws each collider
+at the pose the stepper reports (``PbdStepper.collider_pose``, ``Viewer.collider_poses()``). A
+method that is not position-based does not move colliders: they stay, and are drawn, as
+declared. The stepper a method switch makes has the colliders at their declared poses: part-way
+through a moving scene they go back to their motion within its first step, and particles
+attached to them jump by the collider's displacement (0.4 m in cape_wave after 1 s); switch
+methods after a reset (``r``). The camera frames the scene as declared.
 """
 
 from __future__ import annotations
@@ -26,7 +37,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Union
+from typing import Any, Callable, Union
 
 from . import _core
 from .scene import Scene, Simulation, load_scene
@@ -107,6 +118,9 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
             options.setdefault("iterations", getattr(own, "iterations", solver.iterations))
         v = _core.Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
                          gravity=sim.gravity, **options)
+    before_step = _scene_motion(sim)
+    if before_step is not None:
+        v.set_before_step(before_step)
     if method is not None:
         try:
             v.method = method
@@ -122,6 +136,49 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
             raise _core.ParameterError(f"camera zoom must be > 0, got {camera.zoom}")
         v.camera.distance *= camera.zoom
     return v
+
+
+def _scene_motion(sim: Simulation) -> Callable[..., None] | None:
+    """What the viewer calls before each step for a scene whose colliders move (keyframes,
+    ``Simulation.collider_motion``), deform, or carry attached particles: as
+    :meth:`Simulation.step` does, every moving collider goes to its pose at the step's end
+    (t + dt) and every deforming one to its vertices then, and a stepper the viewer has just made
+    (the first, or one of a reset or a method switch) gets the scene's attachments.
+    The renderer then draws each collider at the stepper's pose (``Viewer.collider_poses()``). A
+    method that is not position-based does not move colliders: they stay, and are drawn, as
+    declared. None for a scene with neither."""
+    motions = sim._motions()
+    # A Simulation whose mesh colliders deform (PbdStepper.deform_collider) lists them as
+    # _deformations(), (index, f(t) -> (V, 3) vertices in m), beside its motions.
+    deformations = getattr(sim, "_deformations", lambda: [])()
+    attached: dict[int, list[int]] = {}
+    if isinstance(sim.stepper, _core.PbdStepper):
+        for a in sim.stepper.attachments:
+            attached.setdefault(a["collider"], []).append(a["particle"])
+    if not motions and not deformations and not attached:
+        return None
+    names = {i: n for n, i in sim.colliders.items()}
+
+    def before_step(stepper: _core.Integrator, model: _core.Model, state: _core.State, fresh: bool) -> None:
+        if not isinstance(stepper, _core.PbdStepper):
+            return
+        if fresh:
+            for collider, particles in attached.items():
+                stepper.attach(model, state, collider, particles)
+        t = state.t + stepper.dt()  # s, the step's end
+        for index, pose in motions:
+            try:
+                R, tr = pose(t)
+                stepper.move_collider(model, index, R, tr)
+            except _core.ParameterError as e:
+                raise _core.ParameterError(f"collider '{names[index]}' at t = {t:.6g} s: {e}") from None
+        for index, vertices in deformations:
+            try:
+                stepper.deform_collider(model, index, vertices(t))
+            except _core.ParameterError as e:
+                raise _core.ParameterError(f"collider '{names[index]}' at t = {t:.6g} s: {e}") from None
+
+    return before_step
 
 
 def view(scene: SceneLike, *, frames: int = 0, **options: Any) -> int:

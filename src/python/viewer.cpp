@@ -10,6 +10,7 @@
 #include "viewer/viewer.hpp"
 
 #include <pybind11/eigen.h>
+#include <pybind11/functional.h>
 #include <pybind11/numpy.h>
 #include <pybind11/stl.h>
 
@@ -167,6 +168,24 @@ void bind_viewer(py::module_& m) {
         return v.frame();
       }, "One frame: events, the simulation's advance (unless paused), drawing. False once the window closed.")
       .def("redraw", &Viewer::redraw, "Draws the current state again without stepping.")
+      .def("set_before_step", [](Viewer& v, std::optional<Viewer::BeforeStep> f) { v.set_before_step(f ? *f : nullptr); },
+           py::arg("before_step"),
+           "before_step(stepper, model, state, fresh), called before every step (None: nothing): where a scene "
+           "moves its colliders (stepper.move_collider to their poses at the step's end, state.t + dt) and attaches "
+           "particles to them when `fresh` (the first step of the first stepper, or of one a reset or the method "
+           "switch made). An exception it raises passes through frame(), run() and capture().")
+      .def("collider_poses", [](const Viewer& v) {
+        py::list out;
+        for (const csb::viewer::ColliderFrame& f : v.collider_frames()) {
+          py::array_t<double> r({py::ssize_t(3), py::ssize_t(3)});
+          for (int i = 0; i < 3; ++i)
+            for (int j = 0; j < 3; ++j) r.mutable_at(i, j) = f.pose.rotation(i, j);
+          out.append(py::make_tuple(r, f.pose.translation));
+        }
+        return out;
+      }, "(rotation, translation in m) of every collider as frames draw it now: the stepper's pose at the end of "
+         "its last step (PbdStepper.collider_pose), the identity (as declared) for a method that does not move "
+         "colliders.")
       .def_property_readonly("closed", &Viewer::closed, "The window was asked to close, or close() was called.")
       .def("close", &Viewer::close, "Releases the window (or offscreen context) now; frame() then returns False.")
       .def("__enter__", [](Viewer& v) -> Viewer& { return v; }, py::return_value_policy::reference)

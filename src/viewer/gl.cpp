@@ -146,6 +146,13 @@ void Mesh::draw(GLenum mode) const {
   glBindVertexArray(0);
 }
 
+void Mesh::draw_range(GLenum mode, std::size_t first, std::size_t count) const {
+  if (!vao_ || count == 0 || first + count > vertices_) return;
+  glBindVertexArray(vao_);
+  glDrawArrays(mode, static_cast<GLint>(first), static_cast<GLsizei>(count));
+  glBindVertexArray(0);
+}
+
 RenderTarget::~RenderTarget() { release(); }
 
 void RenderTarget::release() {

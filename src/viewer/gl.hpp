@@ -46,6 +46,8 @@ class Mesh {
   void share(int k, const Mesh& source, int source_k, int components);
   void indices(const unsigned* data, std::size_t count, GLenum usage = GL_STATIC_DRAW);
   void draw(GLenum mode) const;  // indexed if indices were given, else all vertices
+  // Vertices [first, first + count) without indices (one collider of the colliders' soup).
+  void draw_range(GLenum mode, std::size_t first, std::size_t count) const;
   std::size_t vertices() const { return vertices_; }
   std::size_t index_count() const { return index_count_; }
 

@@ -85,6 +85,13 @@ void basis(const Vec3& n, Vec3& u, Vec3& w) {
   w = n.cross(u);
 }
 
+// A triangle mesh, flat-shaded: 3 vertices a triangle, in the triangles' order (so that a
+// deforming mesh collider's range of the soup is rewritten in place from new positions).
+void add_mesh(Soup& s, const Positions& x, const std::vector<Triangle>& triangles) {
+  for (const Triangle& t : triangles) s.triangle(x.col(t[0]), x.col(t[1]), x.col(t[2]));
+}
+
+// Every collider in its own frame (the model's, as declared).
 void add_collider(Soup& s, const Collider& c) {
   switch (c.kind) {
     case ColliderKind::Plane:
@@ -138,8 +145,7 @@ void add_collider(Soup& s, const Collider& c) {
       break;
     }
     case ColliderKind::Mesh:
-      for (const Triangle& t : c.mesh->triangles)
-        s.triangle(c.mesh->vertices.col(t[0]), c.mesh->vertices.col(t[1]), c.mesh->vertices.col(t[2]));
+      add_mesh(s, c.mesh->vertices, c.mesh->triangles);
       break;
   }
 }
@@ -171,6 +177,11 @@ struct Renderer::Geometry {
   Program points{"points.vert", "points.frag"};
   Mesh cloth, wire, chain, dots, colliders, grid;
   std::vector<float> position, normal, color, dot_color;
+  // The colliders' soup (model frame) and each collider's vertices in it: [first, first + count).
+  std::vector<float> collider_position, collider_normal;
+  std::vector<float> scratch_position, scratch_normal;  // the soup with deforming meshes rewritten
+  std::vector<std::size_t> collider_first, collider_count;
+  bool collider_deformed = false;  // the soup on the GPU holds a deforming mesh's positions
   std::vector<Triangle> triangles;
   std::vector<char> in_triangle;
   std::vector<unsigned> chain_edges;
@@ -237,7 +248,13 @@ void Renderer::set_model(const Model& model) {
   hi_ = -lo_;
   for (Index i = 0; i < n; ++i) extend(lo_, hi_, model.rest_positions.col(i));
   Soup soup;
-  for (const Collider& c : model.colliders) add_collider(soup, c);
+  g.collider_first.clear();
+  g.collider_count.clear();
+  for (const Collider& c : model.colliders) {
+    g.collider_first.push_back(soup.position.size() / 3);
+    add_collider(soup, c);
+    g.collider_count.push_back(soup.position.size() / 3 - g.collider_first.back());
+  }
   for (std::size_t k = 0; k + 2 < soup.position.size(); k += 3)
     extend(lo_, hi_, Vec3(soup.position[k], soup.position[k + 1], soup.position[k + 2]));
   if (!(lo_.array() <= hi_.array()).all()) lo_ = hi_ = Vec3::Zero();  // nothing at all
@@ -248,6 +265,9 @@ void Renderer::set_model(const Model& model) {
   if (std::isfinite(floor)) lo_.y() = floor;
   g.colliders.attribute(0, 3, soup.position.data(), soup.position.size() / 3, GL_STATIC_DRAW);
   g.colliders.attribute(1, 3, soup.normal.data(), soup.normal.size() / 3, GL_STATIC_DRAW);
+  g.collider_position = std::move(soup.position);
+  g.collider_normal = std::move(soup.normal);
+  g.collider_deformed = false;
   g.colliders.attribute(2, 3, soup.color.data(), soup.color.size() / 3, GL_STATIC_DRAW);
 
   // Grids: one on every plane collider; with none facing up, a ground grid just below the model.
@@ -293,8 +313,20 @@ void Renderer::set_model(const Model& model) {
   g.grid.attribute(1, 4, grid_color.data(), grid_color.size() / 4, GL_STATIC_DRAW);
 }
 
+namespace {
+
+// A rigid pose as a column-major 4 x 4 matrix for glUniformMatrix4fv.
+Eigen::Matrix4f pose_matrix(const ColliderPose& pose) {
+  Eigen::Matrix4f m = Eigen::Matrix4f::Identity();
+  m.topLeftCorner<3, 3>() = pose.rotation.cast<float>();
+  m.topRightCorner<3, 1>() = pose.translation.cast<float>();
+  return m;
+}
+
+}  // namespace
+
 void Renderer::draw(const Model& model, const State& state, const Camera& camera, const DrawOptions& options,
-                    const std::vector<Index>& held) {
+                    const std::vector<Index>& held, const std::vector<ColliderFrame>& colliders) {
   Geometry& g = *g_;
   const Index n = model.num_particles();
   const Eigen::Matrix4f vp = camera.view_projection().cast<float>();
@@ -317,6 +349,8 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
   g.cloth.attribute(0, 3, g.position.data(), n);
 
   g.surface.use();
+  const Eigen::Matrix4f identity = Eigen::Matrix4f::Identity();
+  glUniformMatrix4fv(g.surface.uniform("model"), 1, GL_FALSE, identity.data());
   glUniformMatrix4fv(g.surface.uniform("view"), 1, GL_FALSE, view.data());
   glUniformMatrix4fv(g.surface.uniform("view_projection"), 1, GL_FALSE, vp.data());
   if (!g.triangles.empty()) {
@@ -332,7 +366,37 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
   if (options.colliders && g.colliders.vertices()) {
     glUniform3f(g.surface.uniform("back_tint"), 1.0f, 1.0f, 1.0f);
     glUniform1f(g.surface.uniform("specular"), 0.05f);
-    g.colliders.draw(GL_TRIANGLES);
+    // A deforming mesh collider's range of the soup is rewritten from its vertices (model
+    // frame); once none deforms, the soup as declared goes back up.
+    bool deformed = false;
+    for (std::size_t i = 0; i < colliders.size() && i < g.collider_first.size(); ++i) {
+      const Collider& c = model.colliders[i];
+      const Positions& x = colliders[i].vertices;
+      if (x.cols() == 0 || c.kind != ColliderKind::Mesh || x.cols() != c.mesh->vertices.cols()) continue;
+      if (!deformed) {
+        g.scratch_position = g.collider_position;
+        g.scratch_normal = g.collider_normal;
+        deformed = true;
+      }
+      Soup part;
+      add_mesh(part, x, c.mesh->triangles);
+      const std::size_t first = 3 * g.collider_first[i];
+      std::copy(part.position.begin(), part.position.end(), g.scratch_position.begin() + first);
+      std::copy(part.normal.begin(), part.normal.end(), g.scratch_normal.begin() + first);
+    }
+    if (deformed || g.collider_deformed) {
+      const std::vector<float>& p = deformed ? g.scratch_position : g.collider_position;
+      const std::vector<float>& nn = deformed ? g.scratch_normal : g.collider_normal;
+      g.colliders.attribute(0, 3, p.data(), p.size() / 3);
+      g.colliders.attribute(1, 3, nn.data(), nn.size() / 3);
+      g.collider_deformed = deformed;
+    }
+    for (std::size_t i = 0; i < g.collider_first.size(); ++i) {
+      const Eigen::Matrix4f m = i < colliders.size() ? pose_matrix(colliders[i].pose) : identity;
+      glUniformMatrix4fv(g.surface.uniform("model"), 1, GL_FALSE, m.data());
+      g.colliders.draw_range(GL_TRIANGLES, g.collider_first[i], g.collider_count[i]);
+    }
+    glUniformMatrix4fv(g.surface.uniform("model"), 1, GL_FALSE, identity.data());
   }
 
   g.lines.use();

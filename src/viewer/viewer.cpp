@@ -403,6 +403,11 @@ void Viewer::advance(int steps) {
   for (int s = 0; s < steps; ++s) {
     const double t0 = now();
     try {
+      if (before_step_) {
+        const bool fresh = fresh_stepper_;
+        fresh_stepper_ = false;
+        before_step_(stepper_.get(), model_.get(), &state_, fresh);
+      }
       stepper_->step(*model_, state_, 1);
     } catch (const SimulationError& e) {
       paused_ = true;
@@ -458,6 +463,7 @@ void Viewer::reset() {
       stepper_ = make_stepper(*method_, unused, note);
     }
   }
+  fresh_stepper_ = true;  // made afresh above, or the one given going on from the reset state
   stats_.steps = 0;
   message_.clear();
   if (!released_) {
@@ -502,6 +508,7 @@ std::shared_ptr<Integrator> Viewer::make_stepper(const MethodInfo& info, PbdSett
 
 void Viewer::use_stepper(std::shared_ptr<Integrator> stepper, const MethodInfo* info, const PbdSettings& settings) {
   stepper_ = std::move(stepper);
+  fresh_stepper_ = true;
   method_ = info;
   pbd_ = dynamic_cast<PbdStepper*>(stepper_.get());
   if (pbd_) settings_ = settings;
@@ -688,12 +695,21 @@ void Viewer::draw() {
   c.target->bind();
   std::vector<Index> held;
   if (held_particle_ >= 0) held.push_back(held_particle_);
-  c.renderer->draw(*model_, state_, camera_, draw_, held);
+  c.renderer->draw(*model_, state_, camera_, draw_, held, collider_frames());
   if (options_.overlay) draw_overlay();
   c.target->resolve();
   if (c.window) c.target->blit_to_window(w, h);
   stats_.last_draw_ms = 1e3 * (now() - t0);
   smooth(stats_.draw_ms, stats_.last_draw_ms, stats_.frames + 1);
+}
+
+std::vector<ColliderFrame> Viewer::collider_frames() const {
+  std::vector<ColliderFrame> frames(model_->colliders.size());
+  // The poses the state's positions saw. A deforming mesh collider's frame takes its vertices
+  // at the end of the last step (model frame) in `vertices`; the renderer applies the pose.
+  if (pbd_)
+    for (std::size_t i = 0; i < frames.size(); ++i) frames[i].pose = pbd_->collider_pose(static_cast<Index>(i));
+  return frames;
 }
 
 void Viewer::draw_overlay() {

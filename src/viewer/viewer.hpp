@@ -166,6 +166,20 @@ class Viewer {
   void set_overlay(bool on) { options_.overlay = on; }
   void frame_scene();  // the camera frames the model and its colliders
 
+  // Called before every step with the stepper about to take it, the model and the state at the
+  // step's start: where a scene moves its colliders (PbdStepper::move_collider to their poses at
+  // the step's end) and attaches particles to them. `fresh` is true on the first step of each
+  // stepper: the first one, and each a reset or the method switch makes (its colliders at their
+  // declared poses, nothing attached). An InvalidArgument it throws pauses the viewer with its
+  // message, as the stepper's would; other exceptions (a Python one through the binding) pass
+  // through frame(), run() and capture().
+  // csb.open_viewer sets it for a scene's collider motions and attachments.
+  using BeforeStep = std::function<void(Integrator* stepper, const Model* model, const State* state, bool fresh)>;
+  void set_before_step(BeforeStep before_step) { before_step_ = std::move(before_step); }
+  // Where each of the model's colliders is drawn this frame: a PbdStepper's poses
+  // (collider_pose), the declared ones for another method (which does not move colliders).
+  std::vector<ColliderFrame> collider_frames() const;
+
   Camera& camera() { return camera_; }
   const Camera& camera() const { return camera_; }
   const Model& model() const { return *model_; }
@@ -224,6 +238,8 @@ class Viewer {
   Index held_particle_ = -1;
   Vec3 drag_point_ = Vec3::Zero();  // m, where the hand is
   Stats stats_;
+  BeforeStep before_step_;
+  bool fresh_stepper_ = true;  // stepper_ has not stepped since it was made or given
   double last_frame_time_ = -1;
   int screenshots_ = 0;
   int overlay_frames_ = 0;    // ImGui frames run so far

@@ -1030,6 +1030,10 @@ class Viewer:
         """
         Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
         """
+    def collider_poses(self) -> list:
+        """
+        (rotation, translation in m) of every collider as frames draw it now: the stepper's pose at the end of its last step (PbdStepper.collider_pose), the identity (as declared) for a method that does not move colliders.
+        """
     def close(self) -> None:
         """
         Releases the window (or offscreen context) now; frame() then returns False.
@@ -1068,6 +1072,10 @@ class Viewer:
         """
     def scroll(self, steps: typing.SupportsFloat | typing.SupportsIndex) -> None:
         ...
+    def set_before_step(self, before_step: collections.abc.Callable[[Integrator, Model, State, bool], None] | None) -> None:
+        """
+        before_step(stepper, model, state, fresh), called before every step (None: nothing): where a scene moves its colliders (stepper.move_collider to their poses at the step's end, state.t + dt) and attaches particles to them when `fresh` (the first step of the first stepper, or of one a reset or the method switch made). An exception it raises passes through frame(), run() and capture().
+        """
     def set_overlay(self, on: bool) -> None:
         ...
     def single_step(self) -> None:
