@@ -196,3 +196,38 @@ def test_cape_wave_draws_the_torso_walking():
 
     moved = front(second) - front(first)
     assert abs(moved - (f1[0] - f0[0])) < 2.0, (moved, f1[0] - f0[0])
+
+
+def test_a_window_draws_the_moving_sphere_as_offscreen_does(ball, monkeypatch):
+    """The live viewer (a GLFW window on a private Xvfb display) draws the same frames: after 30
+    frames the sphere's grey pixels in the window's image are where the offscreen image has them
+    (the same renderer into the same kind of target: the centroids agree within 0.5 px)."""
+    import shutil
+    import subprocess
+
+    if shutil.which("Xvfb") is None:
+        if os.environ.get("CSB_REQUIRE_VIEWER") == "1":
+            pytest.fail("Xvfb is needed (./dev test installs it)")
+        pytest.skip("Xvfb is not installed")
+    read, write = os.pipe()
+    xvfb = subprocess.Popen(["Xvfb", "-displayfd", str(write), "-screen", "0", "1024x768x24", "-nolisten", "tcp"],
+                            pass_fds=(write,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write)
+    try:
+        with os.fdopen(read) as f:
+            number = f.readline().strip()
+        assert number, "Xvfb did not start"
+        monkeypatch.setenv("DISPLAY", f":{number}")
+        with csb.open_viewer(ball, width=W, height=H, overlay=False, grid=False, samples=0, vsync=False,
+                             title="csb-test-moving") as win, open_offscreen(ball) as off:
+            for _ in range(30):
+                win.frame()
+                off.frame()
+            assert np.array(win.collider_poses()[0][1]) == pytest.approx([0.3, 0, 0], abs=1e-12)
+            a, b = collider_pixels(win.screenshot()), collider_pixels(off.screenshot())
+            expected = np.array(off.camera.project([0.3, 0, 0])[:2])
+    finally:
+        xvfb.terminate()
+        xvfb.wait(timeout=10)
+    assert a.sum() > 300
+    assert np.linalg.norm(centroid(a) - centroid(b)) < 0.5 and np.linalg.norm(centroid(a) - expected) < 1.0
