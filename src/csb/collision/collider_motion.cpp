@@ -197,7 +197,7 @@ void PbdStepper::move_colliders(const Model& model, int sub) {
       m.start = interpolate_pose(m.from, m.to, s0);
       m.end = interpolate_pose(m.from, m.to, s1);
     }
-    if (m.deform.active()) deform_substep(model.colliders[c], m, s0, s1);
+    if (m.deform.active()) deform_substep(model.colliders[c], m, sub, s0, s1);
   }
   for (const ColliderAttachment& a : attachments_) {
     if (a.particle >= model.num_particles())
@@ -229,19 +229,31 @@ void deformed_vertices(const Positions& from, const Positions& to, Real fraction
 }  // namespace
 
 // A deforming collider's vertices at the sub-step's start and end (world) and the grid over its
-// triangles swept between them, rebuilt each sub-step (its cost: docs/design.md).
-void PbdStepper::deform_substep(const Collider& c, ColliderMotion& m, Real s0, Real s1) {
+// swept triangles. Unless the pose turns, every vertex moves on one straight line over the whole
+// step (interpolated vertices plus a linearly interpolated translation), so the grid over the
+// triangles swept from the step's start to its end covers every sub-step: it is built at the
+// first sub-step only. A turning pose bends the paths: the grid is then rebuilt each sub-step
+// over the sub-step's sweep. (Its cost: docs/design.md.)
+void PbdStepper::deform_substep(const Collider& c, ColliderMotion& m, int sub, Real s0, Real s1) {
   DeformingMesh& d = m.deform;
   deformed_vertices(d.from, d.to, s0, m.moving, m.start, d.start);
   deformed_vertices(d.from, d.to, s1, m.moving, m.end, d.end);
+  const bool turning = m.moving && m.from.rotation != m.to.rotation;
+  if (sub > 0 && !turning) return;
+  const Positions* b = &d.end;
+  if (!turning && settings_.substeps > 1) {
+    deformed_vertices(d.from, d.to, 1, m.moving, m.to, d.step_end);
+    b = &d.step_end;
+  }
+  const Positions& a = d.start;
   const std::vector<Triangle>& tris = c.mesh->triangles;
   deform_lo_.resize(tris.size());
   deform_hi_.resize(tris.size());
   for (std::size_t t = 0; t < tris.size(); ++t) {
-    Vec3 lo = d.start.col(tris[t][0]), hi = lo;
+    Vec3 lo = a.col(tris[t][0]), hi = lo;
     for (int k = 0; k < 3; ++k) {
-      lo = lo.cwiseMin(d.start.col(tris[t][k])).cwiseMin(d.end.col(tris[t][k]));
-      hi = hi.cwiseMax(d.start.col(tris[t][k])).cwiseMax(d.end.col(tris[t][k]));
+      lo = lo.cwiseMin(a.col(tris[t][k])).cwiseMin(b->col(tris[t][k]));
+      hi = hi.cwiseMax(a.col(tris[t][k])).cwiseMax(b->col(tris[t][k]));
     }
     deform_lo_[t] = lo;
     deform_hi_[t] = hi;

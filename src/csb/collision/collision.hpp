@@ -62,7 +62,8 @@
 // The surface motion of the contact is that of the point q + r n held by the triangle: the
 // barycentric blend of its vertices' motions plus r times its oriented unit normal's change over
 // the sub-step (for a triangle moved rigidly, the rigid collider's B s - A s). The triangles'
-// grid is rebuilt each sub-step over their swept boxes (start and end positions).
+// grid covers their swept boxes: built once a step over the step's sweep (each vertex moves on
+// one line over the step), or each sub-step over the sub-step's when the collider also turns.
 #pragma once
 
 #include "csb/mesh.hpp"
@@ -194,7 +195,8 @@ struct ColliderAttachment {
 struct DeformingMesh {
   Positions from, to;               // m, model frame, 3 x V
   Positions start, end;             // m, world, 3 x V
-  TriangleGrid grid;                // over the boxes of the triangles at start and end
+  Positions step_end;               // m, world, 3 x V: at the end of the step (the grid's sweep)
+  TriangleGrid grid;                // over the triangles swept over the sub-step, or the step (collider_motion.cpp)
   bool active() const { return to.cols() > 0; }
 };
 
