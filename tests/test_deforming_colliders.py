@@ -289,7 +289,19 @@ def test_the_bundled_cape_stays_outside_its_skinned_character_and_follows_the_sk
     assert closest < 2 * r  # the cape did come against the body
 
 
-def test_a_skinned_collider_is_refused_by_methods_that_cannot_deform_colliders():
+def test_a_skinned_collider_is_refused_by_methods_that_cannot_deform_colliders(tmp_path):
+    """The implicit methods take colliders from the Model and cannot deform them: a scene with a
+    skinned collider refuses to build for them, and a deformation given to Simulation.step is
+    refused, naming the method, rather than left static silently."""
     scene = csb.load_scene("cape_skinned")
     with pytest.raises(csb.SceneError, match=r"collider 'body' has a motion, but method '.*' cannot move or deform"):
         scene.build(csb.BackwardEuler(dt=1 / 60))
+    csb.save_mesh(csb.Mesh(SHEET, SHEET_TRIANGLES, name="sheet"), str(tmp_path / "sheet.obj"))
+    (tmp_path / "sheet.toml").write_text(
+        '[scene]\nname = "sheet"\nduration = 0.1\n[solver]\nmethod = "pbd"\ndt = 0.01\nsubsteps = 1\niterations = 1\n'
+        '[[mesh]]\nname = "dot"\nshape = "chain"\nlinks = 1\nlink_length = 0.1\ntranslate = [0.0, 1.0, 0.0]\nmass = 0.1\n'
+        '[[collider]]\ntype = "mesh"\nname = "sheet"\nfile = "sheet.obj"\n')
+    sim = csb.load_scene(tmp_path / "sheet.toml").build(csb.BackwardEuler(dt=1 / 60))
+    sim.collider_deformation["sheet"] = lambda t: SHEET
+    with pytest.raises(csb.ParameterError, match=r"method '.*' cannot deform colliders"):
+        sim.step()
