@@ -260,10 +260,13 @@ def _collider_triangles(c: dict[str, Any], extent: float) -> np.ndarray:
 
 
 def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str,
-                  poses: Sequence[tuple[Any, Any]] | None = None) -> Path:
+                  poses: Sequence[tuple[Any, Any]] | None = None,
+                  vertices: Sequence[Any | None] | None = None) -> Path:
     """The model's surface (triangles, or its particles and line cells) at ``state``, with its
     colliders in grey: a picture of where the simulation ended, y up. ``poses``: per collider
-    (R, translation in m) where a moving collider is (PbdStepper.collider_pose); None: as declared."""
+    (R, translation in m) where a moving collider is (PbdStepper.collider_pose); None: as declared.
+    ``vertices``: per collider, a mesh collider's (V, 3) vertices (m, its model frame, the pose
+    applied on top) where it has deformed to (PbdStepper.collider_vertices), or None: as declared."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -279,6 +282,8 @@ def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str
     ax = fig.add_subplot(projection="3d")
     centre = (lo + hi) / 2
     for k, c in enumerate(model.colliders):
+        if vertices is not None and vertices[k] is not None and c["kind"] == "mesh":
+            c = {**c, "vertices": np.asarray(vertices[k], dtype=float)}
         tris = _collider_triangles(c, extent)
         if poses is not None:
             R, t = poses[k]

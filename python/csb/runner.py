@@ -247,8 +247,14 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         if scene.output.plot:
             title = summary_title(scene, sim.model.num_particles, stepper)
             result.files.append(plot_summary(out / "summary.png", result.rows, title))
-            poses = ([sim.stepper.collider_pose(k) for k in range(len(sim.model.colliders))]
-                     if isinstance(sim.stepper, _core.PbdStepper) else None)
+            # The colliders where the last step left them: each at its pose, and a deforming mesh
+            # (a skinned body) in its shape then, not as declared at t = 0.
+            poses = vertices = None
+            if isinstance(sim.stepper, _core.PbdStepper):
+                colliders = sim.model.colliders
+                poses = [sim.stepper.collider_pose(k) for k in range(len(colliders))]
+                vertices = [sim.stepper.collider_vertices(sim.model, k) if c["kind"] == "mesh" else None
+                            for k, c in enumerate(colliders)]
             result.files.append(plot_snapshot(out / "snapshot.png", sim.model, sim.state,
-                                              f"{scene.name} at t = {sim.state.t:.2f} s", poses))
+                                              f"{scene.name} at t = {sim.state.t:.2f} s", poses, vertices))
     return result

@@ -25,6 +25,10 @@ each collider with a motion (its keyframes, or ``Simulation.collider_motion``) g
 the step's end, the scene's particles attached to a collider are attached to each stepper the
 viewer makes (the first, and on a reset or a method switch), and every frame draws each collider
 at the pose the stepper reports (``PbdStepper.collider_pose``, ``Viewer.collider_poses()``). A
+mesh collider that deforms (a skinned file's animation, ``animation = true``, or
+``Simulation.collider_deformation``) gets its vertices at the step's end before every step the
+same way, and is drawn in the shape the stepper reports (``PbdStepper.collider_vertices``,
+``Viewer.collider_vertices()``); a static mesh is uploaded once. A
 method that is not position-based does not move colliders: they stay, and are drawn, as
 declared. The stepper a method switch makes has the colliders at their declared poses: part-way
 through a moving scene they go back to their motion within its first step, and particles
@@ -148,9 +152,10 @@ def _scene_motion(sim: Simulation) -> Callable[..., None] | None:
     method that is not position-based does not move colliders: they stay, and are drawn, as
     declared. None for a scene with neither."""
     motions = sim._motions()
-    # A Simulation whose mesh colliders deform (PbdStepper.deform_collider) lists them as
-    # _deformations(), (index, f(t) -> (V, 3) vertices in m), beside its motions.
-    deformations = getattr(sim, "_deformations", lambda: [])()
+    # Mesh colliders that deform (a skinned file's animation, Simulation.collider_deformation):
+    # (index, f(t) -> (V, 3) vertices in m), given to PbdStepper.deform_collider as step() does;
+    # frames then draw them in that shape (Viewer.collider_vertices()).
+    deformations = sim._deformations()
     attached: dict[int, list[int]] = {}
     if isinstance(sim.stepper, _core.PbdStepper):
         for a in sim.stepper.attachments:

@@ -257,6 +257,12 @@ class PbdStepper : public Integrator {
   void deform_collider(const Model& model, Index collider, const Positions& vertices);
   // A mesh collider's vertices at the end of the last step (model frame, m): the model's until deformed.
   Positions collider_vertices(const Model& model, Index collider) const;
+  // Whether deform_collider was called for collider `collider` (else its vertices are the model's):
+  // what a renderer asks before copying a mesh's vertices each frame.
+  bool collider_deforms(Index collider) const {
+    return collider >= 0 && collider < static_cast<Index>(collider_motion_.size()) &&
+           collider_motion_[collider].deform.active();
+  }
 
  private:
   struct ColliderMotion {

@@ -186,6 +186,21 @@ void bind_viewer(py::module_& m) {
       }, "(rotation, translation in m) of every collider as frames draw it now: the stepper's pose at the end of "
          "its last step (PbdStepper.collider_pose), the identity (as declared) for a method that does not move "
          "colliders.")
+      .def("collider_vertices", [](const Viewer& v) {
+        py::list out;
+        for (const csb::viewer::ColliderFrame& f : v.collider_frames()) {
+          if (f.vertices.cols() == 0) {
+            out.append(py::none());
+            continue;
+          }
+          py::array_t<double> x({static_cast<py::ssize_t>(f.vertices.cols()), py::ssize_t(3)});
+          std::memcpy(x.mutable_data(), f.vertices.data(), sizeof(double) * f.vertices.size());
+          out.append(x);
+        }
+        return out;
+      }, "Per collider, the vertices (V x 3, m, model frame; collider_poses() applies on top) frames draw a "
+         "deforming mesh collider with now (PbdStepper.collider_vertices), None for a collider that does not "
+         "deform (drawn as declared).")
       .def_property_readonly("closed", &Viewer::closed, "The window was asked to close, or close() was called.")
       .def("close", &Viewer::close, "Releases the window (or offscreen context) now; frame() then returns False.")
       .def("__enter__", [](Viewer& v) -> Viewer& { return v; }, py::return_value_policy::reference)

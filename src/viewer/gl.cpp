@@ -104,6 +104,14 @@ void Mesh::attribute(int k, int components, const float* data, std::size_t verti
   vertices_ = vertices;
 }
 
+void Mesh::update(int k, int components, const float* data, std::size_t first, std::size_t vertices) {
+  const std::size_t offset = sizeof(float) * components * first, bytes = sizeof(float) * components * vertices;
+  if (!vao_ || bytes == 0 || offset + bytes > sizes_[k]) return;
+  glBindBuffer(GL_ARRAY_BUFFER, buffers_[k]);
+  glBufferSubData(GL_ARRAY_BUFFER, static_cast<GLintptr>(offset), static_cast<GLsizeiptr>(bytes), data);
+  glBindBuffer(GL_ARRAY_BUFFER, 0);
+}
+
 void Mesh::share(int k, const Mesh& source, int source_k, int components) {
   if (!vao_) {
     glGenVertexArrays(1, &vao_);

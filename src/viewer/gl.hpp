@@ -44,6 +44,9 @@ class Mesh {
   // vertex arrays draw, such as the particles' positions, is uploaded once. `source` must have
   // had that attribute set and must outlive this mesh's draws.
   void share(int k, const Mesh& source, int source_k, int components);
+  // Overwrites vertices [first, first + vertices) of attribute k in place (set by attribute()
+  // before, at least that long): one deforming collider's range of the colliders' soup.
+  void update(int k, int components, const float* data, std::size_t first, std::size_t vertices);
   void indices(const unsigned* data, std::size_t count, GLenum usage = GL_STATIC_DRAW);
   void draw(GLenum mode) const;  // indexed if indices were given, else all vertices
   // Vertices [first, first + count) without indices (one collider of the colliders' soup).

@@ -179,9 +179,8 @@ struct Renderer::Geometry {
   std::vector<float> position, normal, color, dot_color;
   // The colliders' soup (model frame) and each collider's vertices in it: [first, first + count).
   std::vector<float> collider_position, collider_normal;
-  std::vector<float> scratch_position, scratch_normal;  // the soup with deforming meshes rewritten
   std::vector<std::size_t> collider_first, collider_count;
-  bool collider_deformed = false;  // the soup on the GPU holds a deforming mesh's positions
+  std::vector<char> collider_deformed;  // per collider: its range on the GPU holds deformed vertices
   std::vector<Triangle> triangles;
   std::vector<char> in_triangle;
   std::vector<unsigned> chain_edges;
@@ -267,7 +266,7 @@ void Renderer::set_model(const Model& model) {
   g.colliders.attribute(1, 3, soup.normal.data(), soup.normal.size() / 3, GL_STATIC_DRAW);
   g.collider_position = std::move(soup.position);
   g.collider_normal = std::move(soup.normal);
-  g.collider_deformed = false;
+  g.collider_deformed.assign(g.collider_first.size(), 0);
   g.colliders.attribute(2, 3, soup.color.data(), soup.color.size() / 3, GL_STATIC_DRAW);
 
   // Grids: one on every plane collider; with none facing up, a ground grid just below the model.
@@ -366,30 +365,26 @@ void Renderer::draw(const Model& model, const State& state, const Camera& camera
   if (options.colliders && g.colliders.vertices()) {
     glUniform3f(g.surface.uniform("back_tint"), 1.0f, 1.0f, 1.0f);
     glUniform1f(g.surface.uniform("specular"), 0.05f);
-    // A deforming mesh collider's range of the soup is rewritten from its vertices (model
-    // frame); once none deforms, the soup as declared goes back up.
-    bool deformed = false;
-    for (std::size_t i = 0; i < colliders.size() && i < g.collider_first.size(); ++i) {
+    // A deforming mesh collider's range of the soup is rewritten on the GPU from its vertices
+    // (model frame) every frame; every other range stays as uploaded (a static mesh is not sent
+    // again), and a range goes back to the mesh as declared once its collider no longer deforms.
+    g.collider_deformed.resize(g.collider_first.size(), 0);
+    for (std::size_t i = 0; i < g.collider_first.size(); ++i) {
       const Collider& c = model.colliders[i];
-      const Positions& x = colliders[i].vertices;
-      if (x.cols() == 0 || c.kind != ColliderKind::Mesh || x.cols() != c.mesh->vertices.cols()) continue;
-      if (!deformed) {
-        g.scratch_position = g.collider_position;
-        g.scratch_normal = g.collider_normal;
-        deformed = true;
+      const Positions* x = i < colliders.size() ? &colliders[i].vertices : nullptr;
+      const bool deforms =
+          x && x->cols() > 0 && c.kind == ColliderKind::Mesh && x->cols() == c.mesh->vertices.cols();
+      const std::size_t first = g.collider_first[i], count = g.collider_count[i];
+      if (deforms) {
+        Soup part;
+        add_mesh(part, *x, c.mesh->triangles);
+        g.colliders.update(0, 3, part.position.data(), first, count);
+        g.colliders.update(1, 3, part.normal.data(), first, count);
+      } else if (g.collider_deformed[i]) {
+        g.colliders.update(0, 3, g.collider_position.data() + 3 * first, first, count);
+        g.colliders.update(1, 3, g.collider_normal.data() + 3 * first, first, count);
       }
-      Soup part;
-      add_mesh(part, x, c.mesh->triangles);
-      const std::size_t first = 3 * g.collider_first[i];
-      std::copy(part.position.begin(), part.position.end(), g.scratch_position.begin() + first);
-      std::copy(part.normal.begin(), part.normal.end(), g.scratch_normal.begin() + first);
-    }
-    if (deformed || g.collider_deformed) {
-      const std::vector<float>& p = deformed ? g.scratch_position : g.collider_position;
-      const std::vector<float>& nn = deformed ? g.scratch_normal : g.collider_normal;
-      g.colliders.attribute(0, 3, p.data(), p.size() / 3);
-      g.colliders.attribute(1, 3, nn.data(), nn.size() / 3);
-      g.collider_deformed = deformed;
+      g.collider_deformed[i] = deforms;
     }
     for (std::size_t i = 0; i < g.collider_first.size(); ++i) {
       const Eigen::Matrix4f m = i < colliders.size() ? pose_matrix(colliders[i].pose) : identity;

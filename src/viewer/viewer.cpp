@@ -707,8 +707,13 @@ std::vector<ColliderFrame> Viewer::collider_frames() const {
   std::vector<ColliderFrame> frames(model_->colliders.size());
   // The poses the state's positions saw. A deforming mesh collider's frame takes its vertices
   // at the end of the last step (model frame) in `vertices`; the renderer applies the pose.
+  // Only a collider the stepper deforms is copied: a static mesh keeps the renderer's upload.
   if (pbd_)
-    for (std::size_t i = 0; i < frames.size(); ++i) frames[i].pose = pbd_->collider_pose(static_cast<Index>(i));
+    for (std::size_t i = 0; i < frames.size(); ++i) {
+      const Index c = static_cast<Index>(i);
+      frames[i].pose = pbd_->collider_pose(c);
+      if (pbd_->collider_deforms(c)) frames[i].vertices = pbd_->collider_vertices(*model_, c);
+    }
   return frames;
 }
 

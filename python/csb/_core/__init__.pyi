@@ -1034,6 +1034,10 @@ class Viewer:
         """
         (rotation, translation in m) of every collider as frames draw it now: the stepper's pose at the end of its last step (PbdStepper.collider_pose), the identity (as declared) for a method that does not move colliders.
         """
+    def collider_vertices(self) -> list:
+        """
+        Per collider, the vertices (V x 3, m, model frame; collider_poses() applies on top) frames draw a deforming mesh collider with now (PbdStepper.collider_vertices), None for a collider that does not deform (drawn as declared).
+        """
     def close(self) -> None:
         """
         Releases the window (or offscreen context) now; frame() then returns False.
