@@ -129,6 +129,13 @@ std::size_t PbdStepper::workspace_bytes() const {
   s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.bending) +
        capacity_bytes(coloured_order_.volume) + capacity_bytes(coloured_order_.attachment);
   s += self_.bytes();  // self-collision's groups, candidate pairs, contacts and boxes
+  // Deforming mesh colliders: each one's vertices (last, next, sub-step, step end) and swept grid.
+  for (const ColliderMotion& m : collider_motion_) {
+    const DeformingMesh& d = m.deform;
+    s += positions(d.from) + positions(d.to) + positions(d.start) + positions(d.end) + positions(d.step_end) +
+         capacity_bytes(d.grid.cell_start) + capacity_bytes(d.grid.items);
+  }
+  s += capacity_bytes(deform_lo_) + capacity_bytes(deform_hi_);
   return s + coloured_.bytes();
 }
 
