@@ -55,10 +55,18 @@ def _animation_message(path: str, summary: dict[str, Any]) -> str | None:
         listed = "; ".join(f"{(name or 'unnamed')!r}: {bones} bone(s), {vertices} vertices"
                            for name, bones, vertices in skinned)
         parts.append(f"{len(skinned)} skinned mesh(es) ({listed})")
+    uses = []
+    if skinned:
+        uses.append("a skinned mesh as a mesh collider deforms with its skeleton (a scene file's [[collider]] "
+                    "type = \"mesh\", animation = true; or csb.load_animation's vertices given to "
+                    "PbdStepper.deform_collider every step)")
+    if animations:
+        uses.append("a mesh its node moves rigidly moves as a collider by keyframes (PbdStepper.move_collider, "
+                    "a scene file's collider motion or animation = true)")
     return (f"{path}: the file holds " + " and ".join(parts) + "; csb loaded the rest pose (the nodes' static "
-            "transforms, no bone applied) and does not play the animation. csb.load_animation(path) reads the "
-            "animated vertices at given times (s), and, for a mesh its node moves rigidly, keyframes for "
-            "PbdStepper.move_collider or a scene file's collider motion")
+            "transforms, no bone applied) and does not play the animation on a mesh loaded so (a cloth or soft "
+            "body stays in that pose). What csb does use of it: " + "; ".join(uses) + ". csb.load_animation(path) "
+            "reads the animated vertices at given times (s)")
 
 
 # Elements that make a Gauss-Seidel sweep with few iterations unstable: a sliver's altitude is so
