@@ -142,6 +142,7 @@ struct ContactSummary {
   std::int64_t self_searches = 0;  // candidate-pair searches since the stepper was made
   std::int64_t self_candidates = 0;  // point-triangle and edge-edge candidate pairs now kept
   std::int64_t self_tests = 0;  // continuous tests (additive CCD) run since the stepper was made
+  std::int64_t self_culled = 0;  // candidate pairs left untested in certified patches, since made
   Index self_skipped = 0;     // triangles left out of self-collision: spread over more than the cloth's size in a step
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
   Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step

@@ -165,6 +165,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["self_searches"] = sum.self_searches;
         d["self_candidates"] = sum.self_candidates;
         d["self_tests"] = sum.self_tests;
+        d["self_culled"] = sum.self_culled;
         d["self_skipped"] = sum.self_skipped;
         d["max_depth"] = sum.max_depth;
         d["max_penetration"] = sum.max_penetration;

@@ -274,6 +274,7 @@ inline py::dict self_collision_dict(const SelfCollisionCounts& c) {
   d["candidates"] = c.candidates;
   d["searches"] = c.searches;
   d["tests"] = c.tests;
+  d["culled"] = c.culled;
   return d;
 }
 

@@ -67,6 +67,7 @@ void PbdStepper::report_self_collision() {
   contact_summary_.self_searches = c.searches;
   contact_summary_.self_candidates = c.candidates;
   contact_summary_.self_tests = c.tests;
+  contact_summary_.self_culled = c.culled;
   contact_summary_.self_skipped = c.skipped;
 }
 

@@ -1,6 +1,6 @@
-// csb — cloth self-collision in the position-based steppers: point–triangle proximity contacts of
-// each self-colliding group generated at the start of a sub-step and projected with the
-// constraints (Müller 2007 §4.4), then, after the sweeps, continuous collision detection of every
+// csb — cloth self-collision (self_collision.hpp): point–triangle proximity contacts of each
+// self-colliding group generated at the start of a sub-step and projected with the constraints
+// (Müller 2007 §4.4), then, after the sweeps, continuous collision detection of every
 // point–triangle and edge–edge pair along the sub-step's motion x -> p, responses (after Bridson,
 // Fedkiw, Anderson 2002), inelastic velocities, and a fail-safe.
 //
@@ -8,7 +8,14 @@
 // pair of features that share no particle (a particle and a triangle without it, two edges
 // without a common end) whose swept boxes over x -> p touch is tested by additive CCD (ccd.hpp)
 // along its straight motion, conservatively: a pair whose distance reaches 0 anywhere in the
-// sub-step is always found. Found pairs get a contact along their normal at the time of impact;
+// sub-step is always found. The one exception is a pair inside a patch of the hierarchy that is
+// certified for the motion (certify_node: a disc whose projection along its mean normal stays one
+// to one over the whole sub-step, after Volino and Magnenat-Thalmann 1994 and Schvartzman, Pérez
+// and Otaduy 2010): no two of its points can meet, so its pairs need no test, and a patch
+// certified for a whole step's look-ahead is not even searched inside until a sub-step's motion
+// stops certifying it. A smooth cloth, however it swings, costs the certification of a few
+// patches instead of tens of thousands of tests; only where it folds onto itself are pairs
+// searched and tested. Found pairs get a contact along their normal at the time of impact;
 // after kResponseRounds rounds of responses, what is still found is stopped: its particles that
 // can move are put back where they started the sub-step (p = x), the fail-safe, repeated until the
 // test finds nothing (a pair whose particles all stay cannot meet: x has no intersection). So the
@@ -162,10 +169,12 @@ void SelfCollision::prepare(const Model& model) {
       for (Index t = 0; t < T; ++t) order[t] = t;
       sg.bvh_child.clear();
       sg.bvh_size.clear();
+      sg.bvh_begin.clear();
       const auto build = [&](auto&& self, Index begin, Index end) -> Index {
         const Index node = static_cast<Index>(sg.bvh_child.size());
         sg.bvh_child.push_back({-1 - order[begin], -1});
         sg.bvh_size.push_back(end - begin);
+        sg.bvh_begin.push_back(begin);
         if (end - begin == 1) return node;
         Vec3 lo = centroid[order[begin]], hi = lo;
         for (Index k = begin; k < end; ++k) lo = lo.cwiseMin(centroid[order[k]]), hi = hi.cwiseMax(centroid[order[k]]);
@@ -181,6 +190,8 @@ void SelfCollision::prepare(const Model& model) {
         return node;
       };
       if (T > 0) build(build, 0, T);
+      sg.bvh_order = std::move(order);  // each node's triangles are a run of it
+      find_patches(model, sg);
     }
     most_triangles = std::max({most_triangles, sg.triangles.size(), sg.edges.size()});
     groups_.push_back(std::move(sg));
@@ -201,13 +212,157 @@ std::size_t SelfCollision::bytes() const {
   std::size_t s = 0;
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
-         b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size);
+         b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
+         b(g.bvh_begin) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred);
   s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
-       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + positions(particle_lo_) + positions(particle_hi_) +
+       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(normal_bezier_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
+       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(particle_lo_) + positions(particle_hi_) +
        positions(sweep_lo_) + positions(sweep_hi_);
   for (const auto& v : impact_parts_) s += b(v);
   for (const auto& v : contact_parts_) s += b(v);
   return s;
+}
+
+// The patches of a group's hierarchy (static: the mesh's connectivity). Node k's triangles form a
+// patch if they are a topological disc, consistently oriented: no directed edge twice (an
+// inconsistent orientation or an edge of three triangles), the edges without their reverse (the
+// boundary) forming one loop through distinct vertices, and V - E + F = 1. Its boundary loop is
+// kept, each edge directed as in its triangle (counter-clockwise about the triangles' normals).
+// Leaves (one triangle) hold no pair and are not patches.
+void SelfCollision::find_patches(const Model& model, Group& g) {
+  const Index nodes = static_cast<Index>(g.bvh_child.size());
+  g.bvh_parent.assign(nodes, -1);
+  for (Index k = 0; k < nodes; ++k)
+    if (g.bvh_child[k][0] >= 0) g.bvh_parent[g.bvh_child[k][0]] = g.bvh_parent[g.bvh_child[k][1]] = k;
+  g.patch_start.assign(1, 0);
+  g.patch_edges.clear();
+  g.is_patch.assign(nodes, 0);
+  std::vector<std::array<Index, 2>> directed, boundary;
+  std::vector<Index> vertices;
+  for (Index k = 0; k < nodes; ++k) {
+    const Index size = g.bvh_size[k];
+    if (size >= 2) {
+      directed.clear();
+      vertices.clear();
+      for (Index i = g.bvh_begin[k]; i < g.bvh_begin[k] + size; ++i) {
+        const Triangle& tri = model.triangles[g.triangles[g.bvh_order[i]]];
+        for (int e = 0; e < 3; ++e) {
+          directed.push_back({tri[e], tri[(e + 1) % 3]});
+          vertices.push_back(tri[e]);
+        }
+      }
+      std::sort(directed.begin(), directed.end());
+      std::sort(vertices.begin(), vertices.end());
+      const Index V = static_cast<Index>(std::unique(vertices.begin(), vertices.end()) - vertices.begin());
+      bool disc = std::adjacent_find(directed.begin(), directed.end()) == directed.end();
+      boundary.clear();
+      Index interior = 0;  // directed edges whose reverse is in the node: each interior edge twice
+      for (const auto& d : directed) {
+        if (std::binary_search(directed.begin(), directed.end(), std::array<Index, 2>{d[1], d[0]}))
+          ++interior;
+        else
+          boundary.push_back(d);  // sorted by start vertex
+      }
+      const Index E = interior / 2 + static_cast<Index>(boundary.size());
+      disc = disc && !boundary.empty() && V - E + size == 1;
+      // One loop: each boundary vertex starts one boundary edge, and following them from the
+      // first edge returns to it after visiting them all.
+      for (std::size_t i = 1; disc && i < boundary.size(); ++i) disc = boundary[i][0] != boundary[i - 1][0];
+      const std::size_t start = g.patch_edges.size();
+      if (disc) {
+        std::array<Index, 2> at = boundary[0];
+        for (std::size_t n = 0; n < boundary.size(); ++n) {
+          g.patch_edges.push_back(at);
+          const auto next = std::lower_bound(boundary.begin(), boundary.end(), std::array<Index, 2>{at[1], -1});
+          if (next == boundary.end() || (*next)[0] != at[1]) {
+            disc = false;
+            break;
+          }
+          at = *next;
+        }
+        disc = disc && at == boundary[0];
+        if (!disc) g.patch_edges.resize(start);
+      }
+      g.is_patch[k] = disc;
+    }
+    g.patch_start.push_back(static_cast<Index>(g.patch_edges.size()));
+  }
+}
+
+// Whether node k, a patch, has no self-intersection at any time of the motion x -> p (each
+// particle on its straight line), after Volino and Magnenat-Thalmann (1994) with the star test of
+// Schvartzman, Pérez and Otaduy (2010), both for a moving patch. With V the sum of the patch's
+// normals at x and O its boundary's centroid at x, fixed over the motion:
+//  - every triangle's normal n(s) = (b - a) x (c - a), a quadratic in s over [0, 1], has
+//    V·n(s) > 0: its three Bernstein coefficients (normal_bezier_) are positive along V. The
+//    projection along V onto a plane then keeps each triangle's orientation at every s;
+//  - every boundary edge (a, b) keeps ((a - O) x (b - O))·V > 0, again a quadratic whose three
+//    Bernstein coefficients are positive: the projected boundary turns monotonically about O;
+//  - at s = 0 a ray from O crosses the projected boundary once: it winds once about O, and so
+//    (its angle about O only increasing, no edge ever reaching O) at every s.
+// The projected boundary is then a simple closed curve at every s and, every triangle keeping its
+// orientation, each point inside it has exactly one preimage in the patch (the projection's
+// degree): the projection is one-to-one and no two points of the patch meet. A pair of features
+// inside a certified patch cannot meet during the motion, and neither can one inside any part of
+// it. Each sign is taken with a margin of 1e-9 of its scale (the squared size of the node's box
+// times |V|), far above the products' rounding, so that rounding never certifies.
+bool SelfCollision::certify_node(const Group& g, Index k, const Positions& x, const Positions& p) const {
+  Vec3 V = Vec3::Zero();
+  const Index* tri = g.bvh_order.data() + g.bvh_begin[k];
+  const Index size = g.bvh_size[k];
+  for (Index i = 0; i < size; ++i) V += normal_bezier_[tri[i]][0];
+  const Real scale = (node_hi_[k] - node_lo_[k]).squaredNorm() * V.norm();
+  const Real margin = 1e-9 * scale;
+  if (!(margin > 0)) return false;  // NaN, or a collapsed patch
+  for (Index i = 0; i < size; ++i) {
+    const auto& b = normal_bezier_[tri[i]];
+    if (!(V.dot(b[0]) > margin && V.dot(b[1]) > margin && V.dot(b[2]) > margin)) return false;
+  }
+  const auto* edges = g.patch_edges.data() + g.patch_start[k];
+  const Index m = g.patch_start[k + 1] - g.patch_start[k];
+  Vec3 O = Vec3::Zero();
+  for (Index i = 0; i < m; ++i) O += x.col(edges[i][0]);
+  O /= static_cast<Real>(m);
+  // Two axes u, w of the plane across V (for the ray's crossings).
+  const Vec3 u = (std::abs(V.x()) < std::abs(V.y()) ? Vec3::UnitX().cross(V) : Vec3::UnitY().cross(V)).normalized();
+  const Vec3 w = V.cross(u);
+  int crossings = 0;
+  for (Index i = 0; i < m; ++i) {
+    const Vec3 a0 = x.col(edges[i][0]) - O, b0 = x.col(edges[i][1]) - O;
+    const Vec3 a1 = p.col(edges[i][0]) - O, b1 = p.col(edges[i][1]) - O;
+    if (!(a0.cross(b0).dot(V) > margin && a1.cross(b1).dot(V) > margin &&
+          (a0.cross(b1) + a1.cross(b0)).dot(V) > 2 * margin))
+      return false;
+    const Real ay = a0.dot(w), by = b0.dot(w);
+    if ((ay > 0) != (by > 0)) {
+      const Real ax = a0.dot(u), bx = b0.dot(u);
+      if (ax + (0 - ay) * (bx - ax) / (by - ay) > 0) ++crossings;
+    }
+  }
+  return crossings == 1;
+}
+
+// certified_[k]: node k or one of its ancestors is a patch certified for the motion x -> p
+// (certify_node), top-down: a node below a certified one needs no test of its own.
+void SelfCollision::certify(const Model& model, const Group& g, const Positions& x, const Positions& p) {
+  const std::size_t T = g.triangles.size();
+  normal_bezier_.resize(T);
+  for (std::size_t t = 0; t < T; ++t) {
+    const Triangle& tri = model.triangles[g.triangles[t]];
+    const Vec3 e0 = x.col(tri[1]) - x.col(tri[0]), f0 = x.col(tri[2]) - x.col(tri[0]);
+    const Vec3 e1 = p.col(tri[1]) - p.col(tri[0]), f1 = p.col(tri[2]) - p.col(tri[0]);
+    // n(s) = (1 - s)² n0 + 2 s (1 - s) nm + s² n1 with e(s), f(s) linear in s.
+    normal_bezier_[t] = {e0.cross(f0), Real(0.5) * (e0.cross(f1) + e1.cross(f0)), e1.cross(f1)};
+  }
+  const Index nodes = static_cast<Index>(g.bvh_child.size());
+  certified_.assign(nodes, 0);
+  for (Index k = 0; k < nodes; ++k) {  // parents before children
+    const Index up = g.bvh_parent[k];
+    if (up >= 0 && certified_[up])
+      certified_[k] = 1;
+    else if (g.is_patch[k])
+      certified_[k] = certify_node(g, k, x, p);
+  }
 }
 
 // Runs chunk(t, T) for t = 0 .. T - 1 on the stepper's team, T its threads when the work (n
@@ -219,7 +374,7 @@ int SelfCollision::in_chunks(std::size_t n, F&& chunk) {
   const int T = threads_ > 1 && fork_ && n >= kParallelPairs ? threads_ : 1;
   if (impact_parts_.size() < 2 * static_cast<std::size_t>(T)) impact_parts_.resize(2 * T);
   if (contact_parts_.size() < static_cast<std::size_t>(T)) contact_parts_.resize(T);
-  if (tests_parts_.size() < static_cast<std::size_t>(T)) tests_parts_.resize(T);
+  if (tests_parts_.size() < static_cast<std::size_t>(T)) tests_parts_.resize(T), culled_parts_.resize(T);
   const auto job = [&](int t) { chunk(t, T); };
   if (T == 1)
     job(0);
@@ -235,7 +390,7 @@ int SelfCollision::in_chunks(std::size_t n, F&& chunk) {
 // the features share no particle, and one of its particles can move.
 //
 // The pairs hold for a sub-step as long as every particle's x and p lie in its box shrunk by h
-// (self_candidates_hold; h/2 of slack for the path to bend away from the straight line): then
+// (candidates_hold; h/2 of slack for the path to bend away from the straight line): then
 // the features' swept boxes over x -> p, widened by h, lie in their boxes, so every pair that can
 // touch during the sub-step (swept boxes overlapping) or is within 2h at the prediction (the
 // proximity contacts) is a candidate. When a particle leaves its box (the cloth swung off the
@@ -249,12 +404,14 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   const Real pad = 1.5 * g.thickness;
   const Real ahead = static_cast<Real>(substeps);
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
+  if (lookahead_.cols() != x.cols()) lookahead_.resize(3, x.cols());
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
     const Vec3 xi = x.col(i), pi = p.col(i);
     // The look-ahead only while it stays within the cloth's size (a fast particle searches again).
     Vec3 end = xi + ahead * (pi - xi);
     if (!((end - xi).cwiseAbs().maxCoeff() <= g.size)) end = pi;
+    lookahead_.col(i) = end;
     particle_lo_.col(i) = xi.cwiseMin(pi).cwiseMin(end).array() - pad;
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
   }
@@ -273,36 +430,13 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   g.skipped = 0;
   for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(box_lo_[t], box_hi_[t]);
   for (std::size_t e = 0; e < g.edges.size(); ++e) keep(edge_lo_[e], edge_hi_[e]);
-  g.pt.clear();
-  g.ee.clear();
-  // One search, of triangle pairs, gives both kinds: a particle's box lies in its owner
-  // triangle's, an edge's in its owner's (the first triangle of the group holding it), so a
-  // particle-triangle or edge-edge pair whose boxes overlap has owners whose boxes overlap; each
-  // pair is taken from its owners' pair only, so none comes twice.
-  const auto point_triangle = [&](Index q, Index t) {
-    const Triangle& tri = model.triangles[g.triangles[t]];
-    if (tri[0] == q || tri[1] == q || tri[2] == q) return;
-    if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), box_lo_[t], box_hi_[t])) return;
-    if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
-    g.pt.push_back({q, t});
-  };
-  const auto edge_edge = [&](Index a, Index b) {
-    const auto& ea = g.edges[a];
-    const auto& eb = g.edges[b];
-    if (ea[0] == eb[0] || ea[0] == eb[1] || ea[1] == eb[0] || ea[1] == eb[1]) return;
-    if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) return;
-    if (w[ea[0]] + w[ea[1]] + w[eb[0]] + w[eb[1]] <= 0) return;
-    g.ee.push_back({std::min(a, b), std::max(a, b)});
-  };
-  // The pairs of triangles whose boxes overlap: the group's bounding-volume hierarchy (built once
-  // from the rest shape, see workspace.cpp) refitted to the boxes, and traversed against itself
-  // from the root: a node with itself gives its children with themselves and with each other; two
-  // nodes whose boxes overlap give the pairs of their children (the one holding more triangles
-  // is opened). Every overlapping pair of leaves comes once, in an order fixed by the tree.
+  search_tri_lo_ = box_lo_, search_tri_hi_ = box_hi_;  // kept for the deferred searches
+  search_edge_lo_ = edge_lo_, search_edge_hi_ = edge_hi_;
+  // The hierarchy refitted to the boxes (children come after their parent).
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   node_lo_.resize(nodes);
   node_hi_.resize(nodes);
-  for (Index k = nodes - 1; k >= 0; --k) {  // children come after their parent
+  for (Index k = nodes - 1; k >= 0; --k) {
     const auto& c = g.bvh_child[k];
     if (c[0] < 0) {
       node_lo_[k] = box_lo_[-1 - c[0]], node_hi_[k] = box_hi_[-1 - c[0]];
@@ -311,40 +445,21 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
       node_hi_[k] = node_hi_[c[0]].cwiseMax(node_hi_[c[1]]);
     }
   }
-  const auto leaf_pair = [&](Index t1, Index t2) {
-    for (Index k = g.owned_particle_start[t1]; k < g.owned_particle_start[t1 + 1]; ++k)
-      point_triangle(g.owned_particles[k], t2);
-    for (Index k = g.owned_particle_start[t2]; k < g.owned_particle_start[t2 + 1]; ++k)
-      point_triangle(g.owned_particles[k], t1);
-    for (Index i = g.owned_edge_start[t1]; i < g.owned_edge_start[t1 + 1]; ++i)
-      for (Index j = g.owned_edge_start[t2]; j < g.owned_edge_start[t2 + 1]; ++j)
-        edge_edge(g.owned_edges[i], g.owned_edges[j]);
+  // The patches that cannot meet themselves along the whole look-ahead (certify) are not searched
+  // inside: their pairs are found when a sub-step's motion no longer certifies them
+  // (resume_deferred). A smooth cloth's search then costs little more than the certification.
+  certify(model, g, x, lookahead_);
+  g.pt.clear();
+  g.ee.clear();
+  g.deferred.assign(nodes, 0);
+  if (nodes > 0) search_node(model, g, 0, w);
+  const auto point_triangle = [&](Index q, Index t) {
+    const Triangle& tri = model.triangles[g.triangles[t]];
+    if (tri[0] == q || tri[1] == q || tri[2] == q) return;
+    if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), box_lo_[t], box_hi_[t])) return;
+    if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
+    g.pt.push_back({q, t, -1});
   };
-  node_pairs_.clear();
-  if (nodes > 0) node_pairs_.push_back({0, 0});
-  while (!node_pairs_.empty()) {
-    const auto [a, b] = node_pairs_.back();
-    node_pairs_.pop_back();
-    const auto& ca = g.bvh_child[a];
-    const auto& cb = g.bvh_child[b];
-    if (a == b) {
-      if (ca[0] < 0) continue;
-      node_pairs_.push_back({ca[0], ca[1]});
-      node_pairs_.push_back({ca[1], ca[1]});
-      node_pairs_.push_back({ca[0], ca[0]});
-      continue;
-    }
-    if (!boxes_overlap(node_lo_[a], node_hi_[a], node_lo_[b], node_hi_[b])) continue;
-    if (ca[0] < 0 && cb[0] < 0) {
-      leaf_pair(-1 - ca[0], -1 - cb[0]);
-    } else if (ca[0] < 0 || (cb[0] >= 0 && g.bvh_size[b] > g.bvh_size[a])) {
-      node_pairs_.push_back({a, cb[1]});
-      node_pairs_.push_back({a, cb[0]});
-    } else {
-      node_pairs_.push_back({ca[1], b});
-      node_pairs_.push_back({ca[0], b});
-    }
-  }
   if (!g.loose.empty()) hash_.build(g.cell, box_lo_, box_hi_);
   for (const Index q : g.loose) {  // particles of the group in no triangle
     if (!((particle_hi_.col(q) - particle_lo_.col(q)).maxCoeff() <= reach)) continue;
@@ -359,7 +474,85 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   ++counts_.searches;
 }
 
-// Whether the candidates of group g hold for the positions x and p_ now (see above).
+
+// The candidate pairs inside node `root` (all of them from the root): the hierarchy traversed
+// against itself from (root, root) with the search's boxes; a node certified (certified_) is not
+// entered but marked deferred. One search, of triangle pairs, gives both kinds: a particle's box
+// lies in its owner triangle's, an edge's in its owner's (the first triangle of the group holding
+// it), so a particle-triangle or edge-edge pair whose boxes overlap has owners whose boxes
+// overlap; each pair is taken from its owners' pair only, so none comes twice. A node with itself
+// gives its children with themselves and with each other; two nodes whose boxes overlap give the
+// pairs of their children (the one holding more triangles is opened). Every overlapping pair of
+// leaves comes once, in an order fixed by the tree.
+void SelfCollision::search_node(const Model& model, Group& g, Index root, const Real* w) {
+  const auto point_triangle = [&](Index q, Index t, Index lca) {
+    const Triangle& tri = model.triangles[g.triangles[t]];
+    if (tri[0] == q || tri[1] == q || tri[2] == q) return;
+    if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), search_tri_lo_[t], search_tri_hi_[t])) return;
+    if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
+    g.pt.push_back({q, t, lca});
+  };
+  const auto edge_edge = [&](Index a, Index b, Index lca) {
+    const auto& ea = g.edges[a];
+    const auto& eb = g.edges[b];
+    if (ea[0] == eb[0] || ea[0] == eb[1] || ea[1] == eb[0] || ea[1] == eb[1]) return;
+    if (!boxes_overlap(search_edge_lo_[a], search_edge_hi_[a], search_edge_lo_[b], search_edge_hi_[b])) return;
+    if (w[ea[0]] + w[ea[1]] + w[eb[0]] + w[eb[1]] <= 0) return;
+    g.ee.push_back({std::min(a, b), std::max(a, b), lca});
+  };
+  // lca: the node whose self-pair the leaves' pair descends from, the smallest holding both.
+  const auto leaf_pair = [&](Index t1, Index t2, Index lca) {
+    for (Index k = g.owned_particle_start[t1]; k < g.owned_particle_start[t1 + 1]; ++k)
+      point_triangle(g.owned_particles[k], t2, lca);
+    for (Index k = g.owned_particle_start[t2]; k < g.owned_particle_start[t2 + 1]; ++k)
+      point_triangle(g.owned_particles[k], t1, lca);
+    for (Index i = g.owned_edge_start[t1]; i < g.owned_edge_start[t1 + 1]; ++i)
+      for (Index j = g.owned_edge_start[t2]; j < g.owned_edge_start[t2 + 1]; ++j)
+        edge_edge(g.owned_edges[i], g.owned_edges[j], lca);
+  };
+  node_pairs_.clear();
+  node_pairs_.push_back({root, root, root});
+  while (!node_pairs_.empty()) {
+    const auto [a, b, lca] = node_pairs_.back();
+    node_pairs_.pop_back();
+    const auto& ca = g.bvh_child[a];
+    const auto& cb = g.bvh_child[b];
+    if (a == b) {
+      if (ca[0] < 0) continue;
+      if (certified_[a]) {
+        g.deferred[a] = 1;
+        continue;
+      }
+      node_pairs_.push_back({ca[0], ca[1], a});
+      node_pairs_.push_back({ca[1], ca[1], ca[1]});
+      node_pairs_.push_back({ca[0], ca[0], ca[0]});
+      continue;
+    }
+    if (!boxes_overlap(node_lo_[a], node_hi_[a], node_lo_[b], node_hi_[b])) continue;
+    if (ca[0] < 0 && cb[0] < 0) {
+      leaf_pair(-1 - ca[0], -1 - cb[0], lca);
+    } else if (ca[0] < 0 || (cb[0] >= 0 && g.bvh_size[b] > g.bvh_size[a])) {
+      node_pairs_.push_back({a, cb[1], lca});
+      node_pairs_.push_back({a, cb[0], lca});
+    } else {
+      node_pairs_.push_back({ca[1], b, lca});
+      node_pairs_.push_back({ca[0], b, lca});
+    }
+  }
+}
+
+// After certify for a sub-step's motion: the deferred nodes it no longer certifies are searched
+// now (with the search's boxes, which hold while the candidates do), in the tree's order, and the
+// pairs they give join the candidates.
+void SelfCollision::resume_deferred(const Model& model, Group& g, const Real* w) {
+  for (Index k = 0; k < static_cast<Index>(g.deferred.size()); ++k)
+    if (g.deferred[k] && !certified_[k]) {
+      g.deferred[k] = 0;
+      search_node(model, g, k, w);
+    }
+}
+
+// Whether the candidates of group g hold for the positions x and p now (see above).
 bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const {
   const Real h = g.thickness;
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
@@ -426,13 +619,15 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
   for (Group& g : groups_) {
     const Real hs = g.thickness;
     if (!g.searched || !candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
-    if (!proximity) continue;
+    // The deferred nodes are searched when the continuous test's motion does not certify them
+    // (find_impacts): a patch has proximity contacts from the sub-step after it stops being one.
+    if (!proximity || g.pt.empty()) continue;
     sweep_boxes(model, g, x, p, hs);  // a pair within 2h at the prediction: its widened boxes overlap
     const int parts = in_chunks(g.pt.size(), [&](int part, int parts_count) {
       auto& out = contact_parts_[part];
       out.clear();
       for (std::size_t k = g.pt.size() * part / parts_count; k < g.pt.size() * (part + 1) / parts_count; ++k) {
-        const auto [q, t] = g.pt[k];
+        const auto [q, t, patch] = g.pt[k];
         if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
         const Triangle& tri = model.triangles[g.triangles[t]];
         const Vec3 xq = x.col(q), pq = p.col(q);
@@ -512,10 +707,14 @@ void SelfCollision::project(Positions& p, const Real* w) {
 }
 
 // The pairs of group g whose distance falls to kSeparation of its start along x -> p (additive
-// CCD), in the candidates' order, into impacts_. A pair whose swept boxes do not overlap cannot
-// meet and is skipped before the test.
-void SelfCollision::find_impacts(const Model& model, const Group& g, const Positions& x, const Positions& p) {
+// CCD), in the candidates' order, into impacts_. The patches certified for the motion are found
+// first (and those deferred at the search that are not, searched now); a pair inside one, or
+// whose swept boxes do not overlap, cannot meet and is skipped before the test.
+void SelfCollision::find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w) {
   impacts_.clear();
+  certify(model, g, x, p);
+  resume_deferred(model, g, w);
+  if (g.pt.empty() && g.ee.empty()) return;
   sweep_boxes(model, g, x, p, 0);
   const auto test = [&](PairKind kind, const std::array<Index, 4>& id, std::vector<Found>& out) {
     std::array<Vec3, 4> x0, dx;
@@ -528,26 +727,35 @@ void SelfCollision::find_impacts(const Model& model, const Group& g, const Posit
     auto& ee_out = impact_parts_[2 * t + 1];
     pt_out.clear();
     ee_out.clear();
-    std::int64_t tests = 0;
+    std::int64_t tests = 0, culled = 0;
     for (std::size_t k = g.pt.size() * t / T; k < g.pt.size() * (t + 1) / T; ++k) {
-      const auto [q, tri_index] = g.pt[k];
+      const auto [q, tri_index, patch] = g.pt[k];
+      if (patch >= 0 && certified_[patch]) {
+        ++culled;
+        continue;
+      }
       if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[tri_index], box_hi_[tri_index])) continue;
       const Triangle& tri = model.triangles[g.triangles[tri_index]];
       test(PairKind::PointTriangle, {q, tri[0], tri[1], tri[2]}, pt_out);
       ++tests;
     }
     for (std::size_t k = g.ee.size() * t / T; k < g.ee.size() * (t + 1) / T; ++k) {
-      const auto [a, b] = g.ee[k];
+      const auto [a, b, patch] = g.ee[k];
+      if (certified_[patch]) {
+        ++culled;
+        continue;
+      }
       if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) continue;
       test(PairKind::EdgeEdge, {g.edges[a][0], g.edges[a][1], g.edges[b][0], g.edges[b][1]}, ee_out);
       ++tests;
     }
     tests_parts_[t] = tests;
+    culled_parts_[t] = culled;
   });
   // In the candidates' order whatever the number of threads: point-triangle, then edge-edge.
   for (int kind = 0; kind < 2; ++kind)
     for (int t = 0; t < parts; ++t) impacts_.insert(impacts_.end(), impact_parts_[2 * t + kind].begin(), impact_parts_[2 * t + kind].end());
-  for (int t = 0; t < parts; ++t) counts_.tests += tests_parts_[t];
+  for (int t = 0; t < parts; ++t) counts_.tests += tests_parts_[t], counts_.culled += culled_parts_[t];
 }
 
 // After the sweeps: the continuous test, up to kResponseRounds rounds of continuous contacts
@@ -558,7 +766,7 @@ void SelfCollision::resolve(const Model& model, const Positions& x, Positions& p
   for (Group& g : groups_) {
     for (int round = 0;; ++round) {
       if (!candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
-      find_impacts(model, g, x, p);
+      find_impacts(model, g, x, p, w);
       if (impacts_.empty()) break;
       if (round == kResponseRounds) break;
       for (const Found& m : impacts_) {
@@ -605,7 +813,7 @@ void SelfCollision::resolve(const Model& model, const Positions& x, Positions& p
         break;
       }
       counts_.failsafe += newly;
-      find_impacts(model, g, x, p);  // p = x stays inside the swept boxes: the candidates hold
+      find_impacts(model, g, x, p, w);  // p = x stays inside the swept boxes: the candidates hold
     }
     for (const Index i : stopped) stopped_[i] = 0;
   }

@@ -61,6 +61,7 @@ struct SelfCollisionCounts {
   std::int64_t candidates = 0;    // point-triangle and edge-edge candidate pairs now kept
   std::int64_t searches = 0;      // candidate-pair searches since prepared
   std::int64_t tests = 0;         // continuous tests (additive CCD) run since prepared
+  std::int64_t culled = 0;        // candidate pairs left untested in certified patches, since prepared
 };
 
 class SelfCollision {
@@ -107,8 +108,10 @@ class SelfCollision {
     std::vector<Index> triangles;        // into model.triangles
     std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
     // The candidate pairs (find_candidates): point-triangle (particle, triangle index into
-    // `triangles`) and edge-edge (indices into `edges`, first < second).
-    std::vector<std::array<Index, 2>> pt, ee;
+    // `triangles`, the patch holding both) and edge-edge (indices into `edges`, first < second,
+    // the patch), the patch being the smallest node of the hierarchy that holds both features'
+    // owner triangles (-1: none, a particle in no triangle).
+    std::vector<std::array<Index, 3>> pt, ee;
     bool searched = false;               // pt and ee were found for this model
     Real size = 0;                       // m, the group's rest bounding-box diagonal
     Index skipped = 0;                   // triangles left out of the last search (beyond `size`)
@@ -119,6 +122,15 @@ class SelfCollision {
     // children (a leaf: {-1 - triangle, -1}), children after their parent; and its triangles' count.
     std::vector<std::array<Index, 2>> bvh_child;
     std::vector<Index> bvh_size;
+    // Each node's triangles are bvh_order[bvh_begin[k] .. bvh_begin[k] + bvh_size[k]); its parent
+    // (-1 for the root). A node whose triangles form a disc (connected, one boundary loop, Euler
+    // characteristic 1, consistently oriented) is a patch (certify): its boundary loop's edges,
+    // directed as in their triangles, are patch_edges[patch_start[k] .. patch_start[k + 1]);
+    // other nodes have none.
+    std::vector<Index> bvh_order, bvh_begin, bvh_parent, patch_start;
+    std::vector<std::array<Index, 2>> patch_edges;
+    std::vector<std::uint8_t> is_patch;
+    std::vector<std::uint8_t> deferred;  // per node: not searched inside, certified when searched
   };
   struct Found {
     PairKind kind;
@@ -131,7 +143,12 @@ class SelfCollision {
   bool candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const;
   void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi);
-  void find_impacts(const Model& model, const Group& g, const Positions& x, const Positions& p);
+  void find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
+  void search_node(const Model& model, Group& g, Index root, const Real* w);
+  void resume_deferred(const Model& model, Group& g, const Real* w);
+  static void find_patches(const Model& model, Group& g);
+  void certify(const Model& model, const Group& g, const Positions& x, const Positions& p);
+  bool certify_node(const Group& g, Index k, const Positions& x, const Positions& p) const;
   void project(Positions& p, const Real* w);
   template <class F>
   int in_chunks(std::size_t n, F&& chunk);
@@ -145,14 +162,21 @@ class SelfCollision {
   std::vector<Found> impacts_;
   std::vector<std::vector<Found>> impact_parts_;        // per thread: point-triangle, edge-edge
   std::vector<std::vector<SelfContact>> contact_parts_;  // per thread: proximity contacts
-  std::vector<std::int64_t> tests_parts_;                // per thread: continuous tests run
+  std::vector<std::int64_t> tests_parts_, culled_parts_;  // per thread: continuous tests run, pairs culled
   Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
-  std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes
-  std::vector<std::array<Index, 2>> node_pairs_;  // the traversal's stack
+  std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes at the last search
+  std::vector<Vec3> search_tri_lo_, search_tri_hi_, search_edge_lo_, search_edge_hi_;  // m, the features' then
+  Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
+  std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
+  // The continuous test's culling (certify): per triangle the Bernstein coefficients of its
+  // normal over x -> p, and per node whether it or an ancestor is certified free of
+  // self-intersection over the motion.
+  std::vector<std::array<Vec3, 3>> normal_bezier_;
+  std::vector<std::uint8_t> certified_;
   SpatialHash hash_;                     // triangles, for the particles in no triangle
   std::vector<std::uint32_t> stamps_;    // per triangle: queried for the current particle
   std::uint32_t stamp_ = 0;
