@@ -162,13 +162,17 @@ def test_a_cloth_drapes_over_a_sphere_without_passing_through():
         assert np.all(np.isfinite(s.x)) and worst < bound, (iterations, worst)
 
 
-def test_self_collision_is_refused_by_name():
+def test_self_collision_runs_after_each_solve():
+    """Self-collision is the layer after each sub-step's solve (its crossings are tested in
+    test_continuous_self_collision.py): each step searches its candidates afresh."""
     b = csb.ModelBuilder()
     inst = b.add_mesh(csb.cloth_grid(1.0, 1.0, 4, 4), mass=0.2, stretch_compliance=1e-5)
     b.enable_self_collision(inst.group, 0.005)
     model = b.build()
-    with pytest.raises(csb.ParameterError, match="implicit-euler models contacts with colliders, not self-collision"):
-        csb.make_integrator("implicit-euler", 0.01).step(model, model.initial_state())
+    state = model.initial_state()
+    stepper = csb.make_integrator("implicit-euler", 0.01)
+    stepper.step(model, state, 3)
+    assert stepper.self_collision["searches"] >= 3 and np.all(np.isfinite(state.x))
 
 
 # ------------------------------------------------------------------------------ the claims

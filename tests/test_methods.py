@@ -352,3 +352,27 @@ def test_force_stepper_bad_input():
     model = pendulum_model(0.3, compliance=0.0)
     with pytest.raises(csb.ParameterError, match=r"distance constraint 0 is hard"):
         csb.ForceStepper().step(model, model.initial_state())
+
+
+def test_force_steppers_refuse_contacts_they_would_ignore():
+    """The force-based integrators have no contact term: a model with a collider or with
+    self-collision is refused by name (it used to be stepped as if they were not there, a pair of
+    particles falling through the floor) and the state is left as it was."""
+    b = csb.ModelBuilder()
+    g = b.add_group("pair")
+    b.add_particle([0.0, 0.1, 0.0], 1.0, g)
+    b.add_particle([0.1, 0.1, 0.0], 1.0, g)
+    b.add_distance(0, 1, compliance=1e-3)
+    b.add_plane(name="floor")
+    model = b.build()
+    state = model.initial_state()
+    for method in ("explicit-euler", "symplectic-euler", "velocity-verlet"):
+        with pytest.raises(csb.ParameterError, match=r"has no contacts.*1 collider\(s\) \('floor'\)"):
+            csb.ForceStepper(method=method, dt=1e-3).step(model, state, 10)
+    assert np.array_equal(np.asarray(state.x)[:, 1], [0.1, 0.1]) and state.step == 0
+    b = csb.ModelBuilder()
+    sheet = b.add_mesh(csb.cloth_grid(0.3, 0.3, 3, 3), mass=0.1, stretch_compliance=1e-4)
+    b.enable_self_collision(sheet.group, 0.005)
+    folding = b.build()
+    with pytest.raises(csb.ParameterError, match=r"group 'cloth_grid\(3x3\)' has self-collision"):
+        csb.ForceStepper(dt=1e-4).step(folding, folding.initial_state())

@@ -34,6 +34,16 @@ ForceStepper::ForceStepper(const ForceSettings& settings) : settings_(settings) 
 void ForceStepper::step(const Model& model, State& state, std::int64_t steps, const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "ForceStepper.step");
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
+  // The spring network has no contact term: a collider or self-collision would be ignored, the
+  // cloth passing through the floor or itself. Refused by name rather than silently dropped.
+  if (!model.colliders.empty())
+    throw InvalidArgument(name() + " integrates the springs alone and has no contacts, but the model has " +
+                          std::to_string(model.colliders.size()) + " collider(s) ('" + model.colliders[0].name +
+                          "'): use a position-based or implicit method (pbd, xpbd, vbd, backward-euler, ...)");
+  for (std::size_t g = 0; g < model.self_collision_thickness.size(); ++g)
+    if (model.self_collision_thickness[g] > 0)
+      throw InvalidArgument(name() + " integrates the springs alone and has no contacts, but group '" +
+                            model.group_names[g] + "' has self-collision: use a position-based or implicit method");
   // A force evaluation visits every spring (distance constraint and attachment) and particle.
   require_time_for("steps = " + std::to_string(steps),
                    static_cast<double>(steps) * settings_.substeps *

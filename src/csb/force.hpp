@@ -8,7 +8,9 @@
 //   velocity Verlet      x' = x + h v + h²/2 a,  v' = v + h/2 (a + a(x', v + h a))
 // For an undamped spring of angular frequency ω, explicit Euler grows by sqrt(1 + (ωh)²) per
 // step at any h; symplectic Euler and velocity (Störmer-)Verlet are stable for h < 2/ω, and a
-// network for h < 2/ω_max, ω_max² the largest eigenvalue of M⁻¹K.
+// network for h < 2/ω_max, ω_max² the largest eigenvalue of M⁻¹K. They have no contacts: a model
+// with colliders or self-collision is refused by name (InvalidArgument) rather than stepped as if
+// it had none.
 #pragma once
 
 #include "csb/integrator.hpp"
