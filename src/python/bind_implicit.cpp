@@ -180,7 +180,7 @@ void bind_implicit(py::module_& m) {
       .def_property_readonly("max_residual", &BackwardEulerStepper::max_residual, "N, over all steps so far")
       .def_property_readonly("total_iterations", &BackwardEulerStepper::total_iterations, "Newton iterations, all steps")
       .def_property_readonly("self_collision", [](const BackwardEulerStepper& s) { return self_collision_dict(s.self_collision()); },
-           "what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches and tests since the model was first stepped");
+           kSelfCollisionDoc);
 }
 
 }  // namespace csb::python

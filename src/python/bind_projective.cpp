@@ -71,7 +71,7 @@ void bind_projective(py::module_& m) {
       }, "N, with record_residuals: the largest backward-Euler residual component of the last sub-step at its "
          "start (x̃) and after each iteration (iterations + 1 values); empty otherwise")
       .def_property_readonly("self_collision", [](const PD& s) { return self_collision_dict(s.self_collision()); },
-           "what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches and tests since the model was first stepped");
+           kSelfCollisionDoc);
 }
 
 }  // namespace csb::python

@@ -47,7 +47,7 @@ void bind_vbd(py::module_& m) {
       .def_property_readonly("threads_used", &VbdStepper::threads_used, "threads of the last step")
       .def_property_readonly("num_colours", &VbdStepper::num_colours, "vertex colours of the last model stepped")
       .def_property_readonly("self_collision", [](const VbdStepper& s) { return self_collision_dict(s.self_collision()); },
-           "what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches and tests since the model was first stepped")
+           kSelfCollisionDoc)
       .def("residual", [](const VbdStepper& s, const Model& model) {
         py::gil_scoped_release release;
         return s.last_residual(model);

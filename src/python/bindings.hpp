@@ -264,6 +264,10 @@ inline py::dict violation_dict(const Violation& v) {
 
 // What self-collision did in an implicit method's last sub-step (the keys of PbdStepper.contacts()'
 // self_* entries, without the prefix).
+inline constexpr const char* kSelfCollisionDoc =
+    "what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and "
+    "candidates there; searches, tests and culled (pairs left untested in certified patches) since the model "
+    "was first stepped";
 inline py::dict self_collision_dict(const SelfCollisionCounts& c) {
   py::dict d;
   d["contacts"] = c.contacts;

@@ -794,6 +794,11 @@ class BackwardEuler(Integrator):
     def rtol(self) -> float:
         ...
     @property
+    def self_collision(self) -> dict:
+        """
+        what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches, tests and culled (pairs left untested in certified patches) since the model was first stepped
+        """
+    @property
     def substeps(self) -> int:
         ...
     @property
@@ -808,7 +813,7 @@ class BackwardEuler(Integrator):
         """
 class VertexBlockDescent(Integrator):
     """
-    Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024): each sub-step minimises the backward Euler step's incremental potential over every compliant constraint by `iterations` sweeps of per-vertex Newton steps, colour by colour (a colour's vertices share no constraint and update in parallel). Reads compliance; takes contacts with colliders as a penalty; refuses hard constraints and self-collision.
+    Vertex Block Descent (Chen, Liu, Yang and Yuksel 2024): each sub-step minimises the backward Euler step's incremental potential over every compliant constraint by `iterations` sweeps of per-vertex Newton steps, colour by colour (a colour's vertices share no constraint and update in parallel). Reads compliance; takes contacts with colliders as a penalty and self-collision as a layer after each sub-step's solve; refuses hard constraints.
     """
     def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], initialization: str = 'adaptive', acceleration: typing.SupportsFloat | typing.SupportsIndex = 0.0, threads: int = 0, contact_stiffness: typing.SupportsFloat | typing.SupportsIndex = 10000.0) -> None:
         """
@@ -842,6 +847,11 @@ class VertexBlockDescent(Integrator):
         vertex colours of the last model stepped
         """
     @property
+    def self_collision(self) -> dict:
+        """
+        what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches, tests and culled (pairs left untested in certified patches) since the model was first stepped
+        """
+    @property
     def substeps(self) -> int:
         ...
     @property
@@ -856,7 +866,7 @@ class VertexBlockDescent(Integrator):
         """
 class ProjectiveDynamics(Integrator):
     """
-    Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step minimises backward Euler's incremental potential with every constraint's potential made projective, by `iterations` local projections and global solves with a matrix factored once per model and sub-step length. Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, balloons and tethers. Holds contacts with colliders by projection after each global solve; refuses hard constraints and self-collision.
+    Projective Dynamics (Bouaziz et al. 2014) with optional Chebyshev acceleration (Wang 2015): each sub-step minimises backward Euler's incremental potential with every constraint's potential made projective, by `iterations` local projections and global solves with a matrix factored once per model and sub-step length. Reads compliance: exact for distance constraints and attachments, first order for bending, volumes, balloons and tethers. Holds contacts with colliders by projection after each global solve and runs self-collision as a layer after each sub-step's solve; refuses hard constraints.
     """
     def __init__(self, *, dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], chebyshev: bool = False, spectral_radius: typing.SupportsFloat | typing.SupportsIndex = 0.0, chebyshev_delay: int = 10, relaxation: typing.SupportsFloat | typing.SupportsIndex = 0.9, threads: int = 0, record_residuals: bool = False) -> None:
         """
@@ -910,6 +920,11 @@ class ProjectiveDynamics(Integrator):
     def residual_history(self) -> list[float]:
         """
         N, with record_residuals: the largest backward-Euler residual component of the last sub-step at its start (x̃) and after each iteration (iterations + 1 values); empty otherwise
+        """
+    @property
+    def self_collision(self) -> dict:
+        """
+        what self-collision did in the last sub-step: contacts, continuous, failsafe, unresolved, skipped and candidates there; searches, tests and culled (pairs left untested in certified patches) since the model was first stepped
         """
     @property
     def spectral_radius(self) -> float:
@@ -1030,6 +1045,10 @@ class Viewer:
         """
         Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
         """
+    def close(self) -> None:
+        """
+        Releases the window (or offscreen context) now; frame() then returns False.
+        """
     def collider_poses(self) -> list:
         """
         (rotation, translation in m) of every collider as frames draw it now: the stepper's pose at the end of its last step (PbdStepper.collider_pose), the identity (as declared) for a method that does not move colliders.
@@ -1037,10 +1056,6 @@ class Viewer:
     def collider_vertices(self) -> list:
         """
         Per collider, the vertices (V x 3, m, model frame; collider_poses() applies on top) frames draw a deforming mesh collider with now (PbdStepper.collider_vertices), None for a collider that does not deform (drawn as declared).
-        """
-    def close(self) -> None:
-        """
-        Releases the window (or offscreen context) now; frame() then returns False.
         """
     def frame(self) -> bool:
         """
