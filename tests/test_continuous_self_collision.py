@@ -73,16 +73,17 @@ def test_a_point_falling_onto_a_triangle():
         csb.kernels.additive_ccd("point-edge", np.zeros((4, 3)), np.zeros((4, 3)))
 
 
-def two_sheets(speed: float, self_collision: bool):
+def two_sheets(speed: float, self_collision: bool, **material):
     """Two 8 x 8 squares of 0.3 m in one mesh (one self-colliding group), 5 cm apart: the lower one
-    pinned at its corners, the upper one thrown down at it at `speed` m/s."""
+    pinned at its corners, the upper one thrown down at it at `speed` m/s; `material` goes to
+    add_mesh (compliances)."""
     sheet = csb.cloth_grid(0.3, 0.3, 8, 8)
     v = np.asarray(sheet.vertices, float)
     t = np.asarray(sheet.triangles)
     vertices = np.vstack([v, v + [0.01, 0.05, 0.013]])  # offset sideways too: no vertex meets a vertex
     triangles = np.vstack([t, t + len(v)])
     b = csb.ModelBuilder()
-    inst = b.add_mesh(csb.Mesh(vertices, triangles, name="two sheets"), density=0.2)
+    inst = b.add_mesh(csb.Mesh(vertices, triangles, name="two sheets"), density=0.2, **material)
     corners = [i for i in range(len(v)) if abs(abs(v[i, 0]) - 0.15) < 1e-9 and abs(abs(v[i, 2]) - 0.15) < 1e-9]
     for i in corners:
         b.pin(inst.first_particle + i)
@@ -155,26 +156,7 @@ def test_the_threaded_self_collision_tests_give_the_same_bits():
 def soft_sheets(speed: float, self_collision: bool):
     """two_sheets with compliant stretch (1e-6 m/N) and bending (10 1/(N m)): the implicit methods
     model every constraint as a potential and need a compliance."""
-    sheet = csb.cloth_grid(0.3, 0.3, 8, 8)
-    v = np.asarray(sheet.vertices, float)
-    t = np.asarray(sheet.triangles)
-    vertices = np.vstack([v, v + [0.01, 0.05, 0.013]])
-    triangles = np.vstack([t, t + len(v)])
-    b = csb.ModelBuilder()
-    inst = b.add_mesh(csb.Mesh(vertices, triangles, name="two sheets"), density=0.2, stretch_compliance=1e-6,
-                      bending_compliance=10.0)
-    for i in range(len(v)):
-        if abs(abs(v[i, 0]) - 0.15) < 1e-9 and abs(abs(v[i, 2]) - 0.15) < 1e-9:
-            b.pin(inst.first_particle + i)
-    if self_collision:
-        b.enable_self_collision(inst.group, 0.004)
-    model = b.build()
-    state = model.initial_state()
-    vel = np.array(state.v)
-    vel[len(v):, 1] = -speed
-    state.v = vel
-    edges = np.unique(np.sort(triangles[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
-    return model, state, edges, triangles
+    return two_sheets(speed, self_collision, stretch_compliance=1e-6, bending_compliance=10.0)
 
 
 # backward Euler solved to convergence at 3 m/s: at 30 m/s the fail-safe's stops leave springs of
