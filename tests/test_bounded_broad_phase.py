@@ -42,3 +42,25 @@ def test_a_self_collision_layer_thicker_than_the_cloth_is_refused():
     with pytest.raises(csb.ParameterError, match=r"self-collision thickness 50 m of group '.*' exceeds the size "
                                                  r"of its cloth \(1\.41\d* m"):
         csb.PbdStepper().step(model, model.initial_state(), 1)
+
+
+def test_a_thickness_above_the_triangles_altitude_is_warned_of():
+    """A 1 m cloth of 32 x 32 vertices (31 cells a side) has right triangles whose smallest
+    altitude is 1/31/sqrt(2) = 22.8 mm: a thickness of 25 mm puts particles within the contact distance of
+    their flat neighbours and is warned of once (csb.AccuracyWarning, naming the altitude); 10 mm
+    is not."""
+    import warnings
+
+    for thickness, warned in ((0.025, True), (0.010, False)):
+        b = csb.ModelBuilder()
+        inst = b.add_mesh(csb.cloth_grid(1.0, 1.0, 32, 32), mass=0.2)
+        b.pin(inst.first_particle)
+        b.enable_self_collision(inst.group, thickness)
+        model = b.build()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            csb.PbdStepper().step(model, model.initial_state(), 2)
+        notes = [str(w.message) for w in caught if issubclass(w.category, csb.AccuracyWarning)]
+        assert (len(notes) == 1) == warned, notes
+        if warned:
+            assert "smallest rest altitude of its triangles, 0.0228099 m" in notes[0]
