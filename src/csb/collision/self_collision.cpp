@@ -266,7 +266,8 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
       const Index E = interior / 2 + static_cast<Index>(boundary.size());
       disc = disc && !boundary.empty() && V - E + size == 1;
       // One loop: each boundary vertex starts one boundary edge, and following them from the
-      // first edge returns to it after visiting them all.
+      // first edge returns to it after visiting them all, not before (two loops of one length
+      // would otherwise pass).
       for (std::size_t i = 1; disc && i < boundary.size(); ++i) disc = boundary[i][0] != boundary[i - 1][0];
       const std::size_t start = g.patch_edges.size();
       if (disc) {
@@ -279,6 +280,10 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
             break;
           }
           at = *next;
+          if (at == boundary[0] && n + 1 < boundary.size()) {
+            disc = false;
+            break;
+          }
         }
         disc = disc && at == boundary[0];
         if (!disc) g.patch_edges.resize(start);
