@@ -213,10 +213,10 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred);
+         b(g.bvh_begin) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.axis);
   s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
-       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(normal_bezier_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
-       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(particle_lo_) + positions(particle_hi_) +
+       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
+       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
        positions(sweep_lo_) + positions(sweep_hi_);
   for (const auto& v : impact_parts_) s += b(v);
   for (const auto& v : contact_parts_) s += b(v);
@@ -296,10 +296,10 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
 
 // Whether node k, a patch, has no self-intersection at any time of the motion x -> p (each
 // particle on its straight line), after Volino and Magnenat-Thalmann (1994) with the star test of
-// Schvartzman, Pérez and Otaduy (2010), both for a moving patch. With V the sum of the patch's
-// normals at x and O its boundary's centroid at x, fixed over the motion:
+// Schvartzman, Pérez and Otaduy (2010), both for a moving patch. With V an axis (the sum of the
+// patch's normals when last computed) and O its boundary's centroid at x, fixed over the motion:
 //  - every triangle's normal n(s) = (b - a) x (c - a), a quadratic in s over [0, 1], has
-//    V·n(s) > 0: its three Bernstein coefficients (normal_bezier_) are positive along V. The
+//    V·n(s) > 0: its three Bernstein coefficients are positive along V. The
 //    projection along V onto a plane then keeps each triangle's orientation at every s;
 //  - every boundary edge (a, b) keeps ((a - O) x (b - O))·V > 0, again a quadratic whose three
 //    Bernstein coefficients are positive: the projected boundary turns monotonically about O;
@@ -311,18 +311,46 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
 // inside a certified patch cannot meet during the motion, and neither can one inside any part of
 // it. Each sign is taken with a margin of 1e-9 of its scale (the squared size of the node's box
 // times |V|), far above the products' rounding, so that rounding never certifies.
-bool SelfCollision::certify_node(const Group& g, Index k, const Positions& x, const Positions& p) const {
-  Vec3 V = Vec3::Zero();
+bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Positions& p, const Model& model) {
   const Index* tri = g.bvh_order.data() + g.bvh_begin[k];
   const Index size = g.bvh_size[k];
-  for (Index i = 0; i < size; ++i) V += normal_bezier_[tri[i]][0];
-  const Real scale = (node_hi_[k] - node_lo_[k]).squaredNorm() * V.norm();
-  const Real margin = 1e-9 * scale;
-  if (!(margin > 0)) return false;  // NaN, or a collapsed patch
-  for (Index i = 0; i < size; ++i) {
-    const auto& b = normal_bezier_[tri[i]];
-    if (!(V.dot(b[0]) > margin && V.dot(b[1]) > margin && V.dot(b[2]) > margin)) return false;
+  const auto corners = [&](Index i, Vec3& e0, Vec3& f0, Vec3& e1, Vec3& f1) {
+    const Triangle& t = model.triangles[g.triangles[tri[i]]];
+    e0 = x.col(t[1]) - x.col(t[0]), f0 = x.col(t[2]) - x.col(t[0]);
+    e1 = p.col(t[1]) - p.col(t[0]), f1 = p.col(t[2]) - p.col(t[0]);
+  };
+  // V: the axis kept from the node's last certification (any V serves the proof), else the sum
+  // of its normals at x; a kept axis that fails is replaced by that sum and tried once more.
+  Vec3& V = g.axis[k];
+  bool fresh = false;
+  const auto renew_axis = [&] {
+    V.setZero();
+    Vec3 e0, f0, e1, f1;
+    for (Index i = 0; i < size; ++i) corners(i, e0, f0, e1, f1), V += e0.cross(f0);
+    fresh = true;
+  };
+  if (V.isZero(0)) renew_axis();
+  const Real box2 = (node_hi_[k] - node_lo_[k]).squaredNorm();
+  for (;;) {
+    const Real margin = 1e-9 * box2 * V.norm();
+    if (!(margin > 0)) return false;  // NaN, or a collapsed patch
+    // V·n(s) over the motion, by its Bernstein coefficients: V·(e0 x f0), V·(e0 x f1 + e1 x f0)/2
+    // and V·(e1 x f1), each V·(a x b) taken as (V x a)·b.
+    bool normals = true;
+    for (Index i = 0; normals && i < size; ++i) {
+      Vec3 e0, f0, e1, f1;
+      corners(i, e0, f0, e1, f1);
+      const Vec3 ve0 = V.cross(e0), ve1 = V.cross(e1);
+      normals = ve0.dot(f0) > margin && ve0.dot(f1) + ve1.dot(f0) > 2 * margin && ve1.dot(f1) > margin;
+    }
+    if (!normals) {
+      if (fresh) return false;
+      renew_axis();
+      continue;
+    }
+    break;
   }
+  const Real margin = 1e-9 * box2 * V.norm();
   const auto* edges = g.patch_edges.data() + g.patch_start[k];
   const Index m = g.patch_start[k + 1] - g.patch_start[k];
   Vec3 O = Vec3::Zero();
@@ -349,24 +377,16 @@ bool SelfCollision::certify_node(const Group& g, Index k, const Positions& x, co
 
 // certified_[k]: node k or one of its ancestors is a patch certified for the motion x -> p
 // (certify_node), top-down: a node below a certified one needs no test of its own.
-void SelfCollision::certify(const Model& model, const Group& g, const Positions& x, const Positions& p) {
-  const std::size_t T = g.triangles.size();
-  normal_bezier_.resize(T);
-  for (std::size_t t = 0; t < T; ++t) {
-    const Triangle& tri = model.triangles[g.triangles[t]];
-    const Vec3 e0 = x.col(tri[1]) - x.col(tri[0]), f0 = x.col(tri[2]) - x.col(tri[0]);
-    const Vec3 e1 = p.col(tri[1]) - p.col(tri[0]), f1 = p.col(tri[2]) - p.col(tri[0]);
-    // n(s) = (1 - s)² n0 + 2 s (1 - s) nm + s² n1 with e(s), f(s) linear in s.
-    normal_bezier_[t] = {e0.cross(f0), Real(0.5) * (e0.cross(f1) + e1.cross(f0)), e1.cross(f1)};
-  }
+void SelfCollision::certify(const Model& model, Group& g, const Positions& x, const Positions& p) {
   const Index nodes = static_cast<Index>(g.bvh_child.size());
+  if (g.axis.size() != static_cast<std::size_t>(nodes)) g.axis.assign(nodes, Vec3::Zero());
   certified_.assign(nodes, 0);
   for (Index k = 0; k < nodes; ++k) {  // parents before children
     const Index up = g.bvh_parent[k];
     if (up >= 0 && certified_[up])
       certified_[k] = 1;
     else if (g.is_patch[k])
-      certified_[k] = certify_node(g, k, x, p);
+      certified_[k] = certify_node(g, k, x, p, model);
   }
 }
 
@@ -419,6 +439,14 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
     lookahead_.col(i) = end;
     particle_lo_.col(i) = xi.cwiseMin(pi).cwiseMin(end).array() - pad;
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
+    // The box shrunk by h that x and p must stay in (candidates_hold); a particle left out of the
+    // search (see below) holds anywhere.
+    if ((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= g.size + 3 * g.thickness) {
+      hold_lo_.col(i) = particle_lo_.col(i).array() + g.thickness;
+      hold_hi_.col(i) = particle_hi_.col(i).array() - g.thickness;
+    } else {
+      hold_lo_.col(i) = -inf, hold_hi_.col(i) = inf;
+    }
   }
   // A feature whose box spans more than the cloth's rest size (plus the widening) has been torn
   // across the cloth or flung beyond it within a step: no contact or continuous test can follow
@@ -559,15 +587,11 @@ void SelfCollision::resume_deferred(const Model& model, Group& g, const Real* w)
 
 // Whether the candidates of group g hold for the positions x and p now (see above).
 bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const {
-  const Real h = g.thickness;
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
-    if (!((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= g.size + 3 * h)) continue;  // left out
-    const Vec3 lo = particle_lo_.col(i).array() + h, hi = particle_hi_.col(i).array() - h;
-    const Vec3 xi = x.col(i), pi = p.col(i);
-    if ((xi.array() < lo.array()).any() || (xi.array() > hi.array()).any() || (pi.array() < lo.array()).any() ||
-        (pi.array() > hi.array()).any())
-      return false;
+    const auto lo = hold_lo_.col(i).array(), hi = hold_hi_.col(i).array();
+    const auto xi = x.col(i).array(), pi = p.col(i).array();
+    if ((xi < lo).any() || (xi > hi).any() || (pi < lo).any() || (pi > hi).any()) return false;
   }
   return true;
 }
@@ -619,7 +643,7 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
   contacts_.clear();
   counts_.continuous = counts_.failsafe = counts_.unresolved = 0;
   if (particle_lo_.cols() != p.cols())
-    for (Positions* m : {&particle_lo_, &particle_hi_, &sweep_lo_, &sweep_hi_}) m->resize(3, p.cols());
+    for (Positions* m : {&particle_lo_, &particle_hi_, &hold_lo_, &hold_hi_, &sweep_lo_, &sweep_hi_}) m->resize(3, p.cols());
   if (stopped_.size() != static_cast<std::size_t>(p.cols())) stopped_.assign(p.cols(), 0);
   for (Group& g : groups_) {
     const Real hs = g.thickness;

@@ -73,9 +73,10 @@ class SelfCollision {
   // hierarchies. InvalidArgument for a thickness larger than its cloth.
   void prepare(const Model& model);
   bool empty() const { return groups_.empty(); }
-  // The next begin() finds the candidate pairs afresh instead of keeping them while they hold.
+  // The next begin() finds the candidate pairs afresh instead of keeping them while they hold, and
+  // the patches' axes afresh: what follows depends on the positions alone.
   void forget_candidates() {
-    for (Group& g : groups_) g.searched = false;
+    for (Group& g : groups_) g.searched = false, g.axis.clear();
   }
   // The threads the per-sub-step tests may use (1: the caller's); the results do not depend on it.
   void set_threads(int threads, Fork fork);
@@ -131,6 +132,7 @@ class SelfCollision {
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
     std::vector<std::uint8_t> deferred;  // per node: not searched inside, certified when searched
+    std::vector<Vec3> axis;              // per node: the axis V of its last certification (zero: none yet)
   };
   struct Found {
     PairKind kind;
@@ -147,8 +149,8 @@ class SelfCollision {
   void search_node(const Model& model, Group& g, Index root, const Real* w);
   void resume_deferred(const Model& model, Group& g, const Real* w);
   static void find_patches(const Model& model, Group& g);
-  void certify(const Model& model, const Group& g, const Positions& x, const Positions& p);
-  bool certify_node(const Group& g, Index k, const Positions& x, const Positions& p) const;
+  void certify(const Model& model, Group& g, const Positions& x, const Positions& p);
+  bool certify_node(Group& g, Index k, const Positions& x, const Positions& p, const Model& model);
   void project(Positions& p, const Real* w);
   template <class F>
   int in_chunks(std::size_t n, F&& chunk);
@@ -164,6 +166,7 @@ class SelfCollision {
   std::vector<std::vector<SelfContact>> contact_parts_;  // per thread: proximity contacts
   std::vector<std::int64_t> tests_parts_, culled_parts_;  // per thread: continuous tests run, pairs culled
   Positions particle_lo_, particle_hi_;  // m, each particle's box when the candidates were found
+  Positions hold_lo_, hold_hi_;          // m, that box shrunk by h (candidates_hold)
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
@@ -172,10 +175,8 @@ class SelfCollision {
   Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
-  // The continuous test's culling (certify): per triangle the Bernstein coefficients of its
-  // normal over x -> p, and per node whether it or an ancestor is certified free of
-  // self-intersection over the motion.
-  std::vector<std::array<Vec3, 3>> normal_bezier_;
+  // The continuous test's culling (certify): per node whether it or an ancestor is certified
+  // free of self-intersection over the motion.
   std::vector<std::uint8_t> certified_;
   SpatialHash hash_;                     // triangles, for the particles in no triangle
   std::vector<std::uint32_t> stamps_;    // per triangle: queried for the current particle
