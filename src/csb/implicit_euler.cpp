@@ -142,7 +142,7 @@ void IncrementalPotential::scales(const Real* x, Real& force_scale, Real& roundi
   }
 }
 
-void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps) {
+void check_implicit_step(const Model& model, const State& state, std::int64_t steps) {
   if (steps < 0) throw InvalidArgument("steps must be >= 0, got " + std::to_string(steps));
   const Index np = model.num_particles();
   if (state.x.cols() != np || state.v.cols() != np)
@@ -434,7 +434,7 @@ BackwardEulerStepper::BackwardEulerStepper(const BackwardEulerSettings& settings
 void BackwardEulerStepper::step(const Model& model, State& state, std::int64_t steps,
                                 const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "BackwardEuler.step");
-  check_implicit_step(name(), model, state, steps);
+  check_implicit_step(model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
   run_implicit_steps(model, state, steps, settings_.substeps, settings_.dt, interrupt,
                      [&](int) { solve_one(model, state, h); }, &self_collision_);

@@ -128,8 +128,8 @@ class IncrementalPotential {
 
 // The checks every implicit method's step (implicit Euler, Projective Dynamics, VBD) makes before
 // it touches the state: steps >= 0, a state of the model's size and finite. InvalidArgument
-// naming `method` and what is wrong.
-void check_implicit_step(const std::string& method, const Model& model, const State& state, std::int64_t steps);
+// naming what is wrong.
+void check_implicit_step(const Model& model, const State& state, std::int64_t steps);
 
 // Self-collision in an implicit method: the collision-processing layer of Bridson, Fedkiw and
 // Anderson (2002) after each sub-step's solve. The solve's positions are the end of the sub-step's

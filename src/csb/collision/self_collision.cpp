@@ -486,21 +486,14 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   g.ee.clear();
   g.deferred.assign(nodes, 0);
   if (nodes > 0) search_node(model, g, 0, w);
-  const auto point_triangle = [&](Index q, Index t) {
-    const Triangle& tri = model.triangles[g.triangles[t]];
-    if (tri[0] == q || tri[1] == q || tri[2] == q) return;
-    if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), box_lo_[t], box_hi_[t])) return;
-    if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
-    g.pt.push_back({q, t, -1});
-  };
-  if (!g.loose.empty()) hash_.build(g.cell, box_lo_, box_hi_);
+  if (!g.loose.empty()) hash_.build(g.cell, search_tri_lo_, search_tri_hi_);
   for (const Index q : g.loose) {  // particles of the group in no triangle
     if (!((particle_hi_.col(q) - particle_lo_.col(q)).maxCoeff() <= reach)) continue;
     if (++stamp_ == 0) std::fill(stamps_.begin(), stamps_.end(), 0), stamp_ = 1;
     hash_.query(particle_lo_.col(q), particle_hi_.col(q), [&](Index t) {
       if (stamps_[t] == stamp_) return;
       stamps_[t] = stamp_;
-      point_triangle(q, t);
+      add_point_triangle(model, g, q, t, -1, w);
     });
   }
   g.searched = true;
@@ -518,13 +511,7 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
 // pairs of their children (the one holding more triangles is opened). Every overlapping pair of
 // leaves comes once, in an order fixed by the tree.
 void SelfCollision::search_node(const Model& model, Group& g, Index root, const Real* w) {
-  const auto point_triangle = [&](Index q, Index t, Index lca) {
-    const Triangle& tri = model.triangles[g.triangles[t]];
-    if (tri[0] == q || tri[1] == q || tri[2] == q) return;
-    if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), search_tri_lo_[t], search_tri_hi_[t])) return;
-    if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
-    g.pt.push_back({q, t, lca});
-  };
+  const auto point_triangle = [&](Index q, Index t, Index lca) { add_point_triangle(model, g, q, t, lca, w); };
   const auto edge_edge = [&](Index a, Index b, Index lca) {
     const auto& ea = g.edges[a];
     const auto& eb = g.edges[b];
@@ -572,6 +559,16 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
       node_pairs_.push_back({ca[0], b, lca});
     }
   }
+}
+
+// Particle q and triangle t as a candidate pair of patch lca, if q is not one of t's corners, their
+// search boxes overlap and one of them can move.
+void SelfCollision::add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w) {
+  const Triangle& tri = model.triangles[g.triangles[t]];
+  if (tri[0] == q || tri[1] == q || tri[2] == q) return;
+  if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), search_tri_lo_[t], search_tri_hi_[t])) return;
+  if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
+  g.pt.push_back({q, t, lca});
 }
 
 // After certify for a sub-step's motion: the deferred nodes it no longer certifies are searched

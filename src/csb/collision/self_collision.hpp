@@ -147,6 +147,7 @@ class SelfCollision {
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi);
   void find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
   void search_node(const Model& model, Group& g, Index root, const Real* w);
+  void add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w);
   void resume_deferred(const Model& model, Group& g, const Real* w);
   static void find_patches(const Model& model, Group& g);
   void certify(const Model& model, Group& g, const Positions& x, const Positions& p);

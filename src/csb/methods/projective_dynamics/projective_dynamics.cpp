@@ -360,7 +360,7 @@ ProjectiveDynamicsStepper& ProjectiveDynamicsStepper::operator=(const Projective
 void ProjectiveDynamicsStepper::step(const Model& model, State& state, std::int64_t steps,
                                      const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "ProjectiveDynamics.step");
-  check_implicit_step("Projective Dynamics", model, state, steps);
+  check_implicit_step(model, state, steps);
   const Real h = settings_.dt / settings_.substeps;
   if (steps == 0) return;
   if (!cache_ || cache_->model_id != model.id || cache_->h != h) {

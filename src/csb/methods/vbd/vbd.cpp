@@ -160,7 +160,7 @@ Index VbdStepper::num_colours() const {
 
 void VbdStepper::step(const Model& model, State& state, std::int64_t steps, const std::function<bool()>& interrupt) {
   const UseGuard::Scope in_use(use_, "VertexBlockDescent.step");
-  check_implicit_step("VBD", model, state, steps);
+  check_implicit_step(model, state, steps);
   const Index np = model.num_particles();
 
   if (!plan_ || plan_->model_id != model.id) {
