@@ -45,9 +45,12 @@ def _octahedron() -> csb.Mesh:
     return csb.Mesh(v, f, name="ball")
 
 
-def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _core.MIN_COLOUR_SIZE) -> None:
+def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _core.MIN_COLOUR_SIZE,
+                    by_particles: bool = False) -> None:
     """Every constraint exactly once; within a colour (serial colours aside) no particle twice
-    and the constraints in increasing order; at most one serial colour per group, its last."""
+    and the constraints in increasing order; at most one serial colour per group, its last, in
+    increasing order or, by_particles (the model's distance batch), in the order of the
+    constraints' particle tuples, then of their index."""
     order = np.asarray(colouring["order"])
     offsets = np.asarray(colouring["colour_offsets"])
     assert offsets[0] == 0 and offsets[-1] == len(particles) and np.all(np.diff(offsets) > 0)
@@ -55,9 +58,11 @@ def check_colouring(particles: np.ndarray, colouring: dict, min_size: int = _cor
     colours = len(offsets) - 1
     for k in range(colours):
         members = order[offsets[k]:offsets[k + 1]]
-        assert np.all(np.diff(members) > 0)
         if colouring["serial"][k]:
+            keys = [tuple(particles[c]) + (c,) for c in members] if by_particles else list(members)
+            assert keys == sorted(keys)
             continue
+        assert np.all(np.diff(members) > 0)
         used = particles[members].ravel()
         assert len(np.unique(used)) == len(used), f"colour {k} has constraints sharing a particle"
         assert len(members) >= min_size
@@ -69,7 +74,7 @@ def test_every_batch_is_coloured_validly():
     for batch, key in (("distance", "particles"), ("bending", "particles"), ("volume", "particles")):
         particles = np.asarray(getattr(model, batch)[key])
         c = model.colouring(batch)
-        check_colouring(particles, c, _core.MIN_TASK_COLOUR_SIZE)
+        check_colouring(particles, c, _core.MIN_TASK_COLOUR_SIZE, by_particles=batch == "distance")
         assert len(c["colour_offsets"]) > 2  # really coloured, not one overflow colour
     check_colouring(np.asarray(model.attachments["particle"])[:, None], model.colouring("attachments"), 1)
     with pytest.raises(csb.ParameterError, match="batch must be"):
@@ -168,6 +173,35 @@ def test_a_small_model_is_one_overflow_colour_in_build_order():
     assert list(c["serial"]) == [True] and list(c["colour_offsets"]) == [0, 10] and list(c["order"]) == list(range(10))
 
 
+def test_the_distance_colours_do_not_depend_on_the_build_order():
+    """A mesh's edges are built in colour order (for the sequential sweep) and the distance batch
+    is coloured in particle-pair order, so the coloured sweep sees the colours, and projects the
+    serial colour in the order, of the index-ordered edges: the same constraints added in index
+    order or reversed give the built model's bits."""
+    b = csb.ModelBuilder()
+    g = b.add_group("cloth")
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 12, 12), group=g, mass=0.5)
+    b.pin(0)
+    built = b.build()
+    pairs = np.asarray(built.distance["particles"])
+    index = np.lexsort((pairs[:, 1], pairs[:, 0]))
+    assert not np.array_equal(index, np.arange(len(pairs)))  # built in another order than index order
+    hashes = []
+    for sequence in (np.arange(len(pairs)), index, index[::-1]):
+        b = csb.ModelBuilder()
+        g = b.add_group("cloth")
+        for x, m in zip(np.asarray(built.rest_positions), np.asarray(built.mass)):
+            b.add_particle(x, float(m), g)
+        for c in sequence:
+            b.add_distance(int(pairs[c, 0]), int(pairs[c, 1]))
+        b.pin(0)
+        model = b.build()
+        state = model.initial_state()
+        csb.PbdStepper(dt=1 / 60, substeps=4, iterations=3).step(model, state, 30)
+        hashes.append(state_hash(state))
+    assert hashes[0] == hashes[1] == hashes[2]
+
+
 def test_a_torn_model_is_coloured_again():
     b = csb.ModelBuilder()
     b.add_mesh(csb.cloth_grid(1.0, 1.0, 20, 20), mass=0.5, bending_stiffness=0.5)
@@ -178,7 +212,8 @@ def test_a_torn_model_is_coloured_again():
     torn = csb.tear(model, state, max_strain=0.2, max_tears=5)
     assert torn["torn"] > 0
     for batch in ("distance", "bending"):
-        check_colouring(np.asarray(getattr(torn["model"], batch)["particles"]), torn["model"].colouring(batch))
+        check_colouring(np.asarray(getattr(torn["model"], batch)["particles"]), torn["model"].colouring(batch),
+                        by_particles=batch == "distance")
 
 
 def state_hash(state) -> str:

@@ -254,6 +254,30 @@ Topology topology(const Mesh& mesh) {
   return topo;
 }
 
+std::vector<Edge> sweep_order(const std::vector<Edge>& edges) {
+  Index n = 0;
+  for (const Edge& e : edges) n = std::max(n, e[1] + 1);
+  std::vector<std::vector<Index>> taken(static_cast<std::size_t>(n));  // colours at each vertex
+  std::vector<Index> colour(edges.size());
+  Index colours = 0;
+  for (std::size_t k = 0; k < edges.size(); ++k) {
+    const auto& ta = taken[edges[k][0]];
+    const auto& tb = taken[edges[k][1]];
+    Index c = 0;
+    while (std::find(ta.begin(), ta.end(), c) != ta.end() || std::find(tb.begin(), tb.end(), c) != tb.end()) ++c;
+    colour[k] = c;
+    colours = std::max(colours, c + 1);
+    taken[edges[k][0]].push_back(c);
+    taken[edges[k][1]].push_back(c);
+  }
+  std::vector<Index> start(static_cast<std::size_t>(colours) + 1, 0);
+  for (const Index c : colour) ++start[c + 1];
+  for (Index c = 0; c < colours; ++c) start[c + 1] += start[c];
+  std::vector<Edge> out(edges.size());
+  for (std::size_t k = 0; k < edges.size(); ++k) out[start[colour[k]]++] = edges[k];
+  return out;
+}
+
 std::vector<Real> lumped_measure(const Mesh& mesh) {
   std::vector<Real> w(mesh.num_vertices(), 0.0);
   if (!mesh.triangles.empty()) {

@@ -124,7 +124,7 @@ MeshInstance ModelBuilder::add_mesh(const Mesh& input, const MeshOptions& option
   inst.triangles.assign(triangles_.end() - static_cast<std::ptrdiff_t>(mesh.triangles.size()), triangles_.end());
   const Topology topo = topology(mesh);
   if (options.stretch_stiffness) {
-    for (const auto& e : topo.edges)
+    for (const auto& e : mesh.triangles.empty() ? topo.edges : sweep_order(topo.edges))
       add_distance(f + e[0], f + e[1], *options.stretch_stiffness, -1, 0, options.stretch_compliance);
     inst.num_distance = static_cast<Index>(topo.edges.size());
   }
@@ -277,7 +277,7 @@ MeshInstance ModelBuilder::add_tet_mesh(const TetMesh& input, const TetMeshOptio
         for (int b = a + 1; b < 4; ++b) edges.push_back({std::min(q[a], q[b]), std::max(q[a], q[b])});
     std::sort(edges.begin(), edges.end());
     edges.erase(std::unique(edges.begin(), edges.end()), edges.end());
-    for (const Edge& e : edges)
+    for (const Edge& e : sweep_order(edges))
       add_distance(f + e[0], f + e[1], *options.stretch_stiffness, -1, 0, options.stretch_compliance);
     inst.num_distance = static_cast<Index>(edges.size());
   }

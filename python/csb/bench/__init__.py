@@ -263,7 +263,7 @@ def fps_table(sizes: Sequence[int] = (128, 256), *, rounds: int = 5) -> list[dic
             for threads in (1, 2):
                 rows.append(cloth_ms_per_frame(n, substeps=substeps, iterations=iterations, threads=threads,
                                                rounds=rounds, frames=max(2, 20 * 128 * 128 // (n * n))))
-            try:  # the sequential sweep at one iteration per sub-step diverges on these hard cloths
+            try:  # a sweep that diverges is reported in its row (in index order this one did at 10 x 1)
                 rows.append(cloth_ms_per_frame(n, substeps=substeps, iterations=iterations, threads=1,
                                                ordering="sequential", rounds=rounds,
                                                frames=max(2, 20 * 128 * 128 // (n * n))))

@@ -56,6 +56,11 @@ void colour_group(const Index* particles, int arity, const std::vector<Index>& m
   }
   out.order.resize(static_cast<std::size_t>(start) + members.size());
   for (std::size_t m = 0; m < members.size(); ++m) out.order[cursor[slot[colour[m]]]++] = members[m];
+  // A colour's constraints share no particle: their order changes no result, and index order
+  // keeps the sweep's memory access increasing. The serial colour keeps the members' order.
+  for (Index k = 0; k < colours; ++k)
+    if (!out.serial_colours[first + k])
+      std::sort(out.order.begin() + out.colour_offsets[first + k], out.order.begin() + out.colour_offsets[first + k + 1]);
   out.group_colours.push_back(first + colours);
 }
 
@@ -132,12 +137,20 @@ std::vector<Index> choose_parts(const Model& m, Index parts) {
 }
 
 // Groups a batch's constraints by the parts their particles lie in (see Colouring) and colours
-// each group.
+// each group, in build order or, with by_particles, in the order of the constraints' particle
+// tuples (then of their index).
 Colouring colour_by_parts(const Index* particles, int arity, Index count, const std::vector<Index>& part,
-                          Index parts, std::vector<std::uint64_t>& used) {
+                          Index parts, std::vector<std::uint64_t>& used, bool by_particles = false) {
   std::vector<std::vector<Index>> members(static_cast<std::size_t>(2 * parts));
   for (Index c = 0; c < count; ++c)
     members[group_of(particles + static_cast<std::size_t>(arity) * c, arity, part, parts)].push_back(c);
+  if (by_particles)
+    for (auto& g : members)
+      std::stable_sort(g.begin(), g.end(), [&](Index a, Index b) {
+        const Index* p = particles + static_cast<std::size_t>(arity) * a;
+        const Index* q = particles + static_cast<std::size_t>(arity) * b;
+        return std::lexicographical_compare(p, p + arity, q, q + arity);
+      });
   Colouring out;
   out.group_colours = {0};
   out.order.reserve(static_cast<std::size_t>(count));
@@ -163,8 +176,10 @@ void colour_batches(Model& m) {
   const std::vector<Index>& part = m.part;
   std::vector<std::uint64_t> used(static_cast<std::size_t>(n), 0);
   const Index p = m.num_parts;
+  // The distance batch is coloured in particle order: a mesh's edges are built in colour order for
+  // the sequential sweep (sweep_order), and its colours are those of the index order.
   m.distance.colours = colour_by_parts(m.distance.particles.empty() ? nullptr : m.distance.particles[0].data(), 2,
-                                       m.distance.size(), part, p, used);
+                                       m.distance.size(), part, p, used, true);
   m.bending.colours = colour_by_parts(m.bending.particles.empty() ? nullptr : m.bending.particles[0].data(), 4,
                                       m.bending.size(), part, p, used);
   m.volume.colours = colour_by_parts(m.volume.particles.empty() ? nullptr : m.volume.particles[0].data(), 4,
