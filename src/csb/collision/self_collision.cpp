@@ -56,6 +56,27 @@ inline bool boxes_overlap(const Vec3& lo_a, const Vec3& hi_a, const Vec3& lo_b, 
   return !((lo_a.array() > hi_b.array()).any() || (hi_a.array() < lo_b.array()).any());
 }
 
+// Whether the boxes swept over x -> p by particles a and by particles b, each widened by pad (m),
+// overlap: the same answer as boxes_overlap on the boxes sweep_boxes unites, computed for one pair.
+template <std::size_t NA, std::size_t NB>
+bool swept_boxes_overlap(const Positions& x, const Positions& p, const std::array<Index, NA>& a,
+                         const std::array<Index, NB>& b, Real pad) {
+  const auto box = [&](const auto& ids, Vec3& lo, Vec3& hi) {
+    lo = x.col(ids[0]).cwiseMin(p.col(ids[0]));
+    hi = x.col(ids[0]).cwiseMax(p.col(ids[0]));
+    for (std::size_t k = 1; k < ids.size(); ++k) {
+      lo = lo.cwiseMin(x.col(ids[k])).cwiseMin(p.col(ids[k]));
+      hi = hi.cwiseMax(x.col(ids[k])).cwiseMax(p.col(ids[k]));
+    }
+    lo.array() -= pad;
+    hi.array() += pad;
+  };
+  Vec3 lo_a, hi_a, lo_b, hi_b;
+  box(a, lo_a, hi_a);
+  box(b, lo_b, hi_b);
+  return boxes_overlap(lo_a, hi_a, lo_b, hi_b);
+}
+
 // Σ_k c_k y_k: the separation d of contact k's particles at positions y (m).
 template <class Y>
 Vec3 separation(const SelfContact& k, const Y& y) {
@@ -191,6 +212,8 @@ void SelfCollision::prepare(const Model& model) {
       };
       if (T > 0) build(build, 0, T);
       sg.bvh_order = std::move(order);  // each node's triangles are a run of it
+      sg.bvh_corners.resize(T);
+      for (Index i = 0; i < T; ++i) sg.bvh_corners[i] = model.triangles[sg.triangles[sg.bvh_order[i]]];
       find_patches(model, sg);
     }
     most_triangles = std::max({most_triangles, sg.triangles.size(), sg.edges.size()});
@@ -213,10 +236,10 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.axis);
+         b(g.bvh_begin) + b(g.bvh_corners) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at);
   s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
        b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
-       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
+       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(end_p_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
        positions(sweep_lo_) + positions(sweep_hi_);
   for (const auto& v : impact_parts_) s += b(v);
   for (const auto& v : contact_parts_) s += b(v);
@@ -297,7 +320,8 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
 // Whether node k, a patch, has no self-intersection at any time of the motion x -> p (each
 // particle on its straight line), after Volino and Magnenat-Thalmann (1994) with the star test of
 // Schvartzman, Pérez and Otaduy (2010), both for a moving patch. With V an axis (the sum of the
-// patch's normals when last computed) and O its boundary's centroid at x, fixed over the motion:
+// patch's normals when last computed) and O a point fixed over the motion (the centroid of the
+// boundary's projected area at x, or of its vertices):
 //  - every triangle's normal n(s) = (b - a) x (c - a), a quadratic in s over [0, 1], has
 //    V·n(s) > 0: its three Bernstein coefficients are positive along V. The
 //    projection along V onto a plane then keeps each triangle's orientation at every s;
@@ -311,11 +335,11 @@ void SelfCollision::find_patches(const Model& model, Group& g) {
 // inside a certified patch cannot meet during the motion, and neither can one inside any part of
 // it. Each sign is taken with a margin of 1e-9 of its scale (the squared size of the node's box
 // times |V|), far above the products' rounding, so that rounding never certifies.
-bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Positions& p, const Model& model) {
-  const Index* tri = g.bvh_order.data() + g.bvh_begin[k];
+bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Positions& p, bool sub_step) {
+  const Triangle* tri = g.bvh_corners.data() + g.bvh_begin[k];
   const Index size = g.bvh_size[k];
   const auto corners = [&](Index i, Vec3& e0, Vec3& f0, Vec3& e1, Vec3& f1) {
-    const Triangle& t = model.triangles[g.triangles[tri[i]]];
+    const Triangle& t = tri[i];
     e0 = x.col(t[1]) - x.col(t[0]), f0 = x.col(t[2]) - x.col(t[0]);
     e1 = p.col(t[1]) - p.col(t[0]), f1 = p.col(t[2]) - p.col(t[0]);
   };
@@ -328,65 +352,172 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
     Vec3 e0, f0, e1, f1;
     for (Index i = 0; i < size; ++i) corners(i, e0, f0, e1, f1), V += e0.cross(f0);
     fresh = true;
+    g.end_at[k] = 0;
   };
   if (V.isZero(0)) renew_axis();
   const Real box2 = (node_hi_[k] - node_lo_[k]).squaredNorm();
+  const auto* edges = g.patch_edges.data() + g.patch_start[k];
+  const Index m = g.patch_start[k + 1] - g.patch_start[k];
+  // The boundary about O: every edge's signed area positive over the motion, and a ray from O
+  // crossing it once at s = 0.
+  const auto star_about = [&](const Vec3& O, Real margin) {
+    const Vec3 u = (std::abs(V.x()) < std::abs(V.y()) ? Vec3::UnitX().cross(V) : Vec3::UnitY().cross(V)).normalized();
+    const Vec3 w = V.cross(u);  // u, w: two axes of the plane across V, for the ray's crossings
+    int crossings = 0;
+    for (Index i = 0; i < m; ++i) {
+      const Vec3 a0 = x.col(edges[i][0]) - O, b0 = x.col(edges[i][1]) - O;
+      const Vec3 a1 = p.col(edges[i][0]) - O, b1 = p.col(edges[i][1]) - O;
+      if (!(a0.cross(b0).dot(V) > margin && a1.cross(b1).dot(V) > margin &&
+            (a0.cross(b1) + a1.cross(b0)).dot(V) > 2 * margin))
+        return false;
+      const Real ay = a0.dot(w), by = b0.dot(w);
+      if ((ay > 0) != (by > 0)) {
+        const Real ax = a0.dot(u), bx = b0.dot(u);
+        if (ax + (0 - ay) * (bx - ax) / (by - ay) > 0) ++crossings;
+      }
+    }
+    return crossings == 1;
+  };
+  // O: the centroid of the boundary's area projected along V at x (a notch of the boundary
+  // near its vertices' centroid, common in the hierarchy's small nodes, turned most of the
+  // tests down about that centroid), else the vertices' centroid.
+  const auto star = [&](Real margin) {
+    Vec3 R = Vec3::Zero();
+    for (Index i = 0; i < m; ++i) R += x.col(edges[i][0]);
+    R /= static_cast<Real>(m);
+    Real area = 0;
+    Vec3 moment = Vec3::Zero();
+    for (Index i = 0; i < m; ++i) {
+      const Vec3 a = x.col(edges[i][0]) - R, b = x.col(edges[i][1]) - R;
+      const Real ai = a.cross(b).dot(V);
+      area += ai;
+      moment += ai * (a + b);
+    }
+    if (area > 0 && star_about(R + moment / (3 * area), margin)) return true;
+    return star_about(R, margin);
+  };
+  Real least_end = 0;  // the least V·(e x f) at p, for the next sub-step
+  // A sub-step that starts where the last one ended, the node certified then with this axis:
+  // V·n(0) is that sub-step's V·n(1), at least end_normal, and only V·n(1) = V·(e1 x f1) is
+  // computed. The middle coefficient is (c0 + c2 - V·((e1 - e0) x (f1 - f0)))/2, and each of
+  // e1 - e0 and f1 - f0 is at most 2 |p - x| long: c0 and c2 above margin + 2 |V| max |p - x|²
+  // keep it above the margin.
+  const auto carried_normals = [&](Real margin) {
+    const Real need = margin + 2 * V.norm() * g.step2 * (1 + 1e-12);
+    if (!(g.end_normal[k] > need)) return false;
+    constexpr Index B = 16;
+    alignas(64) Real e[3][B], f[3][B];
+    alignas(64) Real end[B];
+    least_end = std::numeric_limits<Real>::infinity();
+    for (Index i0 = 0; i0 < size; i0 += B) {
+      const Index n = std::min(B, size - i0);
+      for (Index j = 0; j < n; ++j) {
+        const Triangle& t = tri[i0 + j];
+        for (int d = 0; d < 3; ++d) e[d][j] = p(d, t[1]) - p(d, t[0]), f[d][j] = p(d, t[2]) - p(d, t[0]);
+      }
+      const Real vx = V.x(), vy = V.y(), vz = V.z();
+      for (Index j = 0; j < n; ++j) {
+        const Real bx = vy * e[2][j] - vz * e[1][j], by = vz * e[0][j] - vx * e[2][j], bz = vx * e[1][j] - vy * e[0][j];
+        end[j] = bx * f[0][j] + by * f[1][j] + bz * f[2][j];
+      }
+      unsigned char all = 1;
+      for (Index j = 0; j < n; ++j) all &= end[j] > need, least_end = std::min(least_end, end[j]);
+      if (!all) return false;  // false for NaN too
+    }
+    return true;
+  };
+  // V·n(s) over the motion, by its Bernstein coefficients: V·(e0 x f0), V·(e0 x f1 + e1 x f0)/2
+  // and V·(e1 x f1), each V·(a x b) taken as (V x a)·b. In blocks: the corners gathered, then the
+  // arithmetic, then the signs.
+  const auto normals = [&](Real margin) {
+    constexpr Index B = 16;
+    alignas(64) Real e[2][3][B], f[2][3][B];  // [at x, at p][coordinate][triangle of the block]
+    alignas(64) unsigned char pass[B];
+    alignas(64) Real end[B];
+    least_end = std::numeric_limits<Real>::infinity();
+    for (Index i0 = 0; i0 < size; i0 += B) {
+      const Index n = std::min(B, size - i0);
+      for (Index j = 0; j < n; ++j) {
+        const Triangle& t = tri[i0 + j];
+        for (int d = 0; d < 3; ++d) {
+          e[0][d][j] = x(d, t[1]) - x(d, t[0]), f[0][d][j] = x(d, t[2]) - x(d, t[0]);
+          e[1][d][j] = p(d, t[1]) - p(d, t[0]), f[1][d][j] = p(d, t[2]) - p(d, t[0]);
+        }
+      }
+      for (Index j = n; j < B; ++j)  // the block's tail: a triangle that passes
+        for (int d = 0; d < 3; ++d) e[0][d][j] = e[1][d][j] = f[0][d][j] = f[1][d][j] = 0;
+      const Real vx = V.x(), vy = V.y(), vz = V.z();
+      for (Index j = 0; j < B; ++j) {
+        // V x e at x and at p (Eigen's cross), then the three coefficients against their margins.
+        const Real ax = vy * e[0][2][j] - vz * e[0][1][j], ay = vz * e[0][0][j] - vx * e[0][2][j],
+                   az = vx * e[0][1][j] - vy * e[0][0][j];
+        const Real bx = vy * e[1][2][j] - vz * e[1][1][j], by = vz * e[1][0][j] - vx * e[1][2][j],
+                   bz = vx * e[1][1][j] - vy * e[1][0][j];
+        const Real c0 = ax * f[0][0][j] + ay * f[0][1][j] + az * f[0][2][j];
+        const Real c1 = (ax * f[1][0][j] + ay * f[1][1][j] + az * f[1][2][j]) +
+                        (bx * f[0][0][j] + by * f[0][1][j] + bz * f[0][2][j]);
+        const Real c2 = bx * f[1][0][j] + by * f[1][1][j] + bz * f[1][2][j];
+        pass[j] = (c0 > margin) & (c1 > 2 * margin) & (c2 > margin);  // false for NaN
+        end[j] = c2;
+      }
+      unsigned char all = 1;
+      for (Index j = 0; j < n; ++j) all &= pass[j], least_end = std::min(least_end, end[j]);
+      if (!all) return false;
+    }
+    return true;
+  };
+  // The boundary first: it is the cheaper test (a patch's boundary edges against its triangles),
+  // and the one that fails most.
   for (;;) {
     const Real margin = 1e-9 * box2 * V.norm();
     if (!(margin > 0)) return false;  // NaN, or a collapsed patch
-    // V·n(s) over the motion, by its Bernstein coefficients: V·(e0 x f0), V·(e0 x f1 + e1 x f0)/2
-    // and V·(e1 x f1), each V·(a x b) taken as (V x a)·b.
-    bool normals = true;
-    for (Index i = 0; normals && i < size; ++i) {
-      Vec3 e0, f0, e1, f1;
-      corners(i, e0, f0, e1, f1);
-      const Vec3 ve0 = V.cross(e0), ve1 = V.cross(e1);
-      normals = ve0.dot(f0) > margin && ve0.dot(f1) + ve1.dot(f0) > 2 * margin && ve1.dot(f1) > margin;
+    const bool carry = sub_step && g.carried && g.end_at[k] + 1 == g.serial;
+    if (star(margin) && ((carry && carried_normals(margin)) || normals(margin))) {
+      if (sub_step) g.end_normal[k] = least_end, g.end_at[k] = g.serial;
+      return true;
     }
-    if (!normals) {
-      if (fresh) return false;
-      renew_axis();
-      continue;
-    }
-    break;
+    if (fresh) return false;
+    renew_axis();
   }
-  const Real margin = 1e-9 * box2 * V.norm();
-  const auto* edges = g.patch_edges.data() + g.patch_start[k];
-  const Index m = g.patch_start[k + 1] - g.patch_start[k];
-  Vec3 O = Vec3::Zero();
-  for (Index i = 0; i < m; ++i) O += x.col(edges[i][0]);
-  O /= static_cast<Real>(m);
-  // Two axes u, w of the plane across V (for the ray's crossings).
-  const Vec3 u = (std::abs(V.x()) < std::abs(V.y()) ? Vec3::UnitX().cross(V) : Vec3::UnitY().cross(V)).normalized();
-  const Vec3 w = V.cross(u);
-  int crossings = 0;
-  for (Index i = 0; i < m; ++i) {
-    const Vec3 a0 = x.col(edges[i][0]) - O, b0 = x.col(edges[i][1]) - O;
-    const Vec3 a1 = p.col(edges[i][0]) - O, b1 = p.col(edges[i][1]) - O;
-    if (!(a0.cross(b0).dot(V) > margin && a1.cross(b1).dot(V) > margin &&
-          (a0.cross(b1) + a1.cross(b0)).dot(V) > 2 * margin))
-      return false;
-    const Real ay = a0.dot(w), by = b0.dot(w);
-    if ((ay > 0) != (by > 0)) {
-      const Real ax = a0.dot(u), bx = b0.dot(u);
-      if (ax + (0 - ay) * (bx - ax) / (by - ay) > 0) ++crossings;
-    }
-  }
-  return crossings == 1;
 }
 
 // certified_[k]: node k or one of its ancestors is a patch certified for the motion x -> p
 // (certify_node), top-down: a node below a certified one needs no test of its own.
-void SelfCollision::certify(const Model& model, Group& g, const Positions& x, const Positions& p) {
+// A sub-step's certification (sub_step) does not try again a node that one of the step's sub-steps
+// turned down (g.failed, cleared by the search): it would most likely fail again, at the cost of
+// its triangles, and a certification only spares tests (a node searched because it failed stays
+// searched). Deferred nodes are never in g.failed: the first failure searches them.
+void SelfCollision::certify(const Model& model, Group& g, const Positions& x, const Positions& p, bool sub_step) {
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   if (g.axis.size() != static_cast<std::size_t>(nodes)) g.axis.assign(nodes, Vec3::Zero());
+  if (g.failed.size() != static_cast<std::size_t>(nodes)) g.failed.assign(nodes, 0);
+  if (g.end_at.size() != static_cast<std::size_t>(nodes)) g.end_at.assign(nodes, 0), g.end_normal.assign(nodes, 0);
+  if (sub_step) {
+    ++g.serial;
+    bool same = end_p_.cols() == x.cols();
+    Real step2 = 0;
+    for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
+      const Index i = model.group_particles[o];
+      same = same && x.col(i) == end_p_.col(i);
+      step2 = std::max(step2, (p.col(i) - x.col(i)).squaredNorm());
+    }
+    g.carried = same;
+    g.step2 = step2;  // NaN: no carried certificate (need is NaN)
+  }
   certified_.assign(nodes, 0);
   for (Index k = 0; k < nodes; ++k) {  // parents before children
     const Index up = g.bvh_parent[k];
-    if (up >= 0 && certified_[up])
+    if (up >= 0 && certified_[up]) {
       certified_[k] = 1;
-    else if (g.is_patch[k])
-      certified_[k] = certify_node(g, k, x, p, model);
+    } else if (g.is_patch[k] && !(sub_step && g.failed[k])) {
+      certified_[k] = certify_node(g, k, x, p, sub_step);
+      if (sub_step && !certified_[k]) g.failed[k] = 1;
+    }
+  }
+  if (sub_step) {
+    if (end_p_.cols() != p.cols()) end_p_.resize(3, p.cols());
+    for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o)
+      end_p_.col(model.group_particles[o]) = p.col(model.group_particles[o]);
   }
 }
 
@@ -459,12 +590,11 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
     lo = inf, hi = -inf;
     return false;
   };
-  unite_boxes(model, g, particle_lo_, particle_hi_);
+  // The features' search boxes, kept for the deferred searches.
+  unite_boxes(model, g, particle_lo_, particle_hi_, search_tri_lo_, search_tri_hi_, search_edge_lo_, search_edge_hi_);
   g.skipped = 0;
-  for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(box_lo_[t], box_hi_[t]);
-  for (std::size_t e = 0; e < g.edges.size(); ++e) keep(edge_lo_[e], edge_hi_[e]);
-  search_tri_lo_ = box_lo_, search_tri_hi_ = box_hi_;  // kept for the deferred searches
-  search_edge_lo_ = edge_lo_, search_edge_hi_ = edge_hi_;
+  for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(search_tri_lo_[t], search_tri_hi_[t]);
+  for (std::size_t e = 0; e < g.edges.size(); ++e) keep(search_edge_lo_[e], search_edge_hi_[e]);
   // The hierarchy refitted to the boxes (children come after their parent).
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   node_lo_.resize(nodes);
@@ -472,7 +602,7 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   for (Index k = nodes - 1; k >= 0; --k) {
     const auto& c = g.bvh_child[k];
     if (c[0] < 0) {
-      node_lo_[k] = box_lo_[-1 - c[0]], node_hi_[k] = box_hi_[-1 - c[0]];
+      node_lo_[k] = search_tri_lo_[-1 - c[0]], node_hi_[k] = search_tri_hi_[-1 - c[0]];
     } else {
       node_lo_[k] = node_lo_[c[0]].cwiseMin(node_lo_[c[1]]);
       node_hi_[k] = node_hi_[c[0]].cwiseMax(node_hi_[c[1]]);
@@ -481,7 +611,8 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   // The patches that cannot meet themselves along the whole look-ahead (certify) are not searched
   // inside: their pairs are found when a sub-step's motion no longer certifies them
   // (resume_deferred). A smooth cloth's search then costs little more than the certification.
-  certify(model, g, x, lookahead_);
+  certify(model, g, x, lookahead_, false);
+  g.failed.assign(nodes, 0);
   g.pt.clear();
   g.ee.clear();
   g.deferred.assign(nodes, 0);
@@ -601,23 +732,25 @@ void SelfCollision::sweep_boxes(const Model& model, const Group& g, const Positi
     sweep_lo_.col(i) = x.col(i).cwiseMin(p.col(i)).array() - pad;
     sweep_hi_.col(i) = x.col(i).cwiseMax(p.col(i)).array() + pad;
   }
-  unite_boxes(model, g, sweep_lo_, sweep_hi_);
+  unite_boxes(model, g, sweep_lo_, sweep_hi_, box_lo_, box_hi_, edge_lo_, edge_hi_);
 }
 
-// Each triangle's and edge's box (box_lo_/box_hi_, edge_lo_/edge_hi_) as the union of its
-// particles' boxes [lo, hi].
-void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi) {
+// Each triangle's and edge's box (tri_lo/tri_hi, edge_lo/edge_hi) as the union of its particles'
+// boxes [lo, hi].
+void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi,
+                                std::vector<Vec3>& tri_lo, std::vector<Vec3>& tri_hi, std::vector<Vec3>& edge_lo,
+                                std::vector<Vec3>& edge_hi) {
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   const auto unite = [&](const auto& ids, Vec3& l, Vec3& u) {
     l = inf, u = -inf;
     for (const Index i : ids) l = l.cwiseMin(lo.col(i)), u = u.cwiseMax(hi.col(i));
   };
-  box_lo_.resize(g.triangles.size());
-  box_hi_.resize(g.triangles.size());
-  for (std::size_t t = 0; t < g.triangles.size(); ++t) unite(model.triangles[g.triangles[t]], box_lo_[t], box_hi_[t]);
-  edge_lo_.resize(g.edges.size());
-  edge_hi_.resize(g.edges.size());
-  for (std::size_t e = 0; e < g.edges.size(); ++e) unite(g.edges[e], edge_lo_[e], edge_hi_[e]);
+  tri_lo.resize(g.triangles.size());
+  tri_hi.resize(g.triangles.size());
+  for (std::size_t t = 0; t < g.triangles.size(); ++t) unite(model.triangles[g.triangles[t]], tri_lo[t], tri_hi[t]);
+  edge_lo.resize(g.edges.size());
+  edge_hi.resize(g.edges.size());
+  for (std::size_t e = 0; e < g.edges.size(); ++e) unite(g.edges[e], edge_lo[e], edge_hi[e]);
 }
 
 // Proximity contacts at the start of the sub-step, from the candidates, with two rules that keep
@@ -648,14 +781,20 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
     // The deferred nodes are searched when the continuous test's motion does not certify them
     // (find_impacts): a patch has proximity contacts from the sub-step after it stops being one.
     if (!proximity || g.pt.empty()) continue;
-    sweep_boxes(model, g, x, p, hs);  // a pair within 2h at the prediction: its widened boxes overlap
+    // A pair within 2h at the prediction: its boxes widened by h overlap. Few pairs (a smooth
+    // cloth's, its patches certified) take their boxes one pair at a time; many, from boxes
+    // united once per feature.
+    const bool per_pair = g.pt.size() < g.triangles.size() + g.edges.size();
+    if (!per_pair) sweep_boxes(model, g, x, p, hs);
     const int parts = in_chunks(g.pt.size(), [&](int part, int parts_count) {
       auto& out = contact_parts_[part];
       out.clear();
       for (std::size_t k = g.pt.size() * part / parts_count; k < g.pt.size() * (part + 1) / parts_count; ++k) {
         const auto [q, t, patch] = g.pt[k];
-        if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t])) continue;
         const Triangle& tri = model.triangles[g.triangles[t]];
+        if (per_pair ? !swept_boxes_overlap(x, p, std::array<Index, 1>{q}, tri, hs)
+                     : !boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[t], box_hi_[t]))
+          continue;
         const Vec3 xq = x.col(q), pq = p.col(q);
         const Vec3 x1 = x.col(tri[0]);
         Vec3 n0 = (x.col(tri[1]) - x1).cross(x.col(tri[2]) - x1);
@@ -738,10 +877,11 @@ void SelfCollision::project(Positions& p, const Real* w) {
 // whose swept boxes do not overlap, cannot meet and is skipped before the test.
 void SelfCollision::find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w) {
   impacts_.clear();
-  certify(model, g, x, p);
+  certify(model, g, x, p, true);
   resume_deferred(model, g, w);
   if (g.pt.empty() && g.ee.empty()) return;
-  sweep_boxes(model, g, x, p, 0);
+  const bool per_pair = g.pt.size() + g.ee.size() < g.triangles.size() + g.edges.size();  // as in begin
+  if (!per_pair) sweep_boxes(model, g, x, p, 0);
   const auto test = [&](PairKind kind, const std::array<Index, 4>& id, std::vector<Found>& out) {
     std::array<Vec3, 4> x0, dx;
     for (int k = 0; k < 4; ++k) x0[k] = x.col(id[k]), dx[k] = p.col(id[k]) - x.col(id[k]);
@@ -760,8 +900,10 @@ void SelfCollision::find_impacts(const Model& model, Group& g, const Positions& 
         ++culled;
         continue;
       }
-      if (!boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[tri_index], box_hi_[tri_index])) continue;
       const Triangle& tri = model.triangles[g.triangles[tri_index]];
+      if (per_pair ? !swept_boxes_overlap(x, p, std::array<Index, 1>{q}, tri, 0)
+                   : !boxes_overlap(sweep_lo_.col(q), sweep_hi_.col(q), box_lo_[tri_index], box_hi_[tri_index]))
+        continue;
       test(PairKind::PointTriangle, {q, tri[0], tri[1], tri[2]}, pt_out);
       ++tests;
     }
@@ -771,7 +913,9 @@ void SelfCollision::find_impacts(const Model& model, Group& g, const Positions& 
         ++culled;
         continue;
       }
-      if (!boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b])) continue;
+      if (per_pair ? !swept_boxes_overlap(x, p, g.edges[a], g.edges[b], 0)
+                   : !boxes_overlap(edge_lo_[a], edge_hi_[a], edge_lo_[b], edge_hi_[b]))
+        continue;
       test(PairKind::EdgeEdge, {g.edges[a][0], g.edges[a][1], g.edges[b][0], g.edges[b][1]}, ee_out);
       ++tests;
     }

@@ -129,10 +129,21 @@ class SelfCollision {
     // directed as in their triangles, are patch_edges[patch_start[k] .. patch_start[k + 1]);
     // other nodes have none.
     std::vector<Index> bvh_order, bvh_begin, bvh_parent, patch_start;
+    std::vector<Triangle> bvh_corners;  // the particles of bvh_order's triangles, in that order
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
     std::vector<std::uint8_t> deferred;  // per node: not searched inside, certified when searched
+    std::vector<std::uint8_t> failed;    // per node: a sub-step's certification failed since the search
     std::vector<Vec3> axis;              // per node: the axis V of its last certification (zero: none yet)
+    // Per node certified by a sub-step's full test, the least V·(e x f) at its end (m² times
+    // |V|) and the sub-step's serial: the next sub-step starts where it ended, so that is its
+    // least coefficient at the start, and only the end's are computed (certify_node). A new
+    // axis forgets it.
+    std::vector<Real> end_normal;
+    std::vector<std::uint64_t> end_at;
+    std::uint64_t serial = 0;            // the sub-step certifications so far
+    bool carried = false;                // this sub-step starts where the last one ended
+    Real step2 = 0;                      // m², the largest |p - x|² of this sub-step
   };
   struct Found {
     PairKind kind;
@@ -144,14 +155,15 @@ class SelfCollision {
                        int substeps);
   bool candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const;
   void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
-  void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi);
+  void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi, std::vector<Vec3>& tri_lo,
+                   std::vector<Vec3>& tri_hi, std::vector<Vec3>& edge_lo, std::vector<Vec3>& edge_hi);
   void find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
   void search_node(const Model& model, Group& g, Index root, const Real* w);
   void add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w);
   void resume_deferred(const Model& model, Group& g, const Real* w);
   static void find_patches(const Model& model, Group& g);
-  void certify(const Model& model, Group& g, const Positions& x, const Positions& p);
-  bool certify_node(Group& g, Index k, const Positions& x, const Positions& p, const Model& model);
+  void certify(const Model& model, Group& g, const Positions& x, const Positions& p, bool sub_step);
+  bool certify_node(Group& g, Index k, const Positions& x, const Positions& p, bool sub_step);
   void project(Positions& p, const Real* w);
   template <class F>
   int in_chunks(std::size_t n, F&& chunk);
@@ -174,6 +186,7 @@ class SelfCollision {
   std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes at the last search
   std::vector<Vec3> search_tri_lo_, search_tri_hi_, search_edge_lo_, search_edge_hi_;  // m, the features' then
   Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
+  Positions end_p_;                      // m, the last sub-step certification's end positions
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
   // The continuous test's culling (certify): per node whether it or an ancestor is certified
