@@ -402,19 +402,24 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
   // computed. The middle coefficient is (c0 + c2 - V·((e1 - e0) x (f1 - f0)))/2, and each of
   // e1 - e0 and f1 - f0 is at most 2 |p - x| long: c0 and c2 above margin + 2 |V| max |p - x|²
   // keep it above the margin.
+  // The sides e = b - a and f = c - a of the triangles [i0, i0 + n) at positions y, by coordinate,
+  // for the blocks of B triangles below.
+  constexpr Index B = 16;
+  const auto sides = [&](const Positions& y, Index i0, Index n, Real (&e)[3][B], Real (&f)[3][B]) {
+    for (Index j = 0; j < n; ++j) {
+      const Triangle& t = tri[i0 + j];
+      for (int d = 0; d < 3; ++d) e[d][j] = y(d, t[1]) - y(d, t[0]), f[d][j] = y(d, t[2]) - y(d, t[0]);
+    }
+  };
   const auto carried_normals = [&](Real margin) {
     const Real need = margin + 2 * V.norm() * g.step2 * (1 + 1e-12);
     if (!(g.end_normal[k] > need)) return false;
-    constexpr Index B = 16;
     alignas(64) Real e[3][B], f[3][B];
     alignas(64) Real end[B];
     least_end = std::numeric_limits<Real>::infinity();
     for (Index i0 = 0; i0 < size; i0 += B) {
       const Index n = std::min(B, size - i0);
-      for (Index j = 0; j < n; ++j) {
-        const Triangle& t = tri[i0 + j];
-        for (int d = 0; d < 3; ++d) e[d][j] = p(d, t[1]) - p(d, t[0]), f[d][j] = p(d, t[2]) - p(d, t[0]);
-      }
+      sides(p, i0, n, e, f);
       const Real vx = V.x(), vy = V.y(), vz = V.z();
       for (Index j = 0; j < n; ++j) {
         const Real bx = vy * e[2][j] - vz * e[1][j], by = vz * e[0][j] - vx * e[2][j], bz = vx * e[1][j] - vy * e[0][j];
@@ -430,20 +435,14 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
   // and V·(e1 x f1), each V·(a x b) taken as (V x a)·b. In blocks: the corners gathered, then the
   // arithmetic, then the signs.
   const auto normals = [&](Real margin) {
-    constexpr Index B = 16;
     alignas(64) Real e[2][3][B], f[2][3][B];  // [at x, at p][coordinate][triangle of the block]
     alignas(64) unsigned char pass[B];
     alignas(64) Real end[B];
     least_end = std::numeric_limits<Real>::infinity();
     for (Index i0 = 0; i0 < size; i0 += B) {
       const Index n = std::min(B, size - i0);
-      for (Index j = 0; j < n; ++j) {
-        const Triangle& t = tri[i0 + j];
-        for (int d = 0; d < 3; ++d) {
-          e[0][d][j] = x(d, t[1]) - x(d, t[0]), f[0][d][j] = x(d, t[2]) - x(d, t[0]);
-          e[1][d][j] = p(d, t[1]) - p(d, t[0]), f[1][d][j] = p(d, t[2]) - p(d, t[0]);
-        }
-      }
+      sides(x, i0, n, e[0], f[0]);
+      sides(p, i0, n, e[1], f[1]);
       for (Index j = n; j < B; ++j)  // the block's tail: a triangle that passes
         for (int d = 0; d < 3; ++d) e[0][d][j] = e[1][d][j] = f[0][d][j] = f[1][d][j] = 0;
       const Real vx = V.x(), vy = V.y(), vz = V.z();
