@@ -712,13 +712,16 @@ void SelfCollision::resume_deferred(const Model& model, Group& g, const Real* w)
     }
 }
 
-// Whether the candidates of group g hold for the positions x and p now (see above).
-bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const {
+// Whether the candidates of group g hold for the positions x and p now (see above). Without x:
+// for p alone, x being known to hold (resolve: begin checked the same x against these boxes, or
+// a search since made boxes that hold it).
+bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions* x, const Positions& p) const {
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
     const auto lo = hold_lo_.col(i).array(), hi = hold_hi_.col(i).array();
-    const auto xi = x.col(i).array(), pi = p.col(i).array();
-    if ((xi < lo).any() || (xi > hi).any() || (pi < lo).any() || (pi > hi).any()) return false;
+    const auto pi = p.col(i).array();
+    if ((pi < lo).any() || (pi > hi).any()) return false;
+    if (x && ((x->col(i).array() < lo).any() || (x->col(i).array() > hi).any())) return false;
   }
   return true;
 }
@@ -776,7 +779,7 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
   if (stopped_.size() != static_cast<std::size_t>(p.cols())) stopped_.assign(p.cols(), 0);
   for (Group& g : groups_) {
     const Real hs = g.thickness;
-    if (!g.searched || !candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
+    if (!g.searched || !candidates_hold(model, g, &x, p)) find_candidates(model, g, x, p, w, substeps);
     // The deferred nodes are searched when the continuous test's motion does not certify them
     // (find_impacts): a patch has proximity contacts from the sub-step after it stops being one.
     if (!proximity || g.pt.empty()) continue;
@@ -934,7 +937,7 @@ void SelfCollision::find_impacts(const Model& model, Group& g, const Positions& 
 void SelfCollision::resolve(const Model& model, const Positions& x, Positions& p, const Real* w, int substeps, Real h) {
   for (Group& g : groups_) {
     for (int round = 0;; ++round) {
-      if (!candidates_hold(model, g, x, p)) find_candidates(model, g, x, p, w, substeps);
+      if (!candidates_hold(model, g, nullptr, p)) find_candidates(model, g, x, p, w, substeps);
       find_impacts(model, g, x, p, w);
       if (impacts_.empty()) break;
       if (round == kResponseRounds) break;

@@ -87,7 +87,7 @@ class SelfCollision {
   void begin(const Model& model, const Positions& x, const Positions& p, const Real* w, int substeps, Real h,
              bool proximity);
   // After the stepper's solve: the continuous test along x -> p, responses and fail-safe, which
-  // move p (see self_collision.cpp).
+  // move p (see self_collision.cpp). Follows the sub-step's begin, with the same x.
   void resolve(const Model& model, const Positions& x, Positions& p, const Real* w, int substeps, Real h);
   // After the velocity update: the contacts that pushed take away their pair's approach but do not
   // make it separate. velocity(i) gives particle i's velocity, add_velocity(i, dv) changes it.
@@ -153,7 +153,7 @@ class SelfCollision {
 
   void find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w,
                        int substeps);
-  bool candidates_hold(const Model& model, const Group& g, const Positions& x, const Positions& p) const;
+  bool candidates_hold(const Model& model, const Group& g, const Positions* x, const Positions& p) const;
   void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi, std::vector<Vec3>& tri_lo,
                    std::vector<Vec3>& tri_hi, std::vector<Vec3>& edge_lo, std::vector<Vec3>& edge_hi);
