@@ -51,6 +51,8 @@ constexpr int kResponsePasses = 2;
 // The additive CCD's separation s: an impact is a pair whose distance falls below s times its
 // distance at the start of the sub-step; its contact then keeps at least that much.
 constexpr Real kSeparation = 0.1;
+// The candidates' boxes are widened by this many thicknesses on each side (find_candidates).
+constexpr Real kSearchPad = 1.5;
 
 inline bool boxes_overlap(const Vec3& lo_a, const Vec3& hi_a, const Vec3& lo_b, const Vec3& hi_b) {
   return !((lo_a.array() > hi_b.array()).any() || (hi_a.array() < lo_b.array()).any());
@@ -239,7 +241,7 @@ std::size_t SelfCollision::bytes() const {
          b(g.bvh_begin) + b(g.bvh_corners) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at);
   s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
        b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
-       b(search_edge_lo_) + b(search_edge_hi_) + positions(lookahead_) + positions(end_p_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
+       positions(lookahead_) + positions(end_p_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
        positions(sweep_lo_) + positions(sweep_hi_);
   for (const auto& v : impact_parts_) s += b(v);
   for (const auto& v : contact_parts_) s += b(v);
@@ -556,7 +558,7 @@ int SelfCollision::in_chunks(std::size_t n, F&& chunk) {
 // iterations, three alternating runs).
 void SelfCollision::find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p,
                                     const Real* w, int substeps) {
-  const Real pad = 1.5 * g.thickness;
+  const Real pad = kSearchPad * g.thickness;
   const Real ahead = static_cast<Real>(substeps);
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   if (lookahead_.cols() != x.cols()) lookahead_.resize(3, x.cols());
@@ -590,10 +592,10 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
     return false;
   };
   // The features' search boxes, kept for the deferred searches.
-  unite_boxes(model, g, particle_lo_, particle_hi_, search_tri_lo_, search_tri_hi_, search_edge_lo_, search_edge_hi_);
+  // (The edges' are taken one pair at a time, in search_node.)
+  unite_boxes(model, g, particle_lo_, particle_hi_, search_tri_lo_, search_tri_hi_, nullptr, nullptr);
   g.skipped = 0;
   for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(search_tri_lo_[t], search_tri_hi_[t]);
-  for (std::size_t e = 0; e < g.edges.size(); ++e) keep(search_edge_lo_[e], search_edge_hi_[e]);
   // The hierarchy refitted to the boxes (children come after their parent).
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   node_lo_.resize(nodes);
@@ -642,11 +644,20 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
 // leaves comes once, in an order fixed by the tree.
 void SelfCollision::search_node(const Model& model, Group& g, Index root, const Real* w) {
   const auto point_triangle = [&](Index q, Index t, Index lca) { add_point_triangle(model, g, q, t, lca, w); };
+  // An edge's search box, the union of its particles'; false for one left out of the search (see
+  // find_candidates).
+  const Real reach = g.size + 2 * (kSearchPad * g.thickness);  // find_candidates'
+  const auto edge_box = [&](const std::array<Index, 2>& e, Vec3& lo, Vec3& hi) {
+    lo = particle_lo_.col(e[0]).cwiseMin(particle_lo_.col(e[1]));
+    hi = particle_hi_.col(e[0]).cwiseMax(particle_hi_.col(e[1]));
+    return (hi - lo).maxCoeff() <= reach;
+  };
   const auto edge_edge = [&](Index a, Index b, Index lca) {
     const auto& ea = g.edges[a];
     const auto& eb = g.edges[b];
     if (ea[0] == eb[0] || ea[0] == eb[1] || ea[1] == eb[0] || ea[1] == eb[1]) return;
-    if (!boxes_overlap(search_edge_lo_[a], search_edge_hi_[a], search_edge_lo_[b], search_edge_hi_[b])) return;
+    Vec3 lo_a, hi_a, lo_b, hi_b;
+    if (!edge_box(ea, lo_a, hi_a) || !edge_box(eb, lo_b, hi_b) || !boxes_overlap(lo_a, hi_a, lo_b, hi_b)) return;
     if (w[ea[0]] + w[ea[1]] + w[eb[0]] + w[eb[1]] <= 0) return;
     g.ee.push_back({std::min(a, b), std::max(a, b), lca});
   };
@@ -734,14 +745,14 @@ void SelfCollision::sweep_boxes(const Model& model, const Group& g, const Positi
     sweep_lo_.col(i) = x.col(i).cwiseMin(p.col(i)).array() - pad;
     sweep_hi_.col(i) = x.col(i).cwiseMax(p.col(i)).array() + pad;
   }
-  unite_boxes(model, g, sweep_lo_, sweep_hi_, box_lo_, box_hi_, edge_lo_, edge_hi_);
+  unite_boxes(model, g, sweep_lo_, sweep_hi_, box_lo_, box_hi_, &edge_lo_, &edge_hi_);
 }
 
-// Each triangle's and edge's box (tri_lo/tri_hi, edge_lo/edge_hi) as the union of its particles'
-// boxes [lo, hi].
+// Each triangle's and (given edge_lo) edge's box (tri_lo/tri_hi, edge_lo/edge_hi) as the union of
+// its particles' boxes [lo, hi].
 void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi,
-                                std::vector<Vec3>& tri_lo, std::vector<Vec3>& tri_hi, std::vector<Vec3>& edge_lo,
-                                std::vector<Vec3>& edge_hi) {
+                                std::vector<Vec3>& tri_lo, std::vector<Vec3>& tri_hi, std::vector<Vec3>* edge_lo,
+                                std::vector<Vec3>* edge_hi) {
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   const auto unite = [&](const auto& ids, Vec3& l, Vec3& u) {
     l = inf, u = -inf;
@@ -750,9 +761,10 @@ void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positi
   tri_lo.resize(g.triangles.size());
   tri_hi.resize(g.triangles.size());
   for (std::size_t t = 0; t < g.triangles.size(); ++t) unite(model.triangles[g.triangles[t]], tri_lo[t], tri_hi[t]);
-  edge_lo.resize(g.edges.size());
-  edge_hi.resize(g.edges.size());
-  for (std::size_t e = 0; e < g.edges.size(); ++e) unite(g.edges[e], edge_lo[e], edge_hi[e]);
+  if (!edge_lo) return;
+  edge_lo->resize(g.edges.size());
+  edge_hi->resize(g.edges.size());
+  for (std::size_t e = 0; e < g.edges.size(); ++e) unite(g.edges[e], (*edge_lo)[e], (*edge_hi)[e]);
 }
 
 // Proximity contacts at the start of the sub-step, from the candidates, with two rules that keep

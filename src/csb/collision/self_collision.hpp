@@ -156,7 +156,7 @@ class SelfCollision {
   bool candidates_hold(const Model& model, const Group& g, const Positions* x, const Positions& p) const;
   void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi, std::vector<Vec3>& tri_lo,
-                   std::vector<Vec3>& tri_hi, std::vector<Vec3>& edge_lo, std::vector<Vec3>& edge_hi);
+                   std::vector<Vec3>& tri_hi, std::vector<Vec3>* edge_lo, std::vector<Vec3>* edge_hi);
   void find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
   void search_node(const Model& model, Group& g, Index root, const Real* w);
   void add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w);
@@ -184,7 +184,7 @@ class SelfCollision {
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
   std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes at the last search
-  std::vector<Vec3> search_tri_lo_, search_tri_hi_, search_edge_lo_, search_edge_hi_;  // m, the features' then
+  std::vector<Vec3> search_tri_lo_, search_tri_hi_;  // m, the triangles' boxes at the last search
   Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
   Positions end_p_;                      // m, the last sub-step certification's end positions
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
