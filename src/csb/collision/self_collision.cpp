@@ -399,11 +399,6 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
     return star_about(R, margin);
   };
   Real least_end = 0;  // the least V·(e x f) at p, for the next sub-step
-  // A sub-step that starts where the last one ended, the node certified then with this axis:
-  // V·n(0) is that sub-step's V·n(1), at least end_normal, and only V·n(1) = V·(e1 x f1) is
-  // computed. The middle coefficient is (c0 + c2 - V·((e1 - e0) x (f1 - f0)))/2, and each of
-  // e1 - e0 and f1 - f0 is at most 2 |p - x| long: c0 and c2 above margin + 2 |V| max |p - x|²
-  // keep it above the margin.
   // The sides e = b - a and f = c - a of the triangles [i0, i0 + n) at positions y, by coordinate,
   // for the blocks of B triangles below.
   constexpr Index B = 16;
@@ -413,6 +408,11 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
       for (int d = 0; d < 3; ++d) e[d][j] = y(d, t[1]) - y(d, t[0]), f[d][j] = y(d, t[2]) - y(d, t[0]);
     }
   };
+  // A sub-step that starts where the last one ended, the node certified then with this axis:
+  // V·n(0) is that sub-step's V·n(1), at least end_normal, and only V·n(1) = V·(e1 x f1) is
+  // computed. The middle coefficient is (c0 + c2 - V·((e1 - e0) x (f1 - f0)))/2, and each of
+  // e1 - e0 and f1 - f0 is at most 2 |p - x| long: c0 and c2 above margin + 2 |V| max |p - x|²
+  // keep it above the margin.
   const auto carried_normals = [&](Real margin) {
     const Real need = margin + 2 * V.norm() * g.step2 * (1 + 1e-12);
     if (!(g.end_normal[k] > need)) return false;
