@@ -238,7 +238,7 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_corners) + b(g.bvh_parent) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at);
+         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at);
   s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
        b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
        positions(lookahead_) + positions(end_p_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
@@ -256,9 +256,6 @@ std::size_t SelfCollision::bytes() const {
 // Leaves (one triangle) hold no pair and are not patches.
 void SelfCollision::find_patches(const Model& model, Group& g) {
   const Index nodes = static_cast<Index>(g.bvh_child.size());
-  g.bvh_parent.assign(nodes, -1);
-  for (Index k = 0; k < nodes; ++k)
-    if (g.bvh_child[k][0] >= 0) g.bvh_parent[g.bvh_child[k][0]] = g.bvh_parent[g.bvh_child[k][1]] = k;
   g.patch_start.assign(1, 0);
   g.patch_edges.clear();
   g.is_patch.assign(nodes, 0);
@@ -505,15 +502,20 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
     g.carried = same;
     g.step2 = step2;  // NaN: no carried certificate (need is NaN)
   }
+  // The nodes are in preorder: node k's subtree is the 2 bvh_size[k] - 1 nodes from k on, all
+  // certified with it and skipped.
   certified_.assign(nodes, 0);
-  for (Index k = 0; k < nodes; ++k) {  // parents before children
-    const Index up = g.bvh_parent[k];
-    if (up >= 0 && certified_[up]) {
-      certified_[k] = 1;
-    } else if (g.is_patch[k] && !(sub_step && g.failed[k])) {
-      certified_[k] = certify_node(g, k, x, p, sub_step);
-      if (sub_step && !certified_[k]) g.failed[k] = 1;
+  for (Index k = 0; k < nodes;) {
+    if (g.is_patch[k] && !(sub_step && g.failed[k])) {
+      if (certify_node(g, k, x, p, sub_step)) {
+        const Index end = k + 2 * g.bvh_size[k] - 1;
+        std::fill(certified_.begin() + k, certified_.begin() + end, std::uint8_t(1));
+        k = end;
+        continue;
+      }
+      if (sub_step) g.failed[k] = 1;
     }
+    ++k;
   }
   if (sub_step) {
     if (end_p_.cols() != p.cols()) end_p_.resize(3, p.cols());

@@ -120,15 +120,16 @@ class SelfCollision {
     // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
     std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;
     // The triangles' bounding-volume hierarchy, built once from the rest shape: per node its two
-    // children (a leaf: {-1 - triangle, -1}), children after their parent; and its triangles' count.
+    // children (a leaf: {-1 - triangle, -1}), in preorder (a node, then its first subtree, then its
+    // second: a subtree is a run of 2 bvh_size - 1 nodes); and its triangles' count.
     std::vector<std::array<Index, 2>> bvh_child;
     std::vector<Index> bvh_size;
-    // Each node's triangles are bvh_order[bvh_begin[k] .. bvh_begin[k] + bvh_size[k]); its parent
-    // (-1 for the root). A node whose triangles form a disc (connected, one boundary loop, Euler
+    // Each node's triangles are bvh_order[bvh_begin[k] .. bvh_begin[k] + bvh_size[k]). A node
+    // whose triangles form a disc (connected, one boundary loop, Euler
     // characteristic 1, consistently oriented) is a patch (certify): its boundary loop's edges,
     // directed as in their triangles, are patch_edges[patch_start[k] .. patch_start[k + 1]);
     // other nodes have none.
-    std::vector<Index> bvh_order, bvh_begin, bvh_parent, patch_start;
+    std::vector<Index> bvh_order, bvh_begin, patch_start;
     std::vector<Triangle> bvh_corners;  // the particles of bvh_order's triangles, in that order
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
