@@ -53,6 +53,9 @@ constexpr int kResponsePasses = 2;
 constexpr Real kSeparation = 0.1;
 // The candidates' boxes are widened by this many thicknesses on each side (find_candidates).
 constexpr Real kSearchPad = 1.5;
+// The widest a particle's or a feature's search box may be (m) for a group of rest size `size` and
+// thickness h; a wider one is left out of the search (find_candidates).
+inline Real search_reach(Real size, Real h) { return size + 2 * (kSearchPad * h); }
 
 inline bool boxes_overlap(const Vec3& lo_a, const Vec3& hi_a, const Vec3& lo_b, const Vec3& hi_b) {
   return !((lo_a.array() > hi_b.array()).any() || (hi_a.array() < lo_b.array()).any());
@@ -575,7 +578,7 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
     // The box shrunk by h that x and p must stay in (candidates_hold); a particle left out of the
     // search (see below) holds anywhere.
-    if ((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= g.size + 3 * g.thickness) {
+    if ((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= search_reach(g.size, g.thickness)) {
       hold_lo_.col(i) = particle_lo_.col(i).array() + g.thickness;
       hold_hi_.col(i) = particle_hi_.col(i).array() - g.thickness;
     } else {
@@ -587,7 +590,7 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   // it (the divergence guard stops such a step by default). It is left out of this search (an
   // empty box) and counted (self_skipped), so that a particle flung 1e12 m away costs one search,
   // not one pair with every feature on every sub-step.
-  const Real reach = g.size + 2 * pad;
+  const Real reach = search_reach(g.size, g.thickness);
   const auto keep = [&](Vec3& lo, Vec3& hi) {
     if ((hi - lo).maxCoeff() <= reach) return true;  // false for NaN too
     lo = inf, hi = -inf;
@@ -648,7 +651,7 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
   const auto point_triangle = [&](Index q, Index t, Index lca) { add_point_triangle(model, g, q, t, lca, w); };
   // An edge's search box, the union of its particles'; false for one left out of the search (see
   // find_candidates).
-  const Real reach = g.size + 2 * (kSearchPad * g.thickness);  // find_candidates'
+  const Real reach = search_reach(g.size, g.thickness);
   const auto edge_box = [&](const std::array<Index, 2>& e, Vec3& lo, Vec3& hi) {
     lo = particle_lo_.col(e[0]).cwiseMin(particle_lo_.col(e[1]));
     hi = particle_hi_.col(e[0]).cwiseMax(particle_hi_.col(e[1]));
