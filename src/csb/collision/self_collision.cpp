@@ -35,6 +35,9 @@
 
 #include <algorithm>
 #include <limits>
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 namespace csb {
 
@@ -56,6 +59,29 @@ constexpr Real kSearchPad = 1.5;
 // The widest a particle's or a feature's search box may be (m) for a group of rest size `size` and
 // thickness h; a wider one is left out of the search (find_candidates).
 inline Real search_reach(Real size, Real h) { return size + 2 * (kSearchPad * h); }
+
+// Whether y[j] lies in [lo[j], hi[j]] for j < n (a NaN is not outside: as Eigen's comparisons
+// in candidates_hold's loop over particles): the per-sub-step check of a whole cloth, two
+// coordinates per SSE2 compare where there is SSE2 (the compiler keeps the plain loop scalar), with
+// one branch per run.
+bool within(const Real* y, const Real* lo, const Real* hi, Index n) {
+  Index j = 0;
+#if defined(__SSE2__)
+  constexpr Index kRun = 256;
+  const Index pairs = n & ~Index(1);
+  while (j < pairs) {
+    __m128d out = _mm_setzero_pd();
+    for (const Index end = std::min(pairs, j + kRun); j < end; j += 2) {
+      const __m128d v = _mm_loadu_pd(y + j);
+      out = _mm_or_pd(out, _mm_or_pd(_mm_cmplt_pd(v, _mm_loadu_pd(lo + j)), _mm_cmpgt_pd(v, _mm_loadu_pd(hi + j))));
+    }
+    if (_mm_movemask_pd(out)) return false;
+  }
+#endif
+  for (; j < n; ++j)
+    if (y[j] < lo[j] || y[j] > hi[j]) return false;
+  return true;
+}
 
 inline bool boxes_overlap(const Vec3& lo_a, const Vec3& hi_a, const Vec3& lo_b, const Vec3& hi_b) {
   return !((lo_a.array() > hi_b.array()).any() || (hi_a.array() < lo_b.array()).any());
@@ -120,6 +146,12 @@ void SelfCollision::prepare(const Model& model) {
     Group sg;
     sg.group = g;
     sg.thickness = h_self;
+    sg.count = model.group_offsets[g + 1] - model.group_offsets[g];
+    if (sg.count > 0) {
+      sg.first = model.group_particles[model.group_offsets[g]];
+      for (Index o = 0; o < sg.count; ++o)
+        if (model.group_particles[model.group_offsets[g] + o] != sg.first + o) sg.first = -1;
+    }
     Real edges = 0;
     Vec3 lo = Vec3::Constant(std::numeric_limits<Real>::infinity()), hi = -lo;
     for (Index t = 0; t < static_cast<Index>(model.triangles.size()); ++t) {
@@ -241,9 +273,10 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at);
-  s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) + b(node_lo_) + b(node_hi_) +
-       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) + b(search_tri_lo_) + b(search_tri_hi_) +
+         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at) +
+         b(g.tri_lo) + b(g.tri_hi) + b(g.node_lo) + b(g.node_hi);
+  s += b(contacts_) + b(impacts_) + b(box_lo_) + b(box_hi_) + b(edge_lo_) + b(edge_hi_) +
+       b(node_pairs_) + b(stopped_) + b(stamps_) + b(tests_parts_) + b(culled_parts_) + b(certified_) +
        positions(lookahead_) + positions(end_p_) + positions(hold_lo_) + positions(hold_hi_) + positions(particle_lo_) + positions(particle_hi_) +
        positions(sweep_lo_) + positions(sweep_hi_);
   for (const auto& v : impact_parts_) s += b(v);
@@ -357,7 +390,7 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
     g.end_at[k] = 0;
   };
   if (V.isZero(0)) renew_axis();
-  const Real box2 = (node_hi_[k] - node_lo_[k]).squaredNorm();
+  const Real box2 = (g.node_hi[k] - g.node_lo[k]).squaredNorm();
   const auto* edges = g.patch_edges.data() + g.patch_start[k];
   const Index m = g.patch_start[k + 1] - g.patch_start[k];
   // The boundary about O: every edge's signed area positive over the motion, and a ray from O
@@ -497,10 +530,19 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
     ++g.serial;
     bool same = end_p_.cols() == x.cols();
     Real step2 = 0;
-    for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
-      const Index i = model.group_particles[o];
-      same = same && x.col(i) == end_p_.col(i);
-      step2 = std::max(step2, (p.col(i) - x.col(i)).squaredNorm());
+    if (g.first >= 0) {
+      const Real *xs = x.data() + 3 * g.first, *ps = p.data() + 3 * g.first;
+      if (same) same = std::equal(xs, xs + 3 * g.count, end_p_.data() + 3 * g.first);
+      for (Index i = 0; i < g.count; ++i) {
+        const Real dx = ps[3 * i] - xs[3 * i], dy = ps[3 * i + 1] - xs[3 * i + 1], dz = ps[3 * i + 2] - xs[3 * i + 2];
+        step2 = std::max(step2, dx * dx + dy * dy + dz * dz);
+      }
+    } else {
+      for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
+        const Index i = model.group_particles[o];
+        same = same && x.col(i) == end_p_.col(i);
+        step2 = std::max(step2, (p.col(i) - x.col(i)).squaredNorm());
+      }
     }
     g.carried = same;
     g.step2 = step2;  // NaN: no carried certificate (need is NaN)
@@ -510,6 +552,7 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
   certified_.assign(nodes, 0);
   for (Index k = 0; k < nodes;) {
     if (g.is_patch[k] && !(sub_step && g.failed[k])) {
+      if (k > 0 && !g.boxes_ready) search_boxes(model, g);  // the margin's scale
       if (certify_node(g, k, x, p, sub_step)) {
         const Index end = k + 2 * g.bvh_size[k] - 1;
         std::fill(certified_.begin() + k, certified_.begin() + end, std::uint8_t(1));
@@ -522,8 +565,11 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
   }
   if (sub_step) {
     if (end_p_.cols() != p.cols()) end_p_.resize(3, p.cols());
-    for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o)
-      end_p_.col(model.group_particles[o]) = p.col(model.group_particles[o]);
+    if (g.first >= 0)
+      std::copy_n(p.data() + 3 * g.first, 3 * g.count, end_p_.data() + 3 * g.first);
+    else
+      for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o)
+        end_p_.col(model.group_particles[o]) = p.col(model.group_particles[o]);
   }
 }
 
@@ -565,8 +611,10 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
                                     const Real* w, int substeps) {
   const Real pad = kSearchPad * g.thickness;
   const Real ahead = static_cast<Real>(substeps);
+  const Real reach = search_reach(g.size, g.thickness);
   const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
   if (lookahead_.cols() != x.cols()) lookahead_.resize(3, x.cols());
+  Vec3 all_lo = inf, all_hi = -inf;  // the union of the particles' boxes
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
     const Vec3 xi = x.col(i), pi = p.col(i);
@@ -576,43 +624,29 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
     lookahead_.col(i) = end;
     particle_lo_.col(i) = xi.cwiseMin(pi).cwiseMin(end).array() - pad;
     particle_hi_.col(i) = xi.cwiseMax(pi).cwiseMax(end).array() + pad;
+    all_lo = all_lo.cwiseMin(particle_lo_.col(i));
+    all_hi = all_hi.cwiseMax(particle_hi_.col(i));
     // The box shrunk by h that x and p must stay in (candidates_hold); a particle left out of the
-    // search (see below) holds anywhere.
-    if ((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= search_reach(g.size, g.thickness)) {
+    // search (see search_boxes) holds anywhere.
+    if ((particle_hi_.col(i) - particle_lo_.col(i)).maxCoeff() <= reach) {
       hold_lo_.col(i) = particle_lo_.col(i).array() + g.thickness;
       hold_hi_.col(i) = particle_hi_.col(i).array() - g.thickness;
     } else {
       hold_lo_.col(i) = -inf, hold_hi_.col(i) = inf;
     }
   }
-  // A feature whose box spans more than the cloth's rest size (plus the widening) has been torn
-  // across the cloth or flung beyond it within a step: no contact or continuous test can follow
-  // it (the divergence guard stops such a step by default). It is left out of this search (an
-  // empty box) and counted (self_skipped), so that a particle flung 1e12 m away costs one search,
-  // not one pair with every feature on every sub-step.
-  const Real reach = search_reach(g.size, g.thickness);
-  const auto keep = [&](Vec3& lo, Vec3& hi) {
-    if ((hi - lo).maxCoeff() <= reach) return true;  // false for NaN too
-    lo = inf, hi = -inf;
-    return false;
-  };
-  // The features' search boxes, kept for the deferred searches.
-  // (The edges' are taken one pair at a time, in search_node.)
-  unite_boxes(model, g, particle_lo_, particle_hi_, search_tri_lo_, search_tri_hi_, nullptr, nullptr);
-  g.skipped = 0;
-  for (std::size_t t = 0; t < g.triangles.size(); ++t) g.skipped += !keep(search_tri_lo_[t], search_tri_hi_[t]);
-  // The hierarchy refitted to the boxes (children come after their parent).
+  // The features' boxes and the hierarchy's, for this search and the deferred ones. A cloth within
+  // its reach, all its particles in triangles (a smooth cloth's every search), leaves no triangle
+  // out and the root's box is the particles': the rest waits until a node is opened (search_boxes).
   const Index nodes = static_cast<Index>(g.bvh_child.size());
-  node_lo_.resize(nodes);
-  node_hi_.resize(nodes);
-  for (Index k = nodes - 1; k >= 0; --k) {
-    const auto& c = g.bvh_child[k];
-    if (c[0] < 0) {
-      node_lo_[k] = search_tri_lo_[-1 - c[0]], node_hi_[k] = search_tri_hi_[-1 - c[0]];
-    } else {
-      node_lo_[k] = node_lo_[c[0]].cwiseMin(node_lo_[c[1]]);
-      node_hi_[k] = node_hi_[c[0]].cwiseMax(node_hi_[c[1]]);
-    }
+  g.node_lo.resize(nodes);
+  g.node_hi.resize(nodes);
+  g.boxes_ready = false;
+  if (nodes > 0 && g.loose.empty() && (all_hi - all_lo).maxCoeff() <= reach) {
+    g.skipped = 0;
+    g.node_lo[0] = all_lo, g.node_hi[0] = all_hi;
+  } else {
+    search_boxes(model, g);
   }
   // The patches that cannot meet themselves along the whole look-ahead (certify) are not searched
   // inside: their pairs are found when a sub-step's motion no longer certifies them
@@ -621,9 +655,9 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   g.failed.assign(nodes, 0);
   g.pt.clear();
   g.ee.clear();
-  g.deferred.assign(nodes, 0);
+  g.deferred.clear();
   if (nodes > 0) search_node(model, g, 0, w);
-  if (!g.loose.empty()) hash_.build(g.cell, search_tri_lo_, search_tri_hi_);
+  if (!g.loose.empty()) hash_.build(g.cell, g.tri_lo, g.tri_hi);
   for (const Index q : g.loose) {  // particles of the group in no triangle
     if (!((particle_hi_.col(q) - particle_lo_.col(q)).maxCoeff() <= reach)) continue;
     if (++stamp_ == 0) std::fill(stamps_.begin(), stamps_.end(), 0), stamp_ = 1;
@@ -637,6 +671,36 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   ++counts_.searches;
 }
 
+
+// The search's boxes of group g (find_candidates): each triangle's, the union of its particles',
+// and the hierarchy's, refitted to them (children come after their parent). A triangle whose box
+// spans more than the cloth's rest size (plus the widening) has been torn across the cloth or
+// flung beyond it within a step: no contact or continuous test can follow it (the divergence
+// guard stops such a step by default). It is left out of this search (an empty box) and counted
+// (self_skipped), so that a particle flung 1e12 m away costs one search, not one pair with every
+// feature on every sub-step. (The edges' boxes are taken one pair at a time, in search_node.)
+void SelfCollision::search_boxes(const Model& model, Group& g) {
+  const Real reach = search_reach(g.size, g.thickness);
+  const Vec3 inf = Vec3::Constant(std::numeric_limits<Real>::infinity());
+  unite_boxes(model, g, particle_lo_, particle_hi_, g.tri_lo, g.tri_hi, nullptr, nullptr);
+  g.skipped = 0;
+  for (std::size_t t = 0; t < g.triangles.size(); ++t)
+    if (!((g.tri_hi[t] - g.tri_lo[t]).maxCoeff() <= reach)) {  // NaN too
+      g.tri_lo[t] = inf, g.tri_hi[t] = -inf;
+      ++g.skipped;
+    }
+  const Index nodes = static_cast<Index>(g.bvh_child.size());
+  for (Index k = nodes - 1; k >= 0; --k) {
+    const auto& c = g.bvh_child[k];
+    if (c[0] < 0) {
+      g.node_lo[k] = g.tri_lo[-1 - c[0]], g.node_hi[k] = g.tri_hi[-1 - c[0]];
+    } else {
+      g.node_lo[k] = g.node_lo[c[0]].cwiseMin(g.node_lo[c[1]]);
+      g.node_hi[k] = g.node_hi[c[0]].cwiseMax(g.node_hi[c[1]]);
+    }
+  }
+  g.boxes_ready = true;
+}
 
 // The candidate pairs inside node `root` (all of them from the root): the hierarchy traversed
 // against itself from (root, root) with the search's boxes; a node certified (certified_) is not
@@ -676,6 +740,7 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
       for (Index j = g.owned_edge_start[t2]; j < g.owned_edge_start[t2 + 1]; ++j)
         edge_edge(g.owned_edges[i], g.owned_edges[j], lca);
   };
+  if (!certified_[root] && !g.boxes_ready) search_boxes(model, g);
   node_pairs_.clear();
   node_pairs_.push_back({root, root, root});
   while (!node_pairs_.empty()) {
@@ -686,7 +751,7 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
     if (a == b) {
       if (ca[0] < 0) continue;
       if (certified_[a]) {
-        g.deferred[a] = 1;
+        g.deferred.push_back(a);
         continue;
       }
       node_pairs_.push_back({ca[0], ca[1], a});
@@ -694,7 +759,7 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
       node_pairs_.push_back({ca[0], ca[0], ca[0]});
       continue;
     }
-    if (!boxes_overlap(node_lo_[a], node_hi_[a], node_lo_[b], node_hi_[b])) continue;
+    if (!boxes_overlap(g.node_lo[a], g.node_hi[a], g.node_lo[b], g.node_hi[b])) continue;
     if (ca[0] < 0 && cb[0] < 0) {
       leaf_pair(-1 - ca[0], -1 - cb[0], lca);
     } else if (ca[0] < 0 || (cb[0] >= 0 && g.bvh_size[b] > g.bvh_size[a])) {
@@ -712,7 +777,7 @@ void SelfCollision::search_node(const Model& model, Group& g, Index root, const 
 void SelfCollision::add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w) {
   const Triangle& tri = model.triangles[g.triangles[t]];
   if (tri[0] == q || tri[1] == q || tri[2] == q) return;
-  if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), search_tri_lo_[t], search_tri_hi_[t])) return;
+  if (!boxes_overlap(particle_lo_.col(q), particle_hi_.col(q), g.tri_lo[t], g.tri_hi[t])) return;
   if (w[q] + w[tri[0]] + w[tri[1]] + w[tri[2]] <= 0) return;
   g.pt.push_back({q, t, lca});
 }
@@ -721,17 +786,31 @@ void SelfCollision::add_point_triangle(const Model& model, Group& g, Index q, In
 // now (with the search's boxes, which hold while the candidates do), in the tree's order, and the
 // pairs they give join the candidates.
 void SelfCollision::resume_deferred(const Model& model, Group& g, const Real* w) {
-  for (Index k = 0; k < static_cast<Index>(g.deferred.size()); ++k)
-    if (g.deferred[k] && !certified_[k]) {
-      g.deferred[k] = 0;
+  // A node deferred by one of these searches lies inside the one searched and is certified: none
+  // is searched in this call, and the list is put back in order at its end.
+  const std::size_t before = g.deferred.size();
+  std::size_t kept = 0;
+  for (std::size_t j = 0; j < before; ++j) {
+    const Index k = g.deferred[j];
+    if (certified_[k])
+      g.deferred[kept++] = k;
+    else
       search_node(model, g, k, w);
-    }
+  }
+  if (kept == before) return;
+  g.deferred.erase(std::copy(g.deferred.begin() + before, g.deferred.end(), g.deferred.begin() + kept), g.deferred.end());
+  std::sort(g.deferred.begin(), g.deferred.end());
 }
 
 // Whether the candidates of group g hold for the positions x and p now (see above). Without x:
 // for p alone, x being known to hold (resolve: begin checked the same x against these boxes, or
 // a search since made boxes that hold it).
 bool SelfCollision::candidates_hold(const Model& model, const Group& g, const Positions* x, const Positions& p) const {
+  if (g.first >= 0) {
+    const Index at = 3 * g.first, n = 3 * g.count;
+    const Real *lo = hold_lo_.data() + at, *hi = hold_hi_.data() + at;
+    return within(p.data() + at, lo, hi, n) && (!x || within(x->data() + at, lo, hi, n));
+  }
   for (Index o = model.group_offsets[g.group]; o < model.group_offsets[g.group + 1]; ++o) {
     const Index i = model.group_particles[o];
     const auto lo = hold_lo_.col(i).array(), hi = hold_hi_.col(i).array();

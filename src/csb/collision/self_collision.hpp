@@ -105,6 +105,9 @@ class SelfCollision {
   struct Group {
     Index group = 0;
     Real thickness = 0;                  // h, m
+    // The group's particles are first, first + 1, ..., first + count - 1 (first = -1: not one run);
+    // the per-sub-step checks then run over their coordinates as flat arrays.
+    Index first = -1, count = 0;
     Real cell = 1;                       // m, hash cell edge
     std::vector<Index> triangles;        // into model.triangles
     std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
@@ -116,6 +119,10 @@ class SelfCollision {
     bool searched = false;               // pt and ee were found for this model
     Real size = 0;                       // m, the group's rest bounding-box diagonal
     Index skipped = 0;                   // triangles left out of the last search (beyond `size`)
+    // The triangles' and the hierarchy's boxes at the last search (m), built when a search or a
+    // certification first needs them (search_boxes); until then only the root's is known.
+    std::vector<Vec3> tri_lo, tri_hi, node_lo, node_hi;
+    bool boxes_ready = false;
     // Owners: each particle and edge belongs to the first triangle (in `triangles`) holding it;
     // per triangle the particles and edges it owns (CSR), and the group's particles in no triangle.
     std::vector<Index> owned_particle_start, owned_particles, owned_edge_start, owned_edges, loose;
@@ -133,7 +140,7 @@ class SelfCollision {
     std::vector<Triangle> bvh_corners;  // the particles of bvh_order's triangles, in that order
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
-    std::vector<std::uint8_t> deferred;  // per node: not searched inside, certified when searched
+    std::vector<Index> deferred;         // nodes not searched inside, certified when searched, ascending
     std::vector<std::uint8_t> failed;    // per node: a sub-step's certification failed since the search
     std::vector<Vec3> axis;              // per node: the axis V of its last certification (zero: none yet)
     // Per node certified by a sub-step's full test, the least V·(e x f) at its end (m² times
@@ -154,6 +161,7 @@ class SelfCollision {
 
   void find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w,
                        int substeps);
+  void search_boxes(const Model& model, Group& g);
   bool candidates_hold(const Model& model, const Group& g, const Positions* x, const Positions& p) const;
   void sweep_boxes(const Model& model, const Group& g, const Positions& x, const Positions& p, Real pad);
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi, std::vector<Vec3>& tri_lo,
@@ -184,8 +192,6 @@ class SelfCollision {
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
-  std::vector<Vec3> node_lo_, node_hi_;  // m, the hierarchy's boxes at the last search
-  std::vector<Vec3> search_tri_lo_, search_tri_hi_;  // m, the triangles' boxes at the last search
   Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
   Positions end_p_;                      // m, the last sub-step certification's end positions
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
