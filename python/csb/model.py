@@ -9,6 +9,7 @@ import numpy as np
 
 from . import _core
 from .mesh import Mesh, MeshReport, warn_element_quality
+from .select import Selector, select_vertices
 from .tetmesh import TetMesh
 
 __all__ = ["ModelBuilder", "MeshInstance"]
@@ -32,6 +33,8 @@ class MeshInstance:
     """tet meshes: volume constraints added (one per tet)"""
     flipped_tets: int = 0
     """tet meshes: inverted tets (negative signed volume) that were re-oriented"""
+    name: str = ""
+    """the mesh's name (its file, or the label it was given), for messages"""
 
     @property
     def particles(self) -> np.ndarray:
@@ -45,6 +48,16 @@ class MeshInstance:
             raise _core.ParameterError(f"point must be 3 finite coordinates in m, got {point!r}")
         return self.first_particle + int(np.argmin(np.sum((self.vertices - p) ** 2, axis=1)))
 
+    def select(self, what: Selector) -> np.ndarray:
+        """Indices (in the model, ascending) of this mesh's particles that `what` chooses: a region
+        (:class:`csb.Box`, :class:`csb.Sphere`, :class:`csb.HalfSpace`, :class:`csb.NearLine`,
+        joined with ``|``) or a callable of the (N, 3) vertex positions returning N booleans, both
+        tested against the vertices as added (m); a boolean mask over the vertices; or an array of
+        vertex indices. A selection that catches nothing is a ParameterError saying so (see
+        :func:`csb.select.select_vertices`)."""
+        label = f"mesh '{self.name}'" if self.name else "the mesh"
+        return self.first_particle + select_vertices(self.vertices, what, label=label)
+
 
 class ModelBuilder(_core.ModelBuilder):
     """Collects particles and constraints; :meth:`build` returns the immutable :class:`csb.Model`.
@@ -52,6 +65,18 @@ class ModelBuilder(_core.ModelBuilder):
     Only what is added is built and stepped: a mesh gets distance constraints on its edges only if
     ``stretch_stiffness`` is given, bending constraints only if ``bending_stiffness`` is given.
     """
+
+    def pin(self, i: int | Sequence[int] | np.ndarray) -> None:
+        """Fixes particle i (inverse mass 0), or each particle of an index array (what
+        :meth:`MeshInstance.select` returns): ``builder.pin(cape.select(csb.Box(lo, hi)))``."""
+        arr = np.asarray(i)
+        if arr.ndim == 0:
+            super().pin(i)
+            return
+        if arr.ndim != 1 or not (arr.size == 0 or np.issubdtype(arr.dtype, np.integer)):
+            raise _core.ParameterError(f"pin: give a particle index or a 1-D array of them, got {i!r}")
+        for k in arr.tolist():
+            super().pin(k)
 
     def add_mesh(
         self,
@@ -93,7 +118,7 @@ class ModelBuilder(_core.ModelBuilder):
             thickness=thickness,
         )
         warn_element_quality(mesh.name or "mesh", mesh.vertices, mesh.triangles)
-        return _instance(d, mesh.vertices)
+        return _instance(d, mesh.vertices, mesh.name)
 
     def add_tet_mesh(
         self,
@@ -135,7 +160,7 @@ class ModelBuilder(_core.ModelBuilder):
             volume_stiffness=volume_stiffness,
             volume_compliance=volume_compliance,
         )
-        return _instance(d, mesh.points)
+        return _instance(d, mesh.points, getattr(mesh, "name", ""))
 
     def add_balloon(
         self,
@@ -159,8 +184,8 @@ class ModelBuilder(_core.ModelBuilder):
         return int(self._add_balloon(np.asarray(triangles), pressure=pressure, stiffness=stiffness, compliance=compliance))
 
 
-def _instance(d: dict, vertices: np.ndarray) -> MeshInstance:
+def _instance(d: dict, vertices: np.ndarray, name: str) -> MeshInstance:
     """A MeshInstance from the builder's result dict, its report's warnings emitted."""
     report = MeshReport._from_core(d.pop("report"))
     report._emit()
-    return MeshInstance(**d, report=report, vertices=vertices)
+    return MeshInstance(**d, report=report, vertices=vertices, name=name)

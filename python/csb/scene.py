@@ -31,6 +31,7 @@ import numpy as np
 from . import _core
 from .mesh import AnimationWarning, Mesh, _rotation, icosphere, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
+from .select import Box, HalfSpace, NearLine, Region, Sphere, select_vertices
 from .scene_file import SceneError, Vec3, _Source, _Table, read_toml
 from .tetmesh import load_tet_mesh
 
@@ -110,11 +111,14 @@ _PBD_KEYS = ("damping", "stiffness_correction", "front_end", "solver", "xpbd_dam
 
 @dataclass(frozen=True)
 class Selection:
-    """Particles of one mesh chosen by vertex index or by the vertex nearest to points (m)."""
+    """Particles of one mesh chosen by vertex index, by the vertex nearest to points (m), and by
+    regions of space (every vertex inside: a box, a sphere, a half-space, a distance to a line);
+    the union of what each chose."""
 
     indices: tuple[int, ...] = ()
     near: tuple[Vec3, ...] = ()
     max_distance: float | None = None   # m; None: 2 % of the mesh's bounding-box diagonal
+    regions: tuple[tuple[str, Region], ...] = ()   # (the key that gave it, the region)
 
 
 @dataclass(frozen=True)
@@ -590,6 +594,13 @@ def _select(scene: Scene, spec: MeshSpec, sel: Selection, inst: MeshInstance, wh
                     f"{d:.4g} m away, more than max_distance = {limit:.4g} m (is the point in world "
                     f"coordinates, after scale/rotate/translate?)")
             chosen.append(i)
+    for key, region in sel.regions:
+        try:
+            inside = select_vertices(inst.vertices, region, label=f"mesh '{spec.name}'")
+        except _core.ParameterError as e:
+            raise SceneError(f"{scene.path}: mesh '{spec.name}' {what}.{key}: {e}") from None
+        have = set(chosen)
+        chosen.extend(int(inst.first_particle + i) for i in inside if inst.first_particle + i not in have)
     return chosen
 
 
@@ -602,14 +613,41 @@ def _relative_to(base: Path, file: str) -> Path:
     return Path(file) if os.path.isabs(file) else base / file
 
 
+def _read_region(t: _Table, key: str) -> Region | None:
+    """A region table of a selection: box = {min, max}, sphere = {center, radius}, half_space =
+    {point, normal}, near_line = {a, b, distance, segment}, in m."""
+    r = t.table(key)
+    if r is None:
+        return None
+    try:
+        if key == "box":
+            region: Region = Box(r.vector("min"), r.vector("max"))
+        elif key == "sphere":
+            region = Sphere(r.vector("center"), r.number("radius"))
+        elif key == "half_space":
+            region = HalfSpace(r.vector("point"), r.vector("normal"))
+        else:
+            region = NearLine(r.vector("a"), r.vector("b"), r.number("distance"), segment=r.boolean("segment", False))
+    except _core.ParameterError as e:
+        raise r.error(None, str(e)) from None
+    r.finish()
+    return region
+
+
+_REGIONS = ("box", "sphere", "half_space", "near_line")
+
+
 def _read_selection(t: _Table) -> Selection:
+    regions = tuple((key, region) for key in _REGIONS if (region := _read_region(t, key)) is not None)
     sel = Selection(
         indices=t.integers("indices", ()),
         near=t.vectors("near", ()),
         max_distance=t.number("max_distance", None, check=lambda x: x > 0, expect="a distance > 0 m"),
+        regions=regions,
     )
-    if not sel.indices and not sel.near:
-        raise t.error(None, "give 'indices' (vertex numbers) or 'near' (points in m)")
+    if not sel.indices and not sel.near and not sel.regions:
+        raise t.error(None, "give 'indices' (vertex numbers), 'near' (points in m) or a region: 'box', 'sphere', "
+                            "'half_space' or 'near_line'")
     return sel
 
 
