@@ -192,8 +192,8 @@ def test_a_scene_pins_by_region(tmp_path, pin, rows):
      r"pin.box.centre: unknown key; expected one of: max, min"),
     ('pin = { half_space = { point = [0.0, 0.0, 0.0] } }', r"pin.half_space: missing key 'normal'"),
     ('pin = { cylinder = { a = [0.0, 0.0, 0.0] } }',
-     r"mesh\[0\] \(cloth\).pin: give 'indices' \(vertex numbers\), 'near' \(points in m\) or a region: 'box', 'sphere', "
-     r"'half_space' or 'near_line'"),
+     r"mesh\[0\] \(cloth\).pin: give 'indices' \(vertex numbers\), 'near' \(points in m\), 'material' \(a material's "
+     r"name in the file\) or a region: 'box', 'sphere', 'half_space' or 'near_line'"),
     ('pin = { indices = [0], cylinder = { a = [0.0, 0.0, 0.0] } }', r"pin.cylinder: unknown key"),
 ])
 def test_a_scene_region_that_is_wrong_or_catches_nothing_is_an_error_naming_it(tmp_path, pin, message):

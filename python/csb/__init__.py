@@ -66,10 +66,10 @@ from ._core import (
     topology,
     volume_violations,
 )
-from .mesh import AnimationWarning, Mesh, MeshReport, MeshWarning, clean, icosphere, load_mesh, transformed
+from .mesh import AnimationWarning, Mesh, MeshReport, MeshWarning, SourceMesh, clean, icosphere, load_mesh, transformed
 from .animation import AnimatedMesh, Animation, RigidKeyframes, load_animation
 from .model import MeshInstance, ModelBuilder
-from .select import Box, HalfSpace, NearLine, Region, Sphere
+from .select import Box, HalfSpace, Material, NearLine, Region, Sphere
 from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
 from .runner import RunResult
@@ -93,10 +93,10 @@ def plugin_include_dir() -> str:
 
 __all__ = [
     "Error", "ParameterError", "MeshError", "SimulationError", "ConcurrentUseError", "SceneError", "MeshWarning", "AnimationWarning", "MaterialWarning", "AccuracyWarning",
-    "Mesh", "MeshReport", "load_mesh", "load_animation", "Animation", "AnimatedMesh", "RigidKeyframes", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
+    "Mesh", "MeshReport", "SourceMesh", "load_mesh", "load_animation", "Animation", "AnimatedMesh", "RigidKeyframes", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum", "icosphere",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
-    "Model", "ModelBuilder", "MeshInstance", "State", "Region", "Box", "Sphere", "HalfSpace", "NearLine",
+    "Model", "ModelBuilder", "MeshInstance", "State", "Region", "Box", "Sphere", "HalfSpace", "NearLine", "Material",
     "Integrator", "methods", "method_info", "make_integrator", "load_plugin", "Plugin", "PluginIntegrator", "plugin_include_dir", "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick", "tear",
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
     "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",

@@ -13,7 +13,8 @@ import numpy as np
 from . import _core
 from ._core import Mesh
 
-__all__ = ["Mesh", "MeshReport", "MeshWarning", "AnimationWarning", "load_mesh", "clean", "transformed", "icosphere"]
+__all__ = ["Mesh", "MeshReport", "SourceMesh", "MeshWarning", "AnimationWarning", "load_mesh", "clean", "transformed",
+           "icosphere"]
 
 
 class MeshWarning(UserWarning):
@@ -152,6 +153,98 @@ class MeshReport:
             warn_mesh(message)
 
 
+@dataclass(frozen=True)
+class SourceMesh:
+    """A file's own mesh, as its tools wrote it (``mesh.source`` of :func:`load_mesh`), so that
+    results go back onto it: its vertices before welding, its polygons as the file has them (quads
+    and n-gons kept), its first UV set and its normals where every mesh of the file has them, each
+    of its meshes' material with its vertices, and the weld map from its vertices to the welded
+    mesh that csb simulates. Positions in m, in the frame of the mesh it belongs to (the scene's
+    scale, rotation and translation applied with the mesh's)."""
+
+    vertices: np.ndarray
+    """(M, 3) the file's vertices, m (as Assimp reads them: glTF's own; an OBJ's, one per distinct
+    position, UV and normal corner)"""
+    face_sizes: np.ndarray
+    """(F,) corners per polygon"""
+    face_vertices: np.ndarray
+    """(sum of face_sizes,) the polygons' corners, into vertices"""
+    uv: np.ndarray | None
+    """(M, 2) the first UV set, or None"""
+    normals: np.ndarray | None
+    """(M, 3) the file's normals (unit), or None"""
+    weld_map: np.ndarray
+    """(M,) each vertex's vertex in the welded mesh (its particle, from a MeshInstance's
+    first_particle on), -1 where it was dropped (used by no polygon)"""
+    materials: tuple[tuple[str, int, int], ...] = ()
+    """per mesh of the file: its material's name ("" for none) and its vertices [begin, end)"""
+
+    @classmethod
+    def _from_core(cls, d: dict[str, Any]) -> "SourceMesh":
+        return cls(vertices=d["vertices"], face_sizes=d["face_sizes"], face_vertices=d["face_vertices"], uv=d["uv"],
+                   normals=d["normals"], weld_map=d["weld_map"], materials=tuple(tuple(m) for m in d["materials"]))
+
+    def positions(self, welded: np.ndarray) -> np.ndarray:
+        """(M, 3) the file's vertices where the welded mesh's vertices `welded` ((N, 3), m) are:
+        each takes its weld_map vertex's position; a dropped one keeps its own."""
+        out = np.array(self.vertices, dtype=float)
+        kept = self.weld_map >= 0
+        out[kept] = np.asarray(welded)[self.weld_map[kept]]
+        return out
+
+    def distinct_vertices(self) -> tuple[np.ndarray, np.ndarray]:
+        """(keep, index): the vertices that differ in position, UV or normal, each once, in the
+        order the polygons first use them (`keep`, into vertices), and each vertex's place among
+        them (`index`, (M,)). Assimp gives an OBJ one vertex per polygon corner; its distinct ones
+        are the file's own (position, UV, normal) corners (the bundled cloth: 4,096 corners, 1,122
+        distinct, as its 1,122 'v' lines). A glTF's vertices are distinct already."""
+        columns = [np.asarray(self.vertices, dtype=float)]
+        columns += [np.asarray(a, dtype=float) for a in (self.uv, self.normals) if a is not None]
+        _, first, inverse = np.unique(np.hstack(columns), axis=0, return_index=True, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        # np.unique sorts the rows: renumber them by first use.
+        order = np.argsort(first, kind="stable")
+        rank = np.empty_like(order)
+        rank[order] = np.arange(len(order))
+        return first[order], rank[inverse]
+
+    def material_vertices(self, name: str) -> np.ndarray:
+        """The welded mesh's vertices (ascending) of the file's meshes whose material is `name`;
+        ParameterError naming the materials there are if none is."""
+        ranges = [(b, e) for n, b, e in self.materials if n == name]
+        if not ranges:
+            names = sorted({n for n, _, _ in self.materials if n})
+            raise _core.ParameterError(
+                f"no material {name!r} in the file; it has " + (", ".join(repr(n) for n in names) if names else "none named"))
+        source = np.concatenate([np.arange(b, e) for b, e in ranges])
+        welded = self.weld_map[source]
+        return np.unique(welded[welded >= 0])
+
+    def _transformed(self, s: np.ndarray, R: np.ndarray, t: np.ndarray, mirror: bool) -> "SourceMesh":
+        faces = np.asarray(self.face_vertices)
+        if mirror:  # each polygon's corners in reverse order, so that outward stays outward
+            starts = np.concatenate([[0], np.cumsum(self.face_sizes)[:-1]])
+            order = np.concatenate([start + np.arange(n)[::-1] for start, n in zip(starts, self.face_sizes)]) \
+                if len(starts) else np.zeros(0, dtype=np.int64)
+            faces = faces[order]
+        normals = None
+        if self.normals is not None:  # normals take the inverse transpose: divided by the scale
+            n = (np.asarray(self.normals) / s) @ R.T
+            length = np.linalg.norm(n, axis=1, keepdims=True)
+            normals = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+        return SourceMesh(vertices=(np.asarray(self.vertices) * s) @ R.T + t, face_sizes=self.face_sizes,
+                          face_vertices=faces, uv=self.uv, normals=normals, weld_map=self.weld_map,
+                          materials=self.materials)
+
+    def _rewelded(self, vertex_map: np.ndarray) -> "SourceMesh":
+        """The same file's mesh after the welded mesh was cleaned again (vertex_map: its old
+        vertices to the new, -1 dropped)."""
+        kept = self.weld_map >= 0
+        weld = np.full_like(self.weld_map, -1)
+        weld[kept] = np.asarray(vertex_map)[self.weld_map[kept]]
+        return SourceMesh(self.vertices, self.face_sizes, self.face_vertices, self.uv, self.normals, weld, self.materials)
+
+
 def load_mesh(
     path: str | os.PathLike[str],
     *,
@@ -162,7 +255,10 @@ def load_mesh(
 ) -> Mesh:
     """Read every mesh in a file (any format Assimp reads: OBJ, glTF/GLB, FBX, DAE, PLY, STL, 3DS, OFF, ...).
 
-    Node transforms are applied and polygons triangulated; coordinates are taken as metres.
+    Node transforms are applied and polygons triangulated; coordinates are taken as metres. The
+    file's own mesh (polygons, UVs, normals, materials and the weld map to the vertices csb
+    simulates) is kept as ``mesh.source`` (a :class:`SourceMesh`, None for a file of mixed
+    primitives), for writing results back onto it (:class:`csb.export.UsdWriter`).
     Vertices closer than ``weld_tolerance`` times the bounding-box diagonal are welded (UV and
     normal seams), degenerate triangles and unused vertices dropped; each is reported as a
     :class:`MeshWarning` and in ``mesh.report`` (a :class:`MeshReport`).
@@ -186,9 +282,10 @@ def load_mesh(
     """
     if isinstance(max_memory, bool) or not isinstance(max_memory, (int, float, np.integer, np.floating)):
         raise _core.ParameterError(f"max_memory must be a number of bytes > 0, got {max_memory!r}")
-    mesh, report, animation = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance,
-                                               timeout=timeout, max_memory=float(max_memory))
+    mesh, report, animation, source = _core._load_mesh(os.fspath(path), weld=weld, weld_tolerance=weld_tolerance,
+                                                       timeout=timeout, max_memory=float(max_memory))
     mesh.report = MeshReport._from_core(report)
+    mesh.source = SourceMesh._from_core(source) if source is not None else None
     mesh.report._emit()
     message = _animation_message(os.fspath(path), animation)
     if message is not None:
@@ -205,6 +302,8 @@ def clean(mesh: Mesh, *, weld: bool = True, weld_tolerance: float = 1e-6, drop_u
     out, report = _core._clean(mesh, weld=weld, weld_tolerance=weld_tolerance, drop_unreferenced=drop_unreferenced)
     out.report = MeshReport._from_core(report)
     out.report._emit()
+    source = getattr(mesh, "source", None)
+    out.source = source._rewelded(out.report.vertex_map) if source is not None else None
     return out
 
 
@@ -250,7 +349,10 @@ def transformed(
     if tris is not None and mirror:
         tris = np.array(tris)[:, [0, 2, 1]]
     lines = mesh.lines if len(mesh.lines) else None
-    return Mesh(v, tris, lines, name=mesh.name)
+    out = Mesh(v, tris, lines, name=mesh.name)
+    source = getattr(mesh, "source", None)
+    out.source = source._transformed(s, _rotation(r), t, mirror) if source is not None else None
+    return out
 
 
 def icosphere(radius: float = 0.5, subdivisions: int = 2, center=(0.0, 0.0, 0.0)) -> Mesh:

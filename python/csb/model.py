@@ -8,8 +8,8 @@ from typing import Sequence
 import numpy as np
 
 from . import _core
-from .mesh import Mesh, MeshReport, warn_element_quality
-from .select import Selector, select_vertices
+from .mesh import Mesh, MeshReport, SourceMesh, warn_element_quality
+from .select import Material, Selector, select_vertices
 from .tetmesh import TetMesh
 
 __all__ = ["ModelBuilder", "MeshInstance"]
@@ -35,6 +35,9 @@ class MeshInstance:
     """tet meshes: inverted tets (negative signed volume) that were re-oriented"""
     name: str = ""
     """the mesh's name (its file, or the label it was given), for messages"""
+    source: SourceMesh | None = None
+    """the file's own mesh (:func:`csb.load_mesh`'s ``mesh.source``): its polygons, UVs and
+    normals, and the weld map from its vertices to this mesh's particles"""
 
     @property
     def particles(self) -> np.ndarray:
@@ -53,9 +56,17 @@ class MeshInstance:
         (:class:`csb.Box`, :class:`csb.Sphere`, :class:`csb.HalfSpace`, :class:`csb.NearLine`,
         joined with ``|``) or a callable of the (N, 3) vertex positions returning N booleans, both
         tested against the vertices as added (m); a boolean mask over the vertices; or an array of
-        vertex indices. A selection that catches nothing is a ParameterError saying so (see
-        :func:`csb.select.select_vertices`)."""
+        vertex indices; or :class:`csb.Material` (the file's meshes of that material). A selection
+        that catches nothing is a ParameterError saying so (see :func:`csb.select.select_vertices`)."""
         label = f"mesh '{self.name}'" if self.name else "the mesh"
+        if isinstance(what, Material):
+            if self.source is None:
+                raise _core.ParameterError(f"{label} has no file's mesh to find material {what.name!r} in: it was "
+                                           "not read by csb.load_mesh, or its file mixes points and lines with polygons")
+            try:
+                return self.first_particle + self.source.material_vertices(what.name)
+            except _core.ParameterError as e:
+                raise _core.ParameterError(f"{label}: {e}") from None
         return self.first_particle + select_vertices(self.vertices, what, label=label)
 
 
@@ -118,7 +129,7 @@ class ModelBuilder(_core.ModelBuilder):
             thickness=thickness,
         )
         warn_element_quality(mesh.name or "mesh", mesh.vertices, mesh.triangles)
-        return _instance(d, mesh.vertices, mesh.name)
+        return _instance(d, mesh.vertices, mesh.name, getattr(mesh, "source", None))
 
     def add_tet_mesh(
         self,
@@ -184,8 +195,8 @@ class ModelBuilder(_core.ModelBuilder):
         return int(self._add_balloon(np.asarray(triangles), pressure=pressure, stiffness=stiffness, compliance=compliance))
 
 
-def _instance(d: dict, vertices: np.ndarray, name: str) -> MeshInstance:
+def _instance(d: dict, vertices: np.ndarray, name: str, source: SourceMesh | None = None) -> MeshInstance:
     """A MeshInstance from the builder's result dict, its report's warnings emitted."""
     report = MeshReport._from_core(d.pop("report"))
     report._emit()
-    return MeshInstance(**d, report=report, vertices=vertices, name=name)
+    return MeshInstance(**d, report=report, vertices=vertices, name=name, source=source)

@@ -198,6 +198,12 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
     out = Path(out_dir) if out_dir is not None else None
     if out is not None and (scene.output.xdmf or scene.output.vtu):
         writer = FrameWriter(out, scene.name, sim.model, xdmf=scene.output.xdmf, vtu=scene.output.vtu)
+    usd = None
+    if out is not None and scene.output.usd:
+        from .export import collider_frame, simulation_usd_writer
+
+        # Time codes count the frames as written: one every steps_per_frame steps of dt.
+        usd = simulation_usd_writer(out / f"{scene.name}.usd", sim, fps=1.0 / (steps_per_frame * dt))
 
     result = RunResult(sim, steps, 0.0, stepper_given=stepper is not None)
 
@@ -205,6 +211,8 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
         result.rows.append(metrics_row(sim.measure(), sim.state.step, volume_errors(sim.model, sim.state)))
         if writer is not None:
             writer.write(sim.state)
+        if usd is not None:
+            usd.write(sim.state, *collider_frame(sim))
 
     bar = None
     if progress:
@@ -239,6 +247,8 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             bar.close()
         if writer is not None:
             result.files += writer.close()
+        if usd is not None and usd.frames:
+            result.files.append(usd.close())
         result.memory = memory_used(sim)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

@@ -31,7 +31,7 @@ import numpy as np
 from . import _core
 from .mesh import AnimationWarning, Mesh, _rotation, icosphere, load_mesh, transformed
 from .model import MeshInstance, ModelBuilder
-from .select import Box, HalfSpace, NearLine, Region, Sphere, select_vertices
+from .select import Box, HalfSpace, Material, NearLine, Region, Sphere, select_vertices
 from .scene_file import SceneError, Vec3, _Source, _Table, read_toml
 from .tetmesh import load_tet_mesh
 
@@ -119,6 +119,7 @@ class Selection:
     near: tuple[Vec3, ...] = ()
     max_distance: float | None = None   # m; None: 2 % of the mesh's bounding-box diagonal
     regions: tuple[tuple[str, Region], ...] = ()   # (the key that gave it, the region)
+    material: str | None = None                    # the file's meshes of this material
 
 
 @dataclass(frozen=True)
@@ -296,6 +297,7 @@ class OutputSpec:
     vtu: bool = True
     csv: bool = True
     plot: bool = True
+    usd: bool = False     # <name>.usd: the meshes as the files have them, and the colliders, animated (the usd extra)
 
 
 @dataclass
@@ -594,6 +596,13 @@ def _select(scene: Scene, spec: MeshSpec, sel: Selection, inst: MeshInstance, wh
                     f"{d:.4g} m away, more than max_distance = {limit:.4g} m (is the point in world "
                     f"coordinates, after scale/rotate/translate?)")
             chosen.append(i)
+    if sel.material is not None:
+        try:
+            found = inst.select(Material(sel.material))
+        except _core.ParameterError as e:
+            raise SceneError(f"{scene.path}: mesh '{spec.name}' {what}.material: {e}") from None
+        have = set(chosen)
+        chosen.extend(int(i) for i in found if int(i) not in have)
     for key, region in sel.regions:
         try:
             inside = select_vertices(inst.vertices, region, label=f"mesh '{spec.name}'")
@@ -644,10 +653,11 @@ def _read_selection(t: _Table) -> Selection:
         near=t.vectors("near", ()),
         max_distance=t.number("max_distance", None, check=lambda x: x > 0, expect="a distance > 0 m"),
         regions=regions,
+        material=t.string("material", None),
     )
-    if not sel.indices and not sel.near and not sel.regions:
-        raise t.error(None, "give 'indices' (vertex numbers), 'near' (points in m) or a region: 'box', 'sphere', "
-                            "'half_space' or 'near_line'")
+    if not sel.indices and not sel.near and not sel.regions and sel.material is None:
+        raise t.error(None, "give 'indices' (vertex numbers), 'near' (points in m), 'material' (a material's name "
+                            "in the file) or a region: 'box', 'sphere', 'half_space' or 'near_line'")
     return sel
 
 
@@ -1018,11 +1028,14 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         output = OutputSpec(
             fps=out.number("fps", 30.0, check=lambda x: x > 0, expect="frames per second > 0"),
             xdmf=out.boolean("xdmf", tearing is None), vtu=out.boolean("vtu", True),
-            csv=out.boolean("csv", True), plot=out.boolean("plot", True),
+            csv=out.boolean("csv", True), plot=out.boolean("plot", True), usd=out.boolean("usd", False),
         )
         if tearing is not None and output.xdmf:
             raise out.error("xdmf", "an XDMF series cannot follow a model that tears (its particle count grows); "
                                     "use the VTU series")
+        if tearing is not None and output.usd:
+            raise out.error("usd", "a USD mesh cannot follow a model that tears (its particle count grows); "
+                                   "use the VTU series")
         out.finish()
     top.finish()
     return Scene(p, name, duration, solver, meshes, output, description, colliders, tearing, tethers)

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import _core
 
-__all__ = ["Region", "Box", "Sphere", "HalfSpace", "NearLine", "select_vertices"]
+__all__ = ["Region", "Box", "Sphere", "HalfSpace", "NearLine", "Material", "select_vertices"]
 
 
 def _point(value: Any, name: str) -> np.ndarray:
@@ -147,7 +147,17 @@ class _Union(Region):
         return " | ".join(repr(r) for r in self.parts)
 
 
-Selector = Union[Region, Callable[[np.ndarray], Any], Sequence[int], Sequence[bool], np.ndarray]
+@dataclass(frozen=True)
+class Material:
+    """The vertices of the file's meshes whose material is `name` (as the file names it: an OBJ's
+    ``usemtl``, a glTF, FBX or Collada material), through the file's own mesh that
+    :func:`csb.load_mesh` keeps; a vertex welded across two materials belongs to both. Assimp
+    exposes no vertex groups for these formats, so materials are how a file marks a part."""
+
+    name: str
+
+
+Selector = Union[Material, Region, Callable[[np.ndarray], Any], Sequence[int], Sequence[bool], np.ndarray]
 
 
 def select_vertices(vertices: np.ndarray, what: Selector, *, label: str = "the mesh") -> np.ndarray:

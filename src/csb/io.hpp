@@ -41,9 +41,30 @@ struct AnimationSummary {
   std::vector<SkinnedMeshInfo> skinned;
   bool empty() const { return animations.empty() && skinned.empty(); }
 };
+// The file's own mesh as its tools wrote it, for writing results back onto it: its vertices
+// before welding (the triangulated mesh's, in load_mesh's frame, m), its polygons as the file has
+// them (quads and n-gons kept; points and lines left out), its first UV set and its normals where
+// every mesh of the file has them, each mesh's material with its vertices, and the weld map. Empty
+// (no faces) when the file's vertices change with triangulation (a mesh of mixed primitives).
+struct SourceMesh {
+  Positions vertices;                          // 3 x M, m
+  std::vector<Index> face_sizes;               // corners per polygon (>= 3)
+  std::vector<Index> face_vertices;            // the polygons' corners, concatenated, into vertices
+  Eigen::Matrix<Real, 2, Eigen::Dynamic> uv;   // 2 x M, or no columns
+  Positions normals;                           // 3 x M, as the file gives them, or no columns
+  std::vector<Index> weld_map;                 // M: the vertex of the welded mesh, -1 where dropped
+  struct Material {
+    std::string name;                          // "" where the file names none
+    Index begin = 0, end = 0;                  // its vertices: [begin, end)
+  };
+  std::vector<Material> materials;             // one per mesh of the file, in order
+  bool empty() const { return face_sizes.empty(); }
+};
+
 inline constexpr double kDefaultMaxMemory = 2.0 * 1024 * 1024 * 1024;  // bytes (2 GiB)
 Mesh load_mesh(const std::string& path, const CleanOptions& options = {}, MeshReport* report = nullptr,
-               double timeout = 0, double max_memory = kDefaultMaxMemory, AnimationSummary* animations = nullptr);
+               double timeout = 0, double max_memory = kDefaultMaxMemory, AnimationSummary* animations = nullptr,
+               SourceMesh* file_mesh = nullptr);
 
 // One mesh of an animated file, evaluated at the times of an Animation. Vertices are in the frame
 // load_mesh reads (the nodes' transforms applied, the file's unit scale with them), m; they are

@@ -81,6 +81,11 @@ struct RawScene {
   std::vector<std::uint32_t> triangles;
   std::uint64_t points = 0, lines = 0, polygons = 0;
   std::string animation;  // encode_summary() of what the file animates
+  // The file's polygons before triangulation (SourceMesh), over the same vertices; empty when the
+  // triangulated scene's vertices are not those (a mesh of mixed primitives split by type).
+  std::vector<std::uint32_t> face_sizes, face_indices;
+  std::vector<float> uv, normals;  // 2 and 3 per vertex, or none
+  std::string materials;           // "name\tbegin\tend\n" per mesh: its material and vertex range
 };
 
 // Ticks per second of an animation: Assimp leaves 0 where the file gives none, and its own
@@ -135,6 +140,40 @@ AnimationSummary decode_summary(const std::string& text) {
   return out;
 }
 
+// The polygons (3 or more corners; points and lines are not kept), first UV set and normals of
+// every mesh of a scene whose node transforms are baked, over its vertices concatenated (into
+// `vertices`, as read_in_process concatenates them), and each mesh's material: SourceMesh.
+void keep_polygons(const aiScene* scene, RawScene& raw, std::vector<float>& vertices) {
+  bool uv = true, normals = true;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    uv = uv && scene->mMeshes[m]->HasTextureCoords(0);
+    normals = normals && scene->mMeshes[m]->HasNormals();
+  }
+  std::uint32_t offset = 0;
+  for (unsigned m = 0; m < scene->mNumMeshes; ++m) {
+    const aiMesh* am = scene->mMeshes[m];
+    for (unsigned i = 0; i < am->mNumVertices; ++i) {
+      vertices.insert(vertices.end(), {static_cast<float>(am->mVertices[i].x), static_cast<float>(am->mVertices[i].y),
+                                       static_cast<float>(am->mVertices[i].z)});
+      if (uv) raw.uv.insert(raw.uv.end(), {am->mTextureCoords[0][i].x, am->mTextureCoords[0][i].y});
+      if (normals) raw.normals.insert(raw.normals.end(), {am->mNormals[i].x, am->mNormals[i].y, am->mNormals[i].z});
+    }
+    for (unsigned f = 0; f < am->mNumFaces; ++f) {
+      const aiFace& face = am->mFaces[f];
+      if (face.mNumIndices < 3) continue;
+      raw.face_sizes.push_back(face.mNumIndices);
+      for (unsigned k = 0; k < face.mNumIndices; ++k) raw.face_indices.push_back(offset + face.mIndices[k]);
+    }
+    aiString name;
+    const std::string material = am->mMaterialIndex < scene->mNumMaterials &&
+                                         scene->mMaterials[am->mMaterialIndex]->Get(AI_MATKEY_NAME, name) == aiReturn_SUCCESS
+                                     ? printable(name)
+                                     : std::string();
+    raw.materials += material + "\t" + std::to_string(offset) + "\t" + std::to_string(offset + am->mNumVertices) + "\n";
+    offset += am->mNumVertices;
+  }
+}
+
 RawScene read_in_process(const std::string& path) {
   RawScene raw;
   Assimp::Importer importer;
@@ -144,10 +183,18 @@ RawScene read_in_process(const std::string& path) {
                          aiProcess_ValidateDataStructure;
   // Assimp's ReadFile validates, then post-processes; split in two, the same steps run in the same
   // order, and the animations can be listed in between.
+  // The node transforms are baked first, then the polygons triangulated and the primitives
+  // sorted: the order Assimp runs these steps in when given together, so the result is the same,
+  // and in between the file's own polygons, UVs, normals and materials are kept (SourceMesh).
   const aiScene* scene = importer.ReadFile(path, aiProcess_ValidateDataStructure);
+  std::vector<float> baked;
   if (scene) {
     raw.animation = encode_summary(summarize(scene));
-    scene = importer.ApplyPostProcessing(flags & ~aiProcess_ValidateDataStructure);
+    scene = importer.ApplyPostProcessing(aiProcess_PreTransformVertices);
+  }
+  if (scene) {
+    keep_polygons(scene, raw, baked);
+    scene = importer.ApplyPostProcessing(flags & ~(aiProcess_ValidateDataStructure | aiProcess_PreTransformVertices));
   }
   if (!scene) {
     // Assimp turns the std::bad_alloc of an exhausted memory limit into an error string.
@@ -207,6 +254,9 @@ RawScene read_in_process(const std::string& path) {
     }
     offset += am->mNumVertices;
   }
+  if (raw.vertices != baked) {  // triangulation or the split by type changed the vertices
+    raw.face_sizes.clear(), raw.face_indices.clear(), raw.uv.clear(), raw.normals.clear(), raw.materials.clear();
+  }
   raw.ok = true;
   return raw;
 }
@@ -244,6 +294,7 @@ void limit_memory(double max_memory) {
 }
 
 constexpr std::uint64_t kOutOfMemory = 2;  // the result header's status when the cap was hit
+constexpr std::size_t kHeader = 13;           // the result header's fields (child_import)
 
 bool write_all(int fd, const void* data, std::size_t n) {
   const char* p = static_cast<const char*>(data);
@@ -270,12 +321,19 @@ void child_import(const std::string& path, int fd, double max_memory) {
   } catch (...) {
     raw.error = "cannot read the file: Assimp failed with an unknown exception";
   }
-  const std::uint64_t header[8] = {out_of_memory ? kOutOfMemory : raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(), raw.triangles.size(),
-                                   raw.points, raw.lines, raw.polygons, raw.animation.size()};
+  const std::uint64_t header[kHeader] = {out_of_memory ? kOutOfMemory : raw.ok ? 1u : 0u, raw.error.size(), raw.vertices.size(),
+                                         raw.triangles.size(), raw.points, raw.lines, raw.polygons, raw.animation.size(),
+                                         raw.face_sizes.size(), raw.face_indices.size(), raw.uv.size(), raw.normals.size(),
+                                         raw.materials.size()};
   const bool sent = write_all(fd, header, sizeof header) && write_all(fd, raw.error.data(), raw.error.size()) &&
                     write_all(fd, raw.animation.data(), raw.animation.size()) &&
                     write_all(fd, raw.vertices.data(), raw.vertices.size() * sizeof(float)) &&
-                    write_all(fd, raw.triangles.data(), raw.triangles.size() * sizeof(std::uint32_t));
+                    write_all(fd, raw.triangles.data(), raw.triangles.size() * sizeof(std::uint32_t)) &&
+                    write_all(fd, raw.face_sizes.data(), raw.face_sizes.size() * sizeof(std::uint32_t)) &&
+                    write_all(fd, raw.face_indices.data(), raw.face_indices.size() * sizeof(std::uint32_t)) &&
+                    write_all(fd, raw.uv.data(), raw.uv.size() * sizeof(float)) &&
+                    write_all(fd, raw.normals.data(), raw.normals.size() * sizeof(float)) &&
+                    write_all(fd, raw.materials.data(), raw.materials.size());
   ::close(fd);
   ::_exit(sent ? 0 : 3);
 }
@@ -378,7 +436,7 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
     raw.error = why.str();
     return raw;
   }
-  std::uint64_t header[8];
+  std::uint64_t header[kHeader];
   if (bytes.size() < sizeof header) {
     raw.error = "the import process ended without a result";
     return raw;
@@ -391,8 +449,9 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
     raw.error = why.str();
     return raw;
   }
-  const std::size_t need =
-      sizeof header + header[1] + header[7] + header[2] * sizeof(float) + header[3] * sizeof(std::uint32_t);
+  const std::size_t need = sizeof header + header[1] + header[7] + header[2] * sizeof(float) +
+                           (header[3] + header[8] + header[9]) * sizeof(std::uint32_t) +
+                           (header[10] + header[11]) * sizeof(float) + header[12];
   if (bytes.size() != need) {
     raw.error = "the import process sent an incomplete result";
     return raw;
@@ -408,8 +467,17 @@ RawScene receive(pid_t pid, int fd, double timeout, double max_memory) {
   raw.vertices.resize(header[2]);
   if (header[2] > 0) std::memcpy(raw.vertices.data(), p, header[2] * sizeof(float));
   p += header[2] * sizeof(float);
-  raw.triangles.resize(header[3]);
-  if (header[3] > 0) std::memcpy(raw.triangles.data(), p, header[3] * sizeof(std::uint32_t));
+  const auto take = [&p](auto& v, std::uint64_t n) {
+    v.resize(n);
+    if (n > 0) std::memcpy(v.data(), p, n * sizeof(v[0]));
+    p += n * sizeof(v[0]);
+  };
+  take(raw.triangles, header[3]);
+  take(raw.face_sizes, header[8]);
+  take(raw.face_indices, header[9]);
+  take(raw.uv, header[10]);
+  take(raw.normals, header[11]);
+  raw.materials.assign(p, header[12]);
   raw.points = header[4];
   raw.lines = header[5];
   raw.polygons = header[6];
@@ -451,7 +519,7 @@ struct NamedLink {
 }  // namespace
 
 Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport* report, double timeout,
-               double max_memory, AnimationSummary* animations) {
+               double max_memory, AnimationSummary* animations, SourceMesh* file_mesh) {
   std::error_code ec;
   if (!fs::exists(path, ec)) throw FileNotFound(path + ": no such file");
   if (fs::is_directory(path, ec)) throw MeshError(path + ": is a directory, not a mesh file");
@@ -519,6 +587,30 @@ Mesh load_mesh(const std::string& path, const CleanOptions& options, MeshReport*
     local.warnings.insert(local.warnings.begin(), path + ": ignored " + std::to_string(raw.points) +
                                                       " point(s) and " + std::to_string(raw.lines) +
                                                       " line segment(s) beside the triangles");
+  if (file_mesh) {
+    *file_mesh = SourceMesh{};
+    if (!raw.face_sizes.empty()) {
+      file_mesh->vertices = mesh.vertices;
+      file_mesh->face_sizes.assign(raw.face_sizes.begin(), raw.face_sizes.end());
+      file_mesh->face_vertices.assign(raw.face_indices.begin(), raw.face_indices.end());
+      if (raw.uv.size() == 2 * num_vertices) {
+        file_mesh->uv.resize(2, static_cast<Eigen::Index>(num_vertices));
+        for (std::size_t i = 0; i < raw.uv.size(); ++i) file_mesh->uv.data()[i] = raw.uv[i];
+      }
+      if (raw.normals.size() == 3 * num_vertices) {
+        file_mesh->normals.resize(3, static_cast<Eigen::Index>(num_vertices));
+        for (std::size_t i = 0; i < raw.normals.size(); ++i) file_mesh->normals.data()[i] = raw.normals[i];
+      }
+      file_mesh->weld_map = local.vertex_map;
+      std::istringstream lines(raw.materials);
+      for (std::string line; std::getline(lines, line);) {
+        const std::size_t a = line.find('\t'), b = line.find('\t', a + 1);
+        if (a == std::string::npos || b == std::string::npos) continue;
+        file_mesh->materials.push_back({line.substr(0, a), static_cast<Index>(std::stoul(line.substr(a + 1, b - a - 1))),
+                                     static_cast<Index>(std::stoul(line.substr(b + 1)))});
+      }
+    }
+  }
   if (report) *report = std::move(local);
   if (animations) *animations = decode_summary(raw.animation);
   return out;

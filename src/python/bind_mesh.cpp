@@ -17,6 +17,34 @@ py::dict animation_summary_dict(const AnimationSummary& summary) {
   return d;
 }
 
+// The file's own mesh (SourceMesh) for csb.load_mesh's `source`, as copies: None when the file
+// gave none.
+py::object source_dict(const SourceMesh& s) {
+  if (s.empty()) return py::none();
+  const auto M = static_cast<py::ssize_t>(s.vertices.cols());
+  const auto copy = [](const Real* data, py::ssize_t rows, py::ssize_t cols) {
+    py::array_t<double> a({rows, cols});
+    if (rows * cols) std::memcpy(a.mutable_data(), data, sizeof(double) * rows * cols);
+    return a;
+  };
+  const auto indices = [](const std::vector<Index>& v) {
+    py::array_t<Index> a(static_cast<py::ssize_t>(v.size()));
+    if (!v.empty()) std::memcpy(a.mutable_data(), v.data(), sizeof(Index) * v.size());
+    return a;
+  };
+  py::dict d;
+  d["vertices"] = copy(s.vertices.data(), M, 3);
+  d["face_sizes"] = indices(s.face_sizes);
+  d["face_vertices"] = indices(s.face_vertices);
+  d["uv"] = s.uv.cols() ? py::object(copy(s.uv.data(), M, 2)) : py::none();
+  d["normals"] = s.normals.cols() ? py::object(copy(s.normals.data(), M, 3)) : py::none();
+  d["weld_map"] = indices(s.weld_map);
+  py::list materials;
+  for (const SourceMesh::Material& m : s.materials) materials.append(py::make_tuple(m.name, m.begin, m.end));
+  d["materials"] = materials;
+  return d;
+}
+
 }  // namespace
 
 void bind_mesh(py::module_& m) {
@@ -67,11 +95,12 @@ void bind_mesh(py::module_& m) {
     MeshReport r;
     Mesh out;
     AnimationSummary summary;
+    SourceMesh source;
     {
       py::gil_scoped_release release;
-      out = load_mesh(path, o, &r, timeout, max_memory, &summary);
+      out = load_mesh(path, o, &r, timeout, max_memory, &summary, &source);
     }
-    return py::make_tuple(out, report_dict(r), animation_summary_dict(summary));
+    return py::make_tuple(out, report_dict(r), animation_summary_dict(summary), source_dict(source));
   }, py::arg("path"), py::arg("weld") = true, py::arg("weld_tolerance") = 1e-6, py::arg("timeout") = 0.0,
      py::arg("max_memory") = kDefaultMaxMemory);
 
