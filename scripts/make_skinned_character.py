@@ -18,12 +18,12 @@ Needs numpy only. Run it again only to change the asset; the file is committed.
 
 from __future__ import annotations
 
-import base64
-import json
 import math
 from pathlib import Path
 
 import numpy as np
+
+from csb.export import GltfBuilder
 
 TORSO_RINGS = [(0.75, 0.15, 0.10), (0.95, 0.16, 0.11), (1.15, 0.17, 0.13), (1.30, 0.17, 0.12), (1.38, 0.13, 0.09)]
 # (y, half-width in x, half-depth in z) of each ring, m: the chest deeper than the hips
@@ -95,38 +95,9 @@ def qmul(a: list[float], b: list[float]) -> list[float]:
             aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz]
 
 
-class Gltf:
-    """A glTF 2.0 JSON file with its one buffer embedded as base64, built accessor by accessor."""
-
-    def __init__(self) -> None:
-        self.blob = bytearray()
-        self.views: list[dict] = []
-        self.accessors: list[dict] = []
-
-    def accessor(self, array, kind: str, dtype=np.float32) -> int:
-        a = np.ascontiguousarray(np.asarray(array, dtype=dtype))
-        component = {np.float32: 5126, np.uint32: 5125, np.uint16: 5123}[a.dtype.type]
-        while len(self.blob) % 4:
-            self.blob.append(0)
-        self.views.append({"buffer": 0, "byteOffset": len(self.blob), "byteLength": a.nbytes})
-        self.blob += a.tobytes()
-        acc = {"bufferView": len(self.views) - 1, "componentType": component, "count": len(a), "type": kind}
-        if kind in ("SCALAR", "VEC3") and a.dtype == np.float32:  # glTF requires bounds on positions and times
-            flat = a.reshape(len(a), -1)
-            acc["min"], acc["max"] = flat.min(0).tolist(), flat.max(0).tolist()
-        self.accessors.append(acc)
-        return len(self.accessors) - 1
-
-    def document(self, document: dict) -> dict:
-        return dict(document, asset={"version": "2.0", "generator": "csb scripts/make_skinned_character.py"},
-                    scene=0, bufferViews=self.views, accessors=self.accessors,
-                    buffers=[{"byteLength": len(self.blob), "uri": "data:application/octet-stream;base64,"
-                              + base64.b64encode(bytes(self.blob)).decode()}])
-
-
 def main() -> None:
     v, t, w = body()
-    g = Gltf()
+    g = GltfBuilder()
     pos = g.accessor(v, "VEC3")
     idx = g.accessor(t.ravel(), "SCALAR", np.uint32)
     joints = g.accessor([[0, 1, 2, 0]] * len(v), "VEC4", np.uint16)
@@ -144,7 +115,7 @@ def main() -> None:
     sway = g.accessor([qmul(quat("y", 0.2 * math.sin(2 * math.pi * s / 1.5)),
                             quat("x", 0.15 * (1 - math.cos(2 * math.pi * s / 1.5)))) for s in times], "VEC4")
     wave = g.accessor([quat("z", 1.2 + 0.5 * math.sin(2 * math.pi * s)) for s in times], "VEC4")
-    doc = g.document({
+    document = {
         "scenes": [{"nodes": [0, 1]}],
         "nodes": [{"name": "body", "mesh": 0, "skin": 0},
                   {"name": "hips", "children": [2]},
@@ -160,9 +131,8 @@ def main() -> None:
             "channels": [{"sampler": 0, "target": {"node": 1, "path": "translation"}},
                          {"sampler": 1, "target": {"node": 2, "path": "rotation"}},
                          {"sampler": 2, "target": {"node": 3, "path": "rotation"}}]}],
-    })
-    out = Path(__file__).resolve().parents[1] / "python/csb/scenes/meshes/waving_character.gltf"
-    out.write_text(json.dumps(doc, separators=(",", ":")) + "\n")
+    }
+    out = g.write(Path(__file__).resolve().parents[1] / "python/csb/scenes/meshes/waving_character.gltf", document)
     print(f"{out}: {len(v)} vertices, {len(t)} triangles, {len(times)} keys over {DURATION} s")
 
 

@@ -3,8 +3,6 @@ says so with a csb.AnimationWarning; csb.load_animation reads the animation."""
 
 from __future__ import annotations
 
-import base64
-import json
 import math
 import sys
 from pathlib import Path
@@ -13,39 +11,9 @@ import numpy as np
 import pytest
 
 import csb
+from csb.export import GltfBuilder
 
 HERE = Path(__file__).resolve()
-
-
-class Gltf:
-    """A glTF 2.0 JSON file with its one buffer embedded as base64, built accessor by accessor."""
-
-    def __init__(self) -> None:
-        self.blob = bytearray()
-        self.views: list[dict] = []
-        self.accessors: list[dict] = []
-
-    def accessor(self, array, kind: str, dtype=np.float32) -> int:
-        a = np.ascontiguousarray(np.asarray(array, dtype=dtype))
-        component = {np.float32: 5126, np.uint32: 5125, np.uint16: 5123, np.uint8: 5121}[a.dtype.type]
-        while len(self.blob) % 4:
-            self.blob.append(0)
-        self.views.append({"buffer": 0, "byteOffset": len(self.blob), "byteLength": a.nbytes})
-        self.blob += a.tobytes()
-        acc = {"bufferView": len(self.views) - 1, "componentType": component, "count": len(a), "type": kind}
-        if kind in ("SCALAR", "VEC3") and a.dtype == np.float32:  # glTF requires bounds on positions and times
-            flat = a.reshape(len(a), -1)
-            acc["min"], acc["max"] = flat.min(0).tolist(), flat.max(0).tolist()
-        self.accessors.append(acc)
-        return len(self.accessors) - 1
-
-    def write(self, path: Path, document: dict) -> Path:
-        document = dict(document, asset={"version": "2.0"}, scene=0, bufferViews=self.views,
-                        accessors=self.accessors,
-                        buffers=[{"byteLength": len(self.blob), "uri": "data:application/octet-stream;base64,"
-                                  + base64.b64encode(bytes(self.blob)).decode()}])
-        path.write_text(json.dumps(document))
-        return path
 
 
 def quat_z(angle: float) -> list[float]:
@@ -77,7 +45,7 @@ R_VALUES = [[0.0, 0.0, 0.0, 1.0], quat_z(math.pi / 2), qmul(quat_z(math.pi / 2),
 
 @pytest.fixture
 def rigid_gltf(tmp_path) -> Path:
-    g = Gltf()
+    g = GltfBuilder()
     pos = g.accessor(TRIANGLE, "VEC3")
     idx = g.accessor([0, 1, 2], "SCALAR", np.uint32)
     tt, tv = g.accessor(T_TIMES, "SCALAR"), g.accessor(T_VALUES, "VEC3")
@@ -117,7 +85,7 @@ def _column_triangles() -> np.ndarray:
 
 @pytest.fixture
 def skinned_gltf(tmp_path) -> Path:
-    g = Gltf()
+    g = GltfBuilder()
     pos = g.accessor(COLUMN, "VEC3")
     idx = g.accessor(_column_triangles().ravel(), "SCALAR", np.uint32)
     joints = g.accessor([[0, 1, 0, 0]] * 12, "VEC4", np.uint16)
@@ -310,7 +278,7 @@ def test_a_mesh_under_an_animated_parent_and_a_unit_scale(tmp_path):
     1 s, and the mesh on a hand 50 cm along the arm: x(t) = 0.01 (a + Rz(θ(t)) (h + x0)). The
     keyframes take the rest pose load_mesh reads (θ = 0) there: the unit scale applies to the
     vertices as load_mesh applies it."""
-    g = Gltf()
+    g = GltfBuilder()
     pos = g.accessor(TRIANGLE, "VEC3")
     idx = g.accessor([0, 1, 2], "SCALAR", np.uint32)
     rt, rv = g.accessor([0.0, 1.0], "SCALAR"), g.accessor([[0, 0, 0, 1], quat_z(math.pi / 2)], "VEC4")
@@ -347,7 +315,7 @@ def test_default_times_are_the_keys(rigid_gltf):
 
 
 def test_an_animation_is_chosen_by_index_or_name(tmp_path):
-    g = Gltf()
+    g = GltfBuilder()
     pos = g.accessor(TRIANGLE, "VEC3")
     idx = g.accessor([0, 1, 2], "SCALAR", np.uint32)
     times = g.accessor([0.0, 1.0], "SCALAR")

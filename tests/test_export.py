@@ -251,3 +251,94 @@ def test_the_usd_study_reads_cloth_drop_back_to_float32_rounding(tmp_path):
     assert "cloth_drop.usd: 16 frames (time codes 0-15 at 30 per second), metersPerUnit 1, up axis Y" in r.stdout
     assert "1122 points (4096 corners as Assimp read the OBJ, welded into 1089 particles), 1024 polygons of [4] corners" in r.stdout
     assert (tmp_path / "usd_still.png").stat().st_size > 10_000
+
+
+def _read_glb(path: Path) -> tuple[dict, bytes]:
+    """A GLB's JSON and binary chunks, parsed here from the bytes (independently of the writer)."""
+    import json
+    import struct
+
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert (magic, version, length) == (b"glTF", 2, len(data))
+    n, kind = struct.unpack_from("<I4s", data, 12)
+    assert kind == b"JSON"
+    doc = json.loads(data[20:20 + n])
+    m, kind = struct.unpack_from("<I4s", data, 20 + n)
+    assert kind == b"BIN\0"
+    return doc, data[28 + n:28 + n + m]
+
+
+def _accessor(doc: dict, blob: bytes, k: int) -> np.ndarray:
+    a = doc["accessors"][k]
+    view = doc["bufferViews"][a["bufferView"]]
+    dtype = {5126: np.float32, 5125: np.uint32, 5123: np.uint16}[a["componentType"]]
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[a["type"]]
+    out = np.frombuffer(blob, dtype=dtype, count=a["count"] * width, offset=view["byteOffset"])
+    return out.reshape(a["count"], width) if width > 1 else out
+
+
+def _run_formats(tmp_path: Path, formats: list[str]):
+    path = tmp_path / "drop.toml"
+    path.write_text(SCENE.format(panels=PANELS.as_posix()).replace("usd = true", "usd = false"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "csb.cli", "run", str(path), "--out", str(out), "--format", *formats,
+                        "--quiet"], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    sim = csb.load_scene(path).build()
+    src = sim.meshes["cloth"].source
+    keep, index = src.distinct_vertices()
+    frames = [src.positions(np.asarray(sim.state.x))[keep]]
+    for _ in range(6):
+        sim.step(2)
+        frames.append(src.positions(np.asarray(sim.state.x))[keep])
+    return out, r.stdout, src, keep, index, frames
+
+
+def test_the_gltf_plays_the_simulation_as_morph_targets(tmp_path):
+    """The .glb, parsed here: the file's 1,122 vertices with its UVs (v flipped, as glTF's runs
+    down), its quads as two triangles each, and one morph target per frame after the first whose
+    weights animation (linear, at the frames' times) puts every vertex where the simulation had it.
+    Assimp reads it as a valid glTF too."""
+    out, stdout, src, keep, index, frames = _run_formats(tmp_path, ["gltf"])
+    doc, blob = _read_glb(out / "drop.glb")
+    prim = doc["meshes"][0]["primitives"][0]
+    base = _accessor(doc, blob, prim["attributes"]["POSITION"])
+    assert np.array_equal(base, frames[0].astype(np.float32))
+    uv = _accessor(doc, blob, prim["attributes"]["TEXCOORD_0"])
+    assert np.allclose(uv[:, 0], src.uv[keep, 0]) and np.allclose(uv[:, 1], 1 - src.uv[keep, 1])
+    tris = _accessor(doc, blob, prim["indices"]).reshape(-1, 3)
+    assert len(tris) == 2 * 1024
+    anim = doc["animations"][0]
+    sampler = anim["samplers"][anim["channels"][0]["sampler"]]
+    times = _accessor(doc, blob, sampler["input"])
+    assert np.allclose(times, np.arange(7) / 30)
+    weights = _accessor(doc, blob, sampler["output"]).reshape(7, 6)
+    targets = [_accessor(doc, blob, t["POSITION"]) for t in prim["targets"]]
+    for k in range(7):
+        shown = base + sum(w * d for w, d in zip(weights[k], targets))
+        assert np.allclose(shown, frames[k], atol=3e-7), f"frame {k}"
+    with pytest.warns(csb.AnimationWarning, match=r"1 animation\(s\) \('simulation': 0.2 s"):
+        mesh = csb.load_mesh(out / "drop.glb")  # Assimp reads and validates it, and sees the animation
+    assert mesh.num_vertices == 33 * 33
+
+
+def test_obj_and_ply_sequences_hold_every_frame(tmp_path):
+    import meshio
+
+    out, stdout, src, keep, index, frames = _run_formats(tmp_path, ["obj", "ply"])
+    objs = sorted((out / "obj").glob("*.obj"))
+    plys = sorted((out / "ply").glob("*.ply"))
+    assert [p.name for p in objs] == [f"drop_{k:05d}.obj" for k in range(7)]
+    assert [p.name for p in plys] == [f"cloth_{k:05d}.ply" for k in range(7)]
+    assert f"wrote {out / 'obj'}/ (7 files)" in stdout
+    for k in range(7):
+        text = objs[k].read_text().splitlines()
+        v = np.array([[float(a) for a in line.split()[1:]] for line in text if line.startswith("v ")])
+        assert np.allclose(v, frames[k], rtol=0, atol=1e-8)
+        faces = [line for line in text if line.startswith("f ")]
+        assert len(faces) == 1024 and all(len(f.split()) == 5 and f.count("/") == 8 for f in faces)
+        ply = meshio.read(plys[k])
+        assert np.allclose(ply.points, frames[k], rtol=0, atol=1e-6)
+        assert ply.cells_dict["quad"].shape == (1024, 4)
+    assert any(line.startswith("vt ") for line in objs[0].read_text().splitlines())

@@ -10,6 +10,9 @@ from pathlib import Path
 from . import _core
 
 
+_FORMATS = ("usd", "gltf", "obj", "ply", "xdmf", "vtu", "csv", "plot")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import load_scene
 
@@ -18,17 +21,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
         import dataclasses
 
         chosen = set(args.format)
-        if "usd" in chosen and scene.tearing is not None:
-            raise SystemExit(f"csb run: {scene.name} tears, and a USD mesh cannot follow a model that tears; "
+        if chosen & {"usd", "gltf", "obj", "ply"} and scene.tearing is not None:
+            raise SystemExit(f"csb run: {scene.name} tears, and the file's mesh cannot follow a model that tears; "
                              "use --format vtu")
         scene = dataclasses.replace(scene, output=dataclasses.replace(
-            scene.output, **{f: f in chosen for f in ("xdmf", "vtu", "csv", "plot", "usd")}))
+            scene.output, **{f: f in chosen for f in _FORMATS}))
     out = Path(args.out) if args.out else Path("out") / scene.name
     result = scene.run(out, progress=not args.quiet)
     print(result.summary())
     for f in result.files:
         if f.parent == out or f.suffix in (".pvd", ".xdmf", ".png", ".csv", ".usd"):
             print(f"  wrote {f}")
+    for folder in sorted({f.parent for f in result.files if f.parent.parent == out and f.suffix in (".obj", ".ply")}):
+        print(f"  wrote {folder}/ ({sum(1 for f in result.files if f.parent == folder)} files)")
     return 0
 
 
@@ -165,10 +170,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene (see 'csb scenes')")
     p.add_argument("--out", help="output directory (default: out/<scene name>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--format", nargs="+", choices=["usd", "xdmf", "vtu", "csv", "plot"],
+    p.add_argument("--format", nargs="+", choices=_FORMATS,
                    help="write these outputs instead of the scene's [output] choice: usd (<name>.usd, the meshes "
-                        "as their files have them and the colliders, animated; needs the usd extra), xdmf, vtu, "
-                        "csv (metrics.csv), plot (summary.png, snapshot.png)")
+                        "as their files have them and the colliders, animated; needs the usd extra), gltf "
+                        "(<name>.glb, morph-target animation for game engines), obj and ply (a file per frame), "
+                        "xdmf, vtu, csv (metrics.csv), plot (summary.png, snapshot.png)")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "

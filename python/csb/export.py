@@ -1,5 +1,6 @@
 """Results back into the user's tools: the simulation as a USD stage (Pixar's ``usd-core``, the
-``usd`` extra), its cloths and bodies on the user's own meshes and its colliders with their motion.
+``usd`` extra), its cloths and bodies on the user's own meshes and its colliders with their motion;
+for game engines, an animated glTF (one morph target per frame) and a per-frame OBJ or PLY sequence.
 
 A mesh read from a file (:func:`csb.load_mesh`) is written as the file has it: its vertices before
 welding (each distinct position, UV and normal once, in the order its polygons first use them:
@@ -14,6 +15,9 @@ Maya, Omniverse and the game engines that read USD open it as an animated mesh.
 
 from __future__ import annotations
 
+import base64
+import json
+import struct
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Sequence
 
@@ -25,7 +29,7 @@ from .model import MeshInstance
 if TYPE_CHECKING:
     from .scene import Simulation
 
-__all__ = ["UsdWriter", "usd_available", "polygon_normals", "plot_usd"]
+__all__ = ["UsdWriter", "GltfWriter", "SequenceWriter", "GltfBuilder", "usd_available", "polygon_normals", "plot_usd"]
 
 
 def usd_available() -> bool:
@@ -270,3 +274,234 @@ def plot_usd(path: str | Path, png: str | Path, time: float | None = None, title
     fig.savefig(png, dpi=110)
     plt.close(fig)
     return Path(png)
+
+
+# ------------------------------------------------------------------------ game engines: glTF, OBJ, PLY
+
+
+def _surface(inst: MeshInstance) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None, bool]:
+    """What a mesh is written as: (keep, face_sizes, faces, uv, normals?) over the file's distinct
+    vertices (keep: into SourceMesh.vertices) or, built in code, its triangles over its particles
+    (keep None)."""
+    src = inst.source
+    if src is not None:
+        keep, index = src.distinct_vertices()
+        uv = np.asarray(src.uv, dtype=float)[keep] if src.uv is not None else None
+        return keep, np.asarray(src.face_sizes), index[np.asarray(src.face_vertices)], uv, src.normals is not None
+    tris = np.asarray(inst.triangles, dtype=np.int64) - inst.first_particle
+    return None, np.full(len(tris), 3), tris.reshape(-1), None, len(tris) > 0
+
+
+def _points(inst: MeshInstance, x: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
+    welded = np.asarray(x)[inst.first_particle:inst.first_particle + inst.num_particles]
+    return inst.source.positions(welded)[keep] if keep is not None else welded
+
+
+def _fan(face_sizes: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(T, 3) the polygons as triangle fans from their first corner (glTF holds triangles only;
+    a convex polygon, as cloth quads are, is covered exactly)."""
+    out, at = [], 0
+    for n in np.asarray(face_sizes).tolist():
+        out.extend((faces[at], faces[at + k], faces[at + k + 1]) for k in range(1, n - 1))
+        at += n
+    return np.asarray(out, dtype=np.int64).reshape(-1, 3)
+
+
+class GltfBuilder:
+    """A glTF 2.0 document built accessor by accessor over one binary buffer, written as ``.glb``
+    (binary, what engines load fastest) or ``.gltf`` (JSON, the buffer embedded as base64)."""
+
+    _COMPONENT = {np.float32: 5126, np.uint32: 5125, np.uint16: 5123, np.uint8: 5121}
+
+    def __init__(self) -> None:
+        self.blob = bytearray()
+        self.views: list[dict] = []
+        self.accessors: list[dict] = []
+
+    def accessor(self, array: Any, kind: str, dtype: Any = np.float32, *, target: int | None = None) -> int:
+        """An accessor of `kind` ("SCALAR", "VEC2", "VEC3", "VEC4", "MAT4") over `array` cast to
+        `dtype`; float SCALAR and VEC3 accessors carry the bounds glTF requires of positions and
+        animation times. `target`: the bufferView's target (34962 vertices, 34963 indices)."""
+        a = np.ascontiguousarray(np.asarray(array, dtype=dtype))
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        view = {"buffer": 0, "byteOffset": len(self.blob), "byteLength": a.nbytes}
+        if target is not None:
+            view["target"] = target
+        self.views.append(view)
+        self.blob += a.tobytes()
+        acc = {"bufferView": len(self.views) - 1, "componentType": self._COMPONENT[a.dtype.type], "count": len(a),
+               "type": kind}
+        if kind in ("SCALAR", "VEC3") and a.dtype == np.float32 and len(a):
+            flat = a.reshape(len(a), -1)
+            acc["min"], acc["max"] = flat.min(0).tolist(), flat.max(0).tolist()
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+    def document(self, document: dict, *, embed: bool) -> dict:
+        buffer = {"byteLength": len(self.blob)}
+        if embed:
+            buffer["uri"] = "data:application/octet-stream;base64," + base64.b64encode(bytes(self.blob)).decode()
+        return dict(document, asset={"version": "2.0", "generator": "csb"}, scene=0, bufferViews=self.views,
+                    accessors=self.accessors, buffers=[buffer])
+
+    def write(self, path: str | Path, document: dict) -> Path:
+        """`document` (scenes, nodes, meshes, animations, ...) with this buffer, as .glb or .gltf
+        by the path's suffix."""
+        path = Path(path)
+        if path.suffix.lower() != ".glb":
+            path.write_text(json.dumps(self.document(document, embed=True), separators=(",", ":")) + "\n")
+            return path
+        text = json.dumps(self.document(document, embed=False), separators=(",", ":")).encode()
+        text += b" " * (-len(text) % 4)
+        blob = bytes(self.blob) + b"\0" * (-len(self.blob) % 4)
+        with open(path, "wb") as f:
+            f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + len(blob)))
+            f.write(struct.pack("<I4s", len(text), b"JSON") + text)
+            f.write(struct.pack("<I4s", len(blob), b"BIN\0") + blob)
+        return path
+
+
+class GltfWriter:
+    """Writes a simulation's meshes as one animated glTF (``.glb`` or ``.gltf``) for game engines:
+    each mesh once, at its first frame (with the file's UVs; its polygons split into triangle fans,
+    glTF holding triangles only), and one morph target per later frame, its displacement from the
+    first, driven by an animation of the morph weights (linear between frames: the positions
+    interpolate linearly, as the frames were sampled). Morph targets are what Unity, Unreal, Godot
+    and three.js play as vertex animation. Frames are kept in memory until :meth:`close`."""
+
+    def __init__(self, path: str | Path, meshes: dict[str, MeshInstance]):
+        self.path = Path(path)
+        if self.path.suffix.lower() not in (".glb", ".gltf"):
+            raise _core.ParameterError(f"GltfWriter: {self.path} must end in .glb or .gltf")
+        self.meshes = [(name, inst, *_surface(inst)) for name, inst in meshes.items() if len(inst.triangles)]
+        self.times: list[float] = []
+        self.frames: list[list[np.ndarray]] = []
+
+    def write(self, state: _core.State) -> None:
+        t = float(state.t)
+        if self.times and not t > self.times[-1]:
+            raise _core.ParameterError(f"GltfWriter: frame at t = {t} s does not come after the last, t = {self.times[-1]} s")
+        x = np.asarray(state.x)
+        if not np.all(np.isfinite(x)):
+            raise _core.SimulationError(f"GltfWriter: the state at t = {t} s has non-finite positions; not written")
+        self.times.append(t)
+        self.frames.append([_points(inst, x, keep) for _, inst, keep, *_ in self.meshes])
+
+    def close(self) -> Path:
+        if not self.frames:
+            raise _core.ParameterError("GltfWriter: no frame was written")
+        g = GltfBuilder()
+        nodes, meshes, channels, samplers = [], [], [], []
+        t0 = self.times[0]
+        times = g.accessor(np.asarray(self.times) - t0, "SCALAR")
+        F = len(self.frames)
+        for m, (name, inst, keep, sizes, faces, uv, with_normals) in enumerate(self.meshes):
+            base = self.frames[0][m]
+            tris = _fan(sizes, faces)
+            attributes = {"POSITION": g.accessor(base, "VEC3", target=34962)}
+            normals = [polygon_normals(f[m], sizes, faces) for f in self.frames] if with_normals else None
+            if normals is not None:
+                attributes["NORMAL"] = g.accessor(normals[0], "VEC3", target=34962)
+            if uv is not None:  # glTF's v runs down the image: 1 - v
+                attributes["TEXCOORD_0"] = g.accessor(np.column_stack([uv[:, 0], 1.0 - uv[:, 1]]), "VEC2", target=34962)
+            targets = []
+            for k in range(1, F):
+                target = {"POSITION": g.accessor(self.frames[k][m] - base, "VEC3", target=34962)}
+                if normals is not None:
+                    target["NORMAL"] = g.accessor(normals[k] - normals[0], "VEC3", target=34962)
+                targets.append(target)
+            primitive = {"attributes": attributes, "indices": g.accessor(tris.reshape(-1), "SCALAR", np.uint32, target=34963)}
+            if targets:
+                primitive["targets"] = targets
+            meshes.append({"name": name, "primitives": [primitive], **({"weights": [0.0] * len(targets)} if targets else {})})
+            nodes.append({"name": name, "mesh": m})
+            if targets:
+                # At frame k (k >= 1) target k - 1 weighs 1 and the others 0.
+                weights = np.zeros((F, F - 1), dtype=np.float32)
+                weights[np.arange(1, F), np.arange(F - 1)] = 1.0
+                samplers.append({"input": times, "output": g.accessor(weights.reshape(-1), "SCALAR"), "interpolation": "LINEAR"})
+                channels.append({"sampler": len(samplers) - 1, "target": {"node": m, "path": "weights"}})
+        document = {"scenes": [{"nodes": list(range(len(nodes)))}], "nodes": nodes, "meshes": meshes}
+        if channels:
+            document["animations"] = [{"name": "simulation", "samplers": samplers, "channels": channels}]
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        return g.write(self.path, document)
+
+
+class SequenceWriter:
+    """Writes one mesh file per frame into `directory`: ``<name>_<frame>.obj`` (every mesh an OBJ
+    object, with the file's UVs and normals) or, with ``format="ply"``, ``<mesh>_<frame>.ply`` per
+    mesh (binary, through meshio, normals and UVs as vertex properties). Houdini, Blender's
+    sequence importers and game pipelines read numbered sequences."""
+
+    def __init__(self, directory: str | Path, name: str, meshes: dict[str, MeshInstance], *, format: str = "obj"):
+        if format not in ("obj", "ply"):
+            raise _core.ParameterError(f"SequenceWriter: format must be 'obj' or 'ply', got {format!r}")
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.name, self.format = name, format
+        self.meshes = [(mesh_name, inst, *_surface(inst)) for mesh_name, inst in meshes.items() if len(inst.triangles)]
+        self.files: list[Path] = []
+        self.last_time: float | None = None
+
+    def write(self, state: _core.State) -> None:
+        t = float(state.t)
+        if self.last_time is not None and not t > self.last_time:
+            raise _core.ParameterError(f"SequenceWriter: frame at t = {t} s does not come after the last, t = {self.last_time} s")
+        x = np.asarray(state.x)
+        if not np.all(np.isfinite(x)):
+            raise _core.SimulationError(f"SequenceWriter: the state at t = {t} s has non-finite positions; not written")
+        frame = len(self.files) if self.format == "obj" else len(self.files) // max(len(self.meshes), 1)
+        if self.format == "obj":
+            self.files.append(self._obj(self.directory / f"{self.name}_{frame:05d}.obj", x, t))
+        else:
+            for mesh_name, inst, keep, sizes, faces, uv, with_normals in self.meshes:
+                self.files.append(self._ply(self.directory / f"{mesh_name}_{frame:05d}.ply", inst, keep, sizes, faces, uv,
+                                            with_normals, x))
+        self.last_time = t
+
+    def _obj(self, path: Path, x: np.ndarray, t: float) -> Path:
+        # By hand: meshio's OBJ writer leaves the UV and normal indices out of the faces, which
+        # importers then ignore.
+        lines = [f"# csb: {self.name} at t = {t:.6g} s; units: metres"]
+        offset = 0
+        for mesh_name, inst, keep, sizes, faces, uv, with_normals in self.meshes:
+            p = _points(inst, x, keep)
+            lines.append(f"o {mesh_name}")
+            lines += [f"v {a:.9g} {b:.9g} {c:.9g}" for a, b, c in p.tolist()]
+            if uv is not None:
+                lines += [f"vt {a:.9g} {b:.9g}" for a, b in uv.tolist()]
+            if with_normals:
+                lines += [f"vn {a:.6g} {b:.6g} {c:.6g}" for a, b, c in polygon_normals(p, sizes, faces).tolist()]
+            corner = (lambda i: f"{i}/{i}/{i}") if uv is not None and with_normals else \
+                (lambda i: f"{i}/{i}") if uv is not None else (lambda i: f"{i}//{i}") if with_normals else str
+            at = 0
+            for n in sizes.tolist():
+                lines.append("f " + " ".join(corner(int(i) + 1 + offset) for i in faces[at:at + n]))
+                at += n
+            offset += len(p)
+        path.write_text("\n".join(lines) + "\n")
+        return path
+
+    @staticmethod
+    def _ply(path: Path, inst: MeshInstance, keep, sizes, faces, uv, with_normals, x) -> Path:
+        import meshio
+
+        p = _points(inst, x, keep)
+        data: dict[str, np.ndarray] = {}
+        if with_normals:
+            n = polygon_normals(p, sizes, faces)
+            data.update(nx=n[:, 0], ny=n[:, 1], nz=n[:, 2])
+        if uv is not None:
+            data.update(s=uv[:, 0], t=uv[:, 1])
+        starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+        cells = []
+        for n in sorted(set(sizes.tolist())):  # meshio groups faces by corner count
+            rows = np.stack([faces[s:s + n] for s, k in zip(starts.tolist(), sizes.tolist()) if k == n]).astype(np.int32)
+            cells.append(("triangle" if n == 3 else "quad" if n == 4 else "polygon", rows))
+        meshio.write_points_cells(path, p, cells, point_data=data, binary=True)
+        return path
+
+    def close(self) -> list[Path]:
+        return list(self.files)

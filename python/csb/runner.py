@@ -199,11 +199,17 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
     if out is not None and (scene.output.xdmf or scene.output.vtu):
         writer = FrameWriter(out, scene.name, sim.model, xdmf=scene.output.xdmf, vtu=scene.output.vtu)
     usd = None
-    if out is not None and scene.output.usd:
-        from .export import collider_frame, simulation_usd_writer
+    exports: list = []   # the game-engine formats: glTF, OBJ and PLY sequences
+    if out is not None and (scene.output.usd or scene.output.gltf or scene.output.obj or scene.output.ply):
+        from .export import GltfWriter, SequenceWriter, collider_frame, simulation_usd_writer
 
-        # Time codes count the frames as written: one every steps_per_frame steps of dt.
-        usd = simulation_usd_writer(out / f"{scene.name}.usd", sim, fps=1.0 / (steps_per_frame * dt))
+        if scene.output.usd:  # time codes count the frames as written: one every steps_per_frame steps of dt
+            usd = simulation_usd_writer(out / f"{scene.name}.usd", sim, fps=1.0 / (steps_per_frame * dt))
+        if scene.output.gltf:
+            exports.append(GltfWriter(out / f"{scene.name}.glb", sim.meshes))
+        for fmt in ("obj", "ply"):
+            if getattr(scene.output, fmt):
+                exports.append(SequenceWriter(out / fmt, scene.name, sim.meshes, format=fmt))
 
     result = RunResult(sim, steps, 0.0, stepper_given=stepper is not None)
 
@@ -213,6 +219,8 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             writer.write(sim.state)
         if usd is not None:
             usd.write(sim.state, *collider_frame(sim))
+        for e in exports:
+            e.write(sim.state)
 
     bar = None
     if progress:
@@ -249,6 +257,9 @@ def run_scene(scene: "Scene", out_dir: str | os.PathLike[str] | None, *, progres
             result.files += writer.close()
         if usd is not None and usd.frames:
             result.files.append(usd.close())
+        for e in exports:
+            closed = e.close()
+            result.files += closed if isinstance(closed, list) else [closed]
         result.memory = memory_used(sim)
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)

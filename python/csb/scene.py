@@ -298,6 +298,9 @@ class OutputSpec:
     csv: bool = True
     plot: bool = True
     usd: bool = False     # <name>.usd: the meshes as the files have them, and the colliders, animated (the usd extra)
+    gltf: bool = False    # <name>.glb: the meshes animated by morph targets, for game engines
+    obj: bool = False     # obj/<name>_<frame>.obj: one OBJ per frame
+    ply: bool = False     # ply/<mesh>_<frame>.ply: one PLY per mesh per frame
 
 
 @dataclass
@@ -1029,13 +1032,15 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
             fps=out.number("fps", 30.0, check=lambda x: x > 0, expect="frames per second > 0"),
             xdmf=out.boolean("xdmf", tearing is None), vtu=out.boolean("vtu", True),
             csv=out.boolean("csv", True), plot=out.boolean("plot", True), usd=out.boolean("usd", False),
+            gltf=out.boolean("gltf", False), obj=out.boolean("obj", False), ply=out.boolean("ply", False),
         )
         if tearing is not None and output.xdmf:
             raise out.error("xdmf", "an XDMF series cannot follow a model that tears (its particle count grows); "
                                     "use the VTU series")
-        if tearing is not None and output.usd:
-            raise out.error("usd", "a USD mesh cannot follow a model that tears (its particle count grows); "
-                                   "use the VTU series")
+        for key in ("usd", "gltf", "obj", "ply"):
+            if tearing is not None and getattr(output, key):
+                raise out.error(key, "the file's mesh cannot follow a model that tears (its particle count grows); "
+                                     "use the VTU series")
         out.finish()
     top.finish()
     return Scene(p, name, duration, solver, meshes, output, description, colliders, tearing, tethers)
