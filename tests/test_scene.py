@@ -67,7 +67,7 @@ def test_run_writes_readable_outputs(tmp_path):
     out = tmp_path / "out"
     frames = 11  # t = 0, 0.05, ..., 0.5 s
     assert result.steps == 50 and len(result.rows) == frames
-    assert "tiny: 50 steps of 10 ms (2 substeps x 5 iterations), 36 particles" in result.summary()
+    assert "tiny: 50 steps of 10 ms (pbd, 2 substeps x 5 iterations), 36 particles" in result.summary()
 
     # XDMF + HDF5 through meshio's reader: one topology, a time series of point data.
     with meshio.xdmf.TimeSeriesReader(str(out / "tiny.xdmf")) as reader:
@@ -261,6 +261,25 @@ def test_cli_run_and_errors(tmp_path):
     assert r.returncode == 0 and "sundials" in r.stdout and ".fbx" in r.stdout
 
 
+def test_cli_version_and_run_overrides(tmp_path):
+    """`csb --version` prints the version build_info reports; `csb run` takes the method, the time
+    step, sub-steps, iterations, duration and frame rate from the command line over the scene's,
+    and refuses an impossible one by name."""
+    r = run_cli("--version", cwd=tmp_path)
+    assert r.returncode == 0 and r.stdout.strip() == f"csb {csb.build_info()['csb']}"
+    path = scene_file(tmp_path, GOOD)
+    r = run_cli("run", str(path), "--quiet", "--method", "xpbd", "--dt", "0.02", "--substeps", "4", "--iterations", "1",
+                "--duration", "0.2", "--fps", "10", "--format", "csv", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "tiny: 10 steps of 20 ms (xpbd, 4 substeps x 1 iterations)" in r.stdout, r.stdout
+    rows = list(csv.DictReader((tmp_path / "out" / "tiny" / "metrics.csv").read_text().splitlines()))
+    assert len(rows) == 3 and float(rows[-1]["t"]) == pytest.approx(0.2)  # t = 0, 0.1, 0.2 s at 10 frames per second
+    r = run_cli("run", str(path), "--dt", "-1", cwd=tmp_path)
+    assert r.returncode == 2 and "argument --dt: must be a finite number > 0, got -1" in r.stderr
+    r = run_cli("run", str(path), "--method", "vbd", cwd=tmp_path)
+    assert r.returncode == 2 and "csb: error:" in r.stderr and "damping" not in r.stderr.split("error:")[0]
+
+
 def info_lines(capsys) -> dict[str, str]:
     from csb.cli import main
 
@@ -292,3 +311,21 @@ def test_cli_info_reports_the_kernels_in_use_beside_the_compiled_baseline(tmp_pa
         csb.kernels.kernel_isa("auto")
     if best == "avx512":
         assert lines["simd kernels"].startswith("avx512: bending in AVX-512, distance in AVX2 (")
+
+
+def test_the_readme_command_line_examples_run_as_written(tmp_path):
+    """Each command of the README's command-line block (the one with csb --version) runs from a
+    fresh folder and succeeds."""
+    import re
+    import shlex
+
+    text = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    (block,) = [b for b in re.findall(r"```sh\n(.*?)```", text, re.S) if "csb --version" in b]
+    exe = Path(sys.executable).parent / "csb"
+    commands = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.startswith("csb ")]
+    assert len(commands) == 4
+    for argv in commands:
+        r = subprocess.run([exe, *argv[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+        assert r.returncode == 0, (argv, r.stderr)
+    assert (tmp_path / "out" / "cloth_drop" / "cloth_drop.usd").exists()
+    assert (tmp_path / "out" / "cloth_drop" / "frames" / "frame_00059.png").exists()

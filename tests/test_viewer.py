@@ -449,6 +449,18 @@ def test_offscreen_render_writes_the_requested_frames(tmp_path):
     assert r.video is None and r.ms_per_frame > 0
 
 
+def test_capture_reports_its_progress_frame_by_frame(tmp_path, capsys):
+    """capture(progress=f) calls f with the frames done after each frame (csb render's bar);
+    render(progress=True) draws a bar on stderr and leaves the images as without it."""
+    sim = csb.load_scene("cloth_drop").build()
+    done = []
+    with csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, width=W, height=H, offscreen=True) as v:
+        v.capture(frames=4, directory=str(tmp_path), png=False, video=False, progress=done.append)
+    assert done == [1, 2, 3, 4]
+    r = csb.render("cloth_drop", tmp_path / "bar", frames=3, width=W, height=H, video=False, progress=True)
+    assert len(r.images) == 3 and "render:" in capsys.readouterr().err
+
+
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed")
 def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
     r = csb.render("cloth_drop", tmp_path, frames=12, every=5, width=W, height=H)

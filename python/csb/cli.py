@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import sys
 from pathlib import Path
@@ -13,10 +14,27 @@ from . import _core
 _FORMATS = ("usd", "gltf", "obj", "ply", "xdmf", "vtu", "csv", "plot")
 
 
+def _overridden(scene, args: argparse.Namespace):
+    """The scene with the command line's --method, --dt, --substeps, --iterations, --duration and
+    --fps in place of its own; the stepper is made once so that an impossible combination is an
+    error now, naming the setting."""
+    import dataclasses
+
+    solver = {k: getattr(args, k) for k in ("method", "dt", "substeps", "iterations") if getattr(args, k) is not None}
+    if solver:
+        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, **solver))
+        scene.solver.stepper()
+    if args.duration is not None:
+        scene = dataclasses.replace(scene, duration=args.duration)
+    if args.fps is not None:
+        scene = dataclasses.replace(scene, output=dataclasses.replace(scene.output, fps=args.fps))
+    return scene
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from .scene import load_scene
 
-    scene = load_scene(args.scene)
+    scene = _overridden(load_scene(args.scene), args)
     if args.format:
         import dataclasses
 
@@ -104,7 +122,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else max(1, math.ceil(scene.duration * 60 - 1e-9))
     r = render(scene, out, frames=frames, every=args.every, width=w, height=h, video=not args.no_video,
                method=args.method, camera=_camera(args), overlay=args.overlay, wireframe=args.wireframe,
-               particles=args.particles, prefix=args.prefix)
+               particles=args.particles, prefix=args.prefix, progress=not args.quiet)
     print(f"{scene.name}: {frames} frames of {w}x{h}, {len(r.images)} written as PNG in {out} "
           f"({r.ms_per_frame:.1f} ms per frame: step, draw and read-back; {r.draw_ms_per_frame:.1f} ms to draw)")
     if r.video is not None:
@@ -144,7 +162,24 @@ def _cmd_info(args: argparse.Namespace) -> int:
         else:
             print(f"{k:13s} {v}")
     print(f"{'mesh formats':13s} {' '.join(_core.readable_extensions())}")
+    extras = []
+    for extra, module, what in (("usd", "pxr", "USD export"), ("study", "dask.distributed", "studies on Dask"),
+                                ("bench", "pypbd", "benchmark peers")):
+        found = importlib.util.find_spec(module.split(".")[0]) is not None
+        extras.append(f"{extra} ({what}): {'installed' if found else 'absent'}")
+    print(f"{'extras':13s} {'; '.join(extras)}")
     return 0
+
+
+def _positive(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a finite number > 0, got {text}")
+    return value
 
 
 def _at_least(low: float, kind: type = int):
@@ -164,12 +199,20 @@ def _at_least(low: float, kind: type = int):
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="csb", description="Cloth and soft-body dynamics with Position Based Dynamics.")
+    parser.add_argument("--version", action="version", version=f"csb {_core.build_info()['csb']}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("run", help="step a scene and write its outputs")
     p.add_argument("scene", help="a scene file (.toml) or the name of a bundled scene (see 'csb scenes')")
     p.add_argument("--out", help="output directory (default: out/<scene name>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--method", choices=[n for m in _core.methods() for n in (m.name, *m.aliases)],
+                   help="the scene's method replaced by this one (any of csb.methods())")
+    p.add_argument("--duration", type=_positive, help="simulated time, s (default: the scene's)")
+    p.add_argument("--dt", type=_positive, help="time step, s (default: the scene's)")
+    p.add_argument("--substeps", type=_at_least(1), help="sub-steps per time step (default: the scene's)")
+    p.add_argument("--iterations", type=_at_least(1), help="iterations per sub-step (default: the scene's)")
+    p.add_argument("--fps", type=_positive, help="frames written per simulated second (default: the scene's)")
     p.add_argument("--format", nargs="+", choices=_FORMATS,
                    help="write these outputs instead of the scene's [output] choice: usd (<name>.usd, the meshes "
                         "as their files have them and the colliders, animated; needs the usd extra), gltf "
@@ -244,6 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--overlay", action="store_true", help="draw the fps/energy overlay into the frames")
     p.add_argument("--no-video", action="store_true", help="no MP4 even if ffmpeg is installed")
     p.add_argument("--prefix", default="frame", help="file names: <prefix>_NNNNN.png, <prefix>.mp4 (default frame)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 
     p = sub.add_parser("study", help="run a study file: scenes x methods x parameter grids, on Dask, resumable")
@@ -267,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_study)
 
     sub.add_parser("scenes", help="list the bundled scenes").set_defaults(func=_cmd_scenes)
-    sub.add_parser("info", help="versions and readable mesh formats").set_defaults(func=_cmd_info)
+    sub.add_parser("info", help="versions, the SIMD kernels in use, readable mesh formats and the optional extras").set_defaults(func=_cmd_info)
 
     args = parser.parse_args(argv)
     try:

@@ -105,7 +105,7 @@ class RunResult:
         s = sim.scene.solver
         f = self.final
         how = (f"{1e3 * sim.stepper.dt():.3g} ms ({sim.stepper.name()})" if self.stepper_given
-               else f"{1e3 * s.dt:.3g} ms ({s.substeps} substeps x {s.iterations} iterations)")
+               else f"{1e3 * s.dt:.3g} ms ({s.method}, {s.substeps} substeps x {s.iterations} iterations)")
         return (
             f"{sim.scene.name}: {self.steps} steps of {how}, {sim.model.num_particles} particles, {sim.model.num_constraints} "
             f"constraints, {self.wall_time:.3f} s wall ({self.steps / max(self.wall_time, 1e-12):.0f} steps/s); "

@@ -206,15 +206,25 @@ class RenderResult:
 
 def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, every: int = 1,
            width: int = 960, height: int = 600, video: bool = True, prefix: str = "frame",
-           overlay: bool = False, **options: Any) -> RenderResult:
+           overlay: bool = False, progress: bool = False, **options: Any) -> RenderResult:
     """Draws `frames` frames of a scene offscreen (EGL: no window, no display needed), each
     advancing the simulation by frame_time (default 1/60 s), and writes every `every`-th (and the
     last) as ``<out>/<prefix>_NNNNN.png``, and all of them as ``<out>/<prefix>.mp4`` (in real
-    time) when ffmpeg is on the PATH and `video` is set."""
+    time) when ffmpeg is on the PATH and `video` is set. `progress`: a progress bar on stderr."""
     if frames < 1:
         raise _core.ParameterError(f"frames must be >= 1, got {frames}")
-    with open_viewer(scene, offscreen=True, width=width, height=height, overlay=overlay, **options) as v:
-        r = v.capture(frames=frames, directory=os.fspath(out), every=every, prefix=prefix, video=video)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=frames, unit="frame", desc="render", leave=False, dynamic_ncols=True)
+    try:
+        with open_viewer(scene, offscreen=True, width=width, height=height, overlay=overlay, **options) as v:
+            r = v.capture(frames=frames, directory=os.fspath(out), every=every, prefix=prefix, video=video,
+                          progress=(lambda done: bar.update(done - bar.n)) if bar is not None else None)
+    finally:
+        if bar is not None:
+            bar.close()
     return RenderResult(images=[Path(p) for p in r["images"]], video=Path(r["video"]) if r["video"] else None,
                         video_note=r["video_note"], ms_per_frame=r["ms_per_frame"],
                         draw_ms_per_frame=r["draw_ms_per_frame"], size=(width, height))

@@ -210,8 +210,13 @@ void bind_viewer(py::module_& m) {
       .def("save_png", [](Viewer& v, const std::string& path) { csb::viewer::write_png(v.screenshot(), path); },
            py::arg("path"))
       .def("capture", [](Viewer& v, IntArg frames, const std::string& directory, IntArg every,
-                         const std::string& prefix, bool png, bool video) {
+                         const std::string& prefix, bool png, bool video, py::object progress) {
         csb::viewer::CaptureOptions o;
+        if (!progress.is_none())  // called with the GIL, which capture() otherwise runs without
+          o.progress = [&progress](std::int64_t done) {
+            py::gil_scoped_acquire gil;
+            progress(done);
+          };
         o.frames = in_range<std::int64_t>(frames, "capture: frames", 1, kMaxInt64);
         o.directory = directory;
         o.every = in_range<std::int64_t>(every, "capture: every", 1, kMaxInt64);
@@ -231,9 +236,10 @@ void bind_viewer(py::module_& m) {
         d["draw_ms_per_frame"] = r.draw_ms_per_frame;
         return d;
       }, py::kw_only(), py::arg("frames"), py::arg("directory"), py::arg("every") = 1, py::arg("prefix") = "frame",
-         py::arg("png") = true, py::arg("video") = true,
+         py::arg("png") = true, py::arg("video") = true, py::arg("progress") = py::none(),
          "Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and "
-         "<prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.")
+         "<prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame. "
+         "progress(frames_done), if given, is called after each frame.")
       .def("mouse_button", [](Viewer& v, IntArg button, bool pressed, double x, double y, bool shift) {
         v.mouse_button(in_range<int>(button, "mouse_button: button", 0, 2), pressed, x, y, shift);
       }, py::arg("button"), py::arg("pressed"), py::arg("x"), py::arg("y"),

@@ -143,6 +143,7 @@ CaptureResult capture(Viewer& viewer, const CaptureOptions& o) {
       pipe.reset();
       video.clear();
     }
+    if (o.progress) o.progress(k + 1);
   }
   if (pipe) {
     const int status = pclose(pipe.release());

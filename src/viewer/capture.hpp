@@ -4,6 +4,7 @@
 
 #include "viewer/viewer.hpp"
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -16,6 +17,7 @@ struct CaptureOptions {
   std::string prefix = "frame";   // <directory>/<prefix>_<frame number, 5 digits>.png
   bool png = true;
   bool video = true;          // <directory>/<prefix>.mp4 at 1/frame_time frames per second, if ffmpeg is found
+  std::function<void(std::int64_t)> progress;  // called with the frames done after each frame (may be empty)
 };
 
 struct CaptureResult {

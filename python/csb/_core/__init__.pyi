@@ -1041,9 +1041,9 @@ class Viewer:
         """
         The same with a PbdStepper made from `settings`.
         """
-    def capture(self, *, frames: int, directory: str, every: int = 1, prefix: str = 'frame', png: bool = True, video: bool = True) -> dict:
+    def capture(self, *, frames: int, directory: str, every: int = 1, prefix: str = 'frame', png: bool = True, video: bool = True, progress: typing.Any = None) -> dict:
         """
-        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame.
+        Draws `frames` frames and writes every `every`-th as <directory>/<prefix>_NNNNN.png, and <prefix>.mp4 when ffmpeg is on the PATH. Returns the files and the median ms per frame. progress(frames_done), if given, is called after each frame.
         """
     def close(self) -> None:
         """
