@@ -70,6 +70,7 @@ from .mesh import AnimationWarning, Mesh, MeshReport, MeshWarning, SourceMesh, c
 from .animation import AnimatedMesh, Animation, RigidKeyframes, load_animation
 from .model import MeshInstance, ModelBuilder
 from .select import Box, HalfSpace, Material, NearLine, Region, Sphere
+from .family import ConstraintFamily, ShapeMatching
 from .tetmesh import TetMesh, load_tet_mesh, tet_box
 from .reference import ReferenceResult, SpringNetwork, integrate_reference, position_error
 from .runner import RunResult
@@ -96,7 +97,7 @@ __all__ = [
     "Mesh", "MeshReport", "SourceMesh", "load_mesh", "load_animation", "Animation", "AnimatedMesh", "RigidKeyframes", "save_mesh", "clean", "transformed", "topology", "lumped_measure",
     "readable_extensions", "cloth_grid", "chain", "pendulum", "icosphere",
     "TetMesh", "load_tet_mesh", "tet_box", "volume_violations", "balloon_volumes",
-    "Model", "ModelBuilder", "MeshInstance", "State", "Region", "Box", "Sphere", "HalfSpace", "NearLine", "Material",
+    "Model", "ModelBuilder", "MeshInstance", "State", "Region", "Box", "Sphere", "HalfSpace", "NearLine", "Material", "ConstraintFamily", "ShapeMatching",
     "Integrator", "methods", "method_info", "make_integrator", "load_plugin", "Plugin", "PluginIntegrator", "plugin_include_dir", "PbdStepper", "PbdSettings", "ForceStepper", "corrected_stiffness", "pick_particle", "Pick", "tear",
     "measure", "elastic_energy", "distance_violations", "bending_violations", "kernels",
     "integrate_reference", "ReferenceResult", "SpringNetwork", "position_error",

@@ -77,6 +77,23 @@ class ModelBuilder(_core.ModelBuilder):
     ``stretch_stiffness`` is given, bending constraints only if ``bending_stiffness`` is given.
     """
 
+    def add_family(self, family) -> str:
+        """Adds a constraint family written in Python (a :class:`csb.ConstraintFamily`): its
+        constraints are then added with :meth:`add_constraint` by its name, and every stepper
+        projects them in its sweeps with the built-in ones (slow: see :mod:`csb.family`)."""
+        from .family import add_family
+
+        return add_family(self, family)
+
+    def add_constraint(self, family, particles, params=(), stiffness: float = 1.0, compliance: float = 0.0) -> int:
+        """A constraint of a family, by name or object (``tethers``, or one added with
+        :meth:`add_family`): its particles (the family's arity), its parameters (the family's, in
+        order, in their units), PBD stiffness in [0, 1], compliance in the family's unit (0: hard).
+        Returns its index in the family's batch."""
+        from .family import add_constraint
+
+        return add_constraint(self, family, particles, params, stiffness, compliance)
+
     def pin(self, i: int | Sequence[int] | np.ndarray) -> None:
         """Fixes particle i (inverse mass 0), or each particle of an index array (what
         :meth:`MeshInstance.select` returns): ``builder.pin(cape.select(csb.Box(lo, hi)))``."""

@@ -383,13 +383,32 @@ Index ModelBuilder::attach(Index i, const Vec3& target, Real stiffness, Real com
   return static_cast<Index>(attached_.size() - 1);
 }
 
+void ModelBuilder::add_family(std::unique_ptr<FamilyBatch> batch) {
+  if (!batch) throw InvalidArgument("add_family: no family given");
+  const std::string& name = batch->info().name;
+  bool taken = false;
+  for (const FamilyInfo* i : families()) taken = taken || i->name == name;
+  for (const auto& b : families_.runtime) taken = taken || b->info().name == name;
+  if (name.empty() || taken)
+    throw InvalidArgument("add_family: a constraint family needs a name of its own, and '" + name +
+                          "' is " + (name.empty() ? "empty" : "taken"));
+  if (batch->size() != 0) throw InvalidArgument("add_family: family '" + name + "' must be added empty");
+  families_.runtime.push_back(std::move(batch));
+}
+
 Index ModelBuilder::add_constraint(const std::string& family, const std::vector<Index>& particles,
                                    const std::vector<Real>& params, Real stiffness, Real compliance) {
-  const Index f = family_index(family);
-  const FamilyInfo& info = *families()[f];
-  if (families_.batches.empty())
-    for (const FamilyInfo* i : families()) families_.batches.push_back(i->make());
-  FamilyBatch& batch = *families_.batches[f];
+  FamilyBatch* found = nullptr;
+  for (const auto& b : families_.runtime)
+    if (b->info().name == family) found = b.get();
+  if (!found) {
+    const Index f = family_index(family);  // an unknown name: the error lists the known ones
+    if (families_.batches.empty())
+      for (const FamilyInfo* i : families()) families_.batches.push_back(i->make());
+    found = families_.batches[f].get();
+  }
+  FamilyBatch& batch = *found;
+  const FamilyInfo& info = batch.info();
   std::string what = info.label + " " + std::to_string(batch.size()) + " (particles";
   for (std::size_t k = 0; k < particles.size(); ++k) what += (k ? ", " : " ") + std::to_string(particles[k]);
   what += ")";
@@ -621,6 +640,7 @@ std::shared_ptr<const Model> ModelBuilder::build() const {
     model->attachments.target.col(static_cast<Eigen::Index>(k)) = attachment_targets_[k];
   for (std::size_t f = 0; f < families().size(); ++f)
     model->families.push_back(families_.batches.empty() ? families()[f]->make() : families_.batches[f]->clone());
+  for (const auto& b : families_.runtime) model->families.push_back(b->clone());
   colour_batches(*model);
   return model;
 }

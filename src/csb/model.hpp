@@ -156,6 +156,13 @@ class Model : public std::enable_shared_from_this<Model> {
       if (f->info().name == name) return f.get();
     return nullptr;
   }
+  // Whether a family must be projected by the caller's thread alone (FamilyInfo::serial_only):
+  // the steppers then run on one thread.
+  bool serial_families() const {
+    for (const auto& f : families)
+      if (f->info().serial_only && f->size() > 0) return true;
+    return false;
+  }
   Index num_groups() const { return static_cast<Index>(group_names.size()); }
   // Rest positions, zero velocities, t = 0.
   State initial_state() const;
@@ -306,6 +313,10 @@ class ModelBuilder {
   // Throws InvalidArgument naming the family, the constraint and what is wrong.
   Index add_constraint(const std::string& family, const std::vector<Index>& particles, const std::vector<Real>& params,
                        Real stiffness = 1, Real compliance = 0);
+  // A family defined at run time (csb.ConstraintFamily, a family written in Python), added empty;
+  // add_constraint then takes its name. Its batch follows the registered families' in the model.
+  // Throws InvalidArgument for a name a registered or earlier family has.
+  void add_family(std::unique_ptr<FamilyBatch> batch);
 
   // Static colliders (collision.hpp), each with its ContactMaterial (μs >= μk >= 0, e in [0, 1]);
   // `name` labels it in messages (default: its kind and index). Each returns the collider's
@@ -363,14 +374,17 @@ class ModelBuilder {
   // a copy of the builder copies them.
   struct Families {
     std::vector<std::unique_ptr<FamilyBatch>> batches;
+    std::vector<std::unique_ptr<FamilyBatch>> runtime;  // add_family's, in order
     Families() = default;
     Families(const Families& o) {
       for (const auto& b : o.batches) batches.push_back(b->clone());
+      for (const auto& b : o.runtime) runtime.push_back(b->clone());
     }
     Families& operator=(const Families& o) {
       if (this != &o) {
         Families copy(o);
         batches = std::move(copy.batches);
+        runtime = std::move(copy.runtime);
       }
       return *this;
     }

@@ -296,6 +296,7 @@ struct Warnings {
 };
 void bind_mesh(py::module_& m);
 void bind_model(py::module_& m);
+void bind_family(py::module_& m);  // after bind_model (the builder it extends)
 void bind_integrator(py::module_& m);  // before bind_methods: the steppers derive from Integrator
 void bind_methods(py::module_& m, const Warnings& warnings);
 void bind_plugin(py::module_& m);  // after bind_integrator

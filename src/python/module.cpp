@@ -73,6 +73,7 @@ PYBIND11_MODULE(_core, m) {
   }, "Versions of csb and of the libraries it was built against, and whether the viewer was built.");
   bind_mesh(m);
   bind_model(m);
+  bind_family(m);
   bind_integrator(m);
   bind_methods(m, Warnings{material_warning, accuracy_warning});
   bind_plugin(m);

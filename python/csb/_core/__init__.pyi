@@ -1168,6 +1168,10 @@ class Viewer:
     @property
     def steps_per_frame(self) -> int:
         ...
+def _add_python_family(builder: ModelBuilder, evaluate: typing.Any, name: str, label: str, arity: typing.SupportsInt | typing.SupportsIndex, param_names: collections.abc.Sequence[str], param_units: collections.abc.Sequence[str], unilateral: bool, compliance_unit: str) -> None:
+    """
+    Registers a constraint family written in Python with the builder (csb.ModelBuilder.add_family).
+    """
 def _clean(mesh: Mesh, weld: bool = True, weld_tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-06, drop_unreferenced: bool = True) -> tuple[Mesh, dict]:
     ...
 def _integrate_reference(model: Model, start: State, times: collections.abc.Sequence[typing.SupportsFloat | typing.SupportsIndex], gravity: typing.Any, rtol: typing.SupportsFloat | typing.SupportsIndex, atol: typing.SupportsFloat | typing.SupportsIndex, damping: typing.SupportsFloat | typing.SupportsIndex, drag: typing.SupportsFloat | typing.SupportsIndex, max_order: int, stability_limit_detection: bool, linear_solver: str, max_steps: int, max_wall_time: typing.SupportsFloat | typing.SupportsIndex) -> tuple[numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], numpy.typing.NDArray[numpy.float64], dict]:

@@ -80,6 +80,10 @@ struct FamilyInfo {
   int arity = 0;
   bool unilateral = false;
   bool has_hessian = false;     // the reference's Jacobian is exact (else Gauss-Newton)
+  // Projected by the caller's thread alone: a family written in Python (csb.ConstraintFamily),
+  // whose projections call back into the interpreter. A model holding one is stepped on one
+  // thread, so that what the callback raises reaches the caller (and the bits are those of one).
+  bool serial_only = false;
   std::vector<std::string> param_names, param_units;
   std::function<std::unique_ptr<FamilyBatch>()> make;  // an empty batch of the family
   int num_params() const { return static_cast<int>(param_names.size()); }
@@ -161,6 +165,37 @@ void family_load(Real* const p[F::arity], Vec3 x[F::arity]) {
   for (int j = 0; j < F::arity; ++j) x[j] = Vec3(p[j][0], p[j][1], p[j][2]);
 }
 
+// The corrections of one evaluated constraint of n particles (C, its violation v and gradient g
+// at the positions p, moved in place), shared by the compiled families (n their arity, a
+// constant) and the ones evaluated at run time (a family written in Python).
+// PBD: Δp_j = -k v w_j g_j / Σ_i w_i |g_i|².
+inline void family_correct_pbd(Real* const* p, const Real* w, const Vec3* g, int n, Real v, Real k) {
+  Real wg = 0;
+  for (int j = 0; j < n; ++j) wg += w[j] * g[j].squaredNorm();
+  if (!(wg > 0)) return;
+  const Real s = k * v / wg;
+  for (int j = 0; j < n; ++j)
+    for (int e = 0; e < 3; ++e) p[j][e] -= s * w[j] * g[j][e];
+}
+
+// XPBD: Δλ and Δp_j = w_j Δλ g_j, λ clamped to <= 0 for a unilateral family (x0: the positions
+// at the start of the sub-step, for the damping).
+inline void family_correct_xpbd(Real* const* p, const Real* const* x0, const Real* w, const Vec3* g, int n, Real c,
+                                bool unilateral, Real alpha_tilde, Real gamma, Real& lambda) {
+  Real wg = 0;
+  for (int j = 0; j < n; ++j) wg += w[j] * g[j].squaredNorm();
+  if (!(wg > 0)) return;
+  Real moved = 0;
+  if (gamma != 0)
+    for (int j = 0; j < n; ++j)
+      for (int e = 0; e < 3; ++e) moved += g[j][e] * (p[j][e] - x0[j][e]);
+  Real dl = (-c - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wg + alpha_tilde);
+  if (unilateral) dl = std::min(lambda + dl, Real(0)) - lambda;
+  lambda += dl;
+  for (int j = 0; j < n; ++j)
+    for (int e = 0; e < 3; ++e) p[j][e] += w[j] * dl * g[j][e];
+}
+
 // PBD: projects one constraint of F in place (positions p, inverse masses w); returns its
 // violation before the projection.
 template <class F>
@@ -171,12 +206,7 @@ Real project_family_pbd(Real* const p[F::arity], const Real w[F::arity], const t
   const bool ok = F::evaluate(x, params, c, g);
   const Real v = family_violation<F>(c);
   if (!ok || v == 0) return v;
-  Real wg = 0;
-  for (int j = 0; j < F::arity; ++j) wg += w[j] * g[j].squaredNorm();
-  if (!(wg > 0)) return v;
-  const Real s = k * v / wg;
-  for (int j = 0; j < F::arity; ++j)
-    for (int e = 0; e < 3; ++e) p[j][e] -= s * w[j] * g[j][e];
+  family_correct_pbd(p, w, g, F::arity, v, k);
   return v;
 }
 
@@ -193,18 +223,7 @@ Real project_family_xpbd(Real* const p[F::arity], const Real* const x0[F::arity]
   if (!ok) return v;
   if constexpr (F::unilateral)
     if (v == 0 && lambda == 0) return v;  // slack, and nothing to give back
-  Real wg = 0;
-  for (int j = 0; j < F::arity; ++j) wg += w[j] * g[j].squaredNorm();
-  if (!(wg > 0)) return v;
-  Real moved = 0;
-  if (gamma != 0)
-    for (int j = 0; j < F::arity; ++j)
-      for (int e = 0; e < 3; ++e) moved += g[j][e] * (p[j][e] - x0[j][e]);
-  Real dl = (-c - alpha_tilde * lambda - gamma * moved) / ((1 + gamma) * wg + alpha_tilde);
-  if constexpr (F::unilateral) dl = std::min(lambda + dl, Real(0)) - lambda;
-  lambda += dl;
-  for (int j = 0; j < F::arity; ++j)
-    for (int e = 0; e < 3; ++e) p[j][e] += w[j] * dl * g[j][e];
+  family_correct_xpbd(p, x0, w, g, F::arity, c, F::unilateral, alpha_tilde, gamma, lambda);
   return v;
 }
 

@@ -78,7 +78,7 @@ FreeCores free_cores(int cores) { return {cores, cores}; }
 int PbdStepper::resolve_threads(const Model& model) {
   spin_ = false;
   if (settings_.ordering == Ordering::Sequential) return 1;
-  if (settings_.threads == 1 || (settings_.threads == 0 && model.num_parts == 1))
+  if (settings_.threads == 1 || (settings_.threads == 0 && model.num_parts == 1) || model.serial_families())
     return 1;  // (automatic: a model of one part has one task per phase)
   // hardware_concurrency reads /sys on every call (glibc): once per process is enough.
   static const int cores = std::max(1, static_cast<int>(std::thread::hardware_concurrency()));

@@ -742,6 +742,7 @@ void ProjectiveDynamicsStepper::solve_one(const Model& model, State& state, Real
                               : std::min({cores, kMaxAutoThreads,
                                           static_cast<int>(1 + (C.num_slots / 3) / kTermsPerThread)});
   threads = std::max(1, std::min<int>(threads, static_cast<int>(std::max(local_tasks, gather_tasks))));
+  if (model.serial_families()) threads = 1;  // a family written in Python projects on the caller's thread
   stats_.threads_used = threads;
 
   if (threads == 1) {

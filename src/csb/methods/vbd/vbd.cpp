@@ -303,7 +303,7 @@ void VbdStepper::step(const Model& model, State& state, std::int64_t steps, cons
   // (csb/solver/team.hpp: a spinner sharing its core starves the thread it waits for), else they
   // sleep; CSB_WAIT=spin or sleep fixes the choice.
   const int parts = static_cast<int>(std::max<Index>(1, model.num_parts));
-  if (settings_.threads == 1 || (settings_.threads == 0 && parts <= 1)) {
+  if (settings_.threads == 1 || (settings_.threads == 0 && parts <= 1) || model.serial_families()) {
     threads_used_ = 1;  // (no reading of the load: ~10 µs, much of a small model's step)
     spin_ = false;
   } else {
