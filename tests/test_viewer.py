@@ -461,6 +461,57 @@ def test_capture_reports_its_progress_frame_by_frame(tmp_path, capsys):
     assert len(r.images) == 3 and "render:" in capsys.readouterr().err
 
 
+def test_render_takes_a_model_and_state_built_in_python_and_any_stepper(tmp_path):
+    """csb.render of a Model built in Python, from a State, with a user's own Integrator: its
+    step is called once per frame, the cloth is drawn, and the result shows itself in a notebook
+    (the last frame inline, no video asked)."""
+
+    class Drop(csb.Integrator):
+        def __init__(self):
+            super().__init__()
+            self.steps = 0
+
+        def name(self):
+            return "drop"
+
+        def dt(self):
+            return 1 / 60
+
+        def step(self, model, state, steps=1, interrupt=None):
+            self.steps += steps
+            free = np.asarray(model.inv_mass) > 0
+            for _ in range(steps):
+                state.v[free] += (0.0, -9.81 / 60, 0.0)
+                state.x[:] += state.v / 60
+                state.t += 1 / 60
+
+    b = csb.ModelBuilder()
+    cloth = b.add_mesh(csb.cloth_grid(1.0, 1.0, 10, 10), density=0.2)
+    b.pin(cloth.first_particle)
+    model = b.build()
+    state = model.initial_state()
+    drop = Drop()
+    r = csb.render(model, tmp_path, frames=4, width=W, height=H, video=False, state=state, stepper=drop)
+    assert drop.steps == 4 and len(r.images) == 4
+    import matplotlib.image as mpimg
+
+    img = (mpimg.imread(r.images[-1])[..., :3] * 255).round().astype(np.uint8)
+    assert covered(img).mean() > 0.02
+    assert r._repr_html_().startswith('<img width="320" height="240" src="data:image/png;base64,')
+    r = csb.render(model, tmp_path / "pbd", frames=2, width=W, height=H, video=False)  # default: a PbdStepper
+    assert len(r.images) == 2
+    with pytest.raises(csb.ParameterError, match="state has 4 particles, the model 100"):
+        csb.render(model, tmp_path, frames=1, state=_four_particle_state())
+    with pytest.raises(csb.ParameterError, match="state goes with a Model"):
+        csb.render("cloth_drop", tmp_path, frames=1, state=state)
+
+
+def _four_particle_state():
+    b = csb.ModelBuilder()
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 2, 2), density=0.2)
+    return b.build().initial_state()
+
+
 @pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg is not installed")
 def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
     r = csb.render("cloth_drop", tmp_path, frames=12, every=5, width=W, height=H)
@@ -469,6 +520,7 @@ def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
                             "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(r.video)],
                            capture_output=True, text=True)
     assert probe.stdout.strip() == f"{W},{H},12"
+    assert r._repr_html_().startswith(f'<video width="{W}" height="{H}" controls')  # a notebook plays it inline
 
 
 def test_bad_viewer_parameters_are_named(viewer_on):

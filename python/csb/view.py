@@ -46,7 +46,7 @@ from typing import Any, Callable, Union
 from . import _core
 from .scene import Scene, Simulation, load_scene
 
-SceneLike = Union[str, "os.PathLike[str]", Scene, Simulation]
+SceneLike = Union[str, "os.PathLike[str]", Scene, Simulation, _core.Model]
 
 
 def viewer_available() -> bool:
@@ -86,9 +86,12 @@ class CameraPose:
 
 def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280, height: int = 800,
                 method: str | None = None, camera: CameraPose | None = None,
-                stepper: "_core.Integrator | None" = None, **options: Any) -> "_core.Viewer":
-    """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation),
-    not yet running: call ``run()`` for the window's loop, ``frame()`` for one frame. `method`,
+                stepper: "_core.Integrator | None" = None, state: "_core.State | None" = None,
+                **options: Any) -> "_core.Viewer":
+    """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation)
+    or on a Model built in Python, from `state` (default its initial state) with `stepper` (any
+    csb.Integrator; default a PbdStepper of default settings), not yet running: call ``run()``
+    for the window's loop, ``frame()`` for one frame. The viewer steps a copy of the state. `method`,
     any built-in method's name or alias (:func:`csb.methods`: 'pbd', 'xpbd', 'jakobsen'/'verlet',
     'symplectic-euler', 'backward-euler', ...), replaces the scene's, made from the scene's solver
     settings as the method keys make it: a method that cannot step the scene's model (a spring
@@ -100,6 +103,11 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
     _require_viewer()
     if stepper is not None and not isinstance(stepper, _core.Integrator):
         raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
+    if isinstance(scene, _core.Model):
+        v = _model_viewer(scene, state, stepper, width=width, height=height, offscreen=offscreen, **options)
+        return _finish(v, method, camera)
+    if state is not None:
+        raise _core.ParameterError("state goes with a Model; a scene starts from its own")
     sim = _simulation(scene)
     tearing = sim.scene.tearing
     if tearing is not None:
@@ -125,6 +133,28 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
     before_step = _scene_motion(sim)
     if before_step is not None:
         v.set_before_step(before_step)
+    return _finish(v, method, camera)
+
+
+def _model_viewer(model: _core.Model, state: "_core.State | None", stepper: "_core.Integrator | None",
+                  **options: Any) -> "_core.Viewer":
+    """A viewer on a Model and State: the stepper's settings for a PbdStepper (grabbing on), else
+    the Integrator itself; gravity the PbdStepper's, else (0, -9.81, 0) m/s²."""
+    if state is None:
+        state = model.initial_state()
+    elif not isinstance(state, _core.State):
+        raise _core.ParameterError(f"state must be a csb.State, got {type(state).__name__}")
+    elif state.x.shape[0] != model.num_particles:
+        raise _core.ParameterError(f"state has {state.x.shape[0]} particles, the model {model.num_particles}")
+    options.setdefault("title", "csb - model")
+    if stepper is None or isinstance(stepper, _core.PbdStepper):
+        settings = (stepper or _core.PbdStepper()).settings
+        return _core.Viewer(model, state, settings, **options)
+    gravity = options.pop("gravity", (0.0, -9.81, 0.0))
+    return _core.Viewer(model, state, stepper, gravity=gravity, **options)
+
+
+def _finish(v: "_core.Viewer", method: str | None, camera: CameraPose | None) -> "_core.Viewer":
     if method is not None:
         try:
             v.method = method
@@ -196,6 +226,9 @@ def view(scene: SceneLike, *, frames: int = 0, **options: Any) -> int:
 
 @dataclass
 class RenderResult:
+    """What :func:`render` wrote. In a Jupyter notebook it shows itself: the MP4 as a video when
+    there is one, else the last frame."""
+
     images: list[Path] = field(default_factory=list)
     video: Path | None = None
     video_note: str = ""
@@ -203,11 +236,25 @@ class RenderResult:
     draw_ms_per_frame: float = 0.0   # median wall time to draw and read back a frame
     size: tuple[int, int] = (0, 0)   # width, height in pixels
 
+    def _repr_html_(self) -> str:
+        import base64
+
+        w, h = self.size
+        if self.video is not None and self.video.exists():
+            data = base64.b64encode(self.video.read_bytes()).decode()
+            return (f'<video width="{w}" height="{h}" controls loop autoplay muted>'
+                    f'<source src="data:video/mp4;base64,{data}" type="video/mp4"></video>')
+        if self.images:
+            data = base64.b64encode(self.images[-1].read_bytes()).decode()
+            return f'<img width="{w}" height="{h}" src="data:image/png;base64,{data}"/>'
+        return "<p>no frame written</p>"
+
 
 def render(scene: SceneLike, out: str | os.PathLike[str], *, frames: int = 60, every: int = 1,
            width: int = 960, height: int = 600, video: bool = True, prefix: str = "frame",
            overlay: bool = False, progress: bool = False, **options: Any) -> RenderResult:
-    """Draws `frames` frames of a scene offscreen (EGL: no window, no display needed), each
+    """Draws `frames` frames of a scene (or of a Model and its ``state=``, stepped by ``stepper=``,
+    any csb.Integrator: see :func:`open_viewer`) offscreen (EGL: no window, no display needed), each
     advancing the simulation by frame_time (default 1/60 s), and writes every `every`-th (and the
     last) as ``<out>/<prefix>_NNNNN.png``, and all of them as ``<out>/<prefix>.mp4`` (in real
     time) when ffmpeg is on the PATH and `video` is set. `progress`: a progress bar on stderr."""
