@@ -24,7 +24,14 @@ void bind_metrics(py::module_& m) {
     d["max_strain"] = r.max_strain;
     d["rms_strain"] = r.rms_strain;
     return d;
-  }, py::arg("model"), py::arg("state"), py::arg("gravity"));
+  }, py::arg("model"), py::arg("state"), py::arg("gravity"),
+     "What a state holds, measured (gravity in m/s²; pinned particles included): t (s); kinetic_energy "
+     "½ Σ m |v|², gravitational_energy -Σ m g·x (zero at the origin), elastic_energy Σ C²/(2α) over the "
+     "constraints with compliance α > 0 (hard ones store none: see their violations), total_energy their sum "
+     "(J); linear_momentum Σ m v (kg m/s) and angular_momentum Σ m x × v about the origin (kg m²/s), (3,) "
+     "arrays; per batch a dict of count, max |violation| and rms: distance (m), bending (rad), attachment (m), "
+     "volume (V - V0 per tet, m³), balloon (V - pressure V0, m³) and each constraint family by its name (C₊ in "
+     "its C's unit); max_strain and rms_strain, |violation| / rest length over the distance constraints.");
   m.def("elastic_energy", &elastic_energy, py::arg("model"), py::arg("state"),
         "Σ C²/(2α) over the constraints with compliance α > 0, J.");
   m.def("distance_violations", [](const Model& model, const State& state) {

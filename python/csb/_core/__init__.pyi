@@ -1251,7 +1251,9 @@ def make_integrator(name: str, dt: typing.SupportsFloat | typing.SupportsIndex, 
     The built-in method `name` (see csb.methods()) with step dt (s), `substeps` sub-steps per step, `iterations` constraint sweeps per sub-step (methods that iterate) and gravity (m/s²); a method's own settings as further keywords (csb.method_info(name).settings lists them), the others at their defaults. An unknown name or setting, or a setting out of range, is a csb.ParameterError (a ValueError) naming it.
     """
 def measure(model: Model, state: State, gravity: typing.Any) -> dict:
-    ...
+    """
+    What a state holds, measured (gravity in m/s²; pinned particles included): t (s); kinetic_energy ½ Σ m |v|², gravitational_energy -Σ m g·x (zero at the origin), elastic_energy Σ C²/(2α) over the constraints with compliance α > 0 (hard ones store none: see their violations), total_energy their sum (J); linear_momentum Σ m v (kg m/s) and angular_momentum Σ m x × v about the origin (kg m²/s), (3,) arrays; per batch a dict of count, max |violation| and rms: distance (m), bending (rad), attachment (m), volume (V - V0 per tet, m³), balloon (V - pressure V0, m³) and each constraint family by its name (C₊ in its C's unit); max_strain and rms_strain, |violation| / rest length over the distance constraints.
+    """
 def method_info(name: str) -> MethodInfo:
     """
     The built-in method of that name or alias; a csb.ParameterError listing the known ones otherwise.
