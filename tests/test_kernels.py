@@ -191,3 +191,61 @@ def test_attachment_moves_the_particle_towards_its_target():
     np.testing.assert_allclose(q, p - 0.25 * (p - t), atol=1e-15)
     q, _ = K.project_attachment(p, 0.0, t, 1.0)
     assert np.array_equal(q, p)
+
+
+def test_every_projection_is_in_kernels_with_its_docstring():
+    """csb.kernels covers each built-in projection: PBD, XPBD and Jakobsen's stick for distances,
+    PBD and XPBD for bending, attachments and volumes, and balloons; each says what it computes."""
+    names = ["project_distance", "project_distance_xpbd", "project_distance_jakobsen", "project_bending",
+             "project_bending_xpbd", "project_attachment", "project_attachment_xpbd", "project_volume",
+             "project_volume_xpbd", "project_balloon"]
+    for name in names:
+        doc = getattr(csb.kernels, name).__doc__
+        assert doc and len(doc.split("\n", 2)[-1].strip()) > 40, name
+
+
+def test_xpbd_distance_kernel_against_its_closed_form():
+    """One XPBD iteration from λ = 0 on a stretched link: Δλ = -C/(w1 + w2 + α̃), Δp1 = w1 n Δλ;
+    with damping γ and start positions x, the move since x enters as -γ n·(Δp1 - Δp2) in the
+    numerator and (1 + γ) on the inverse masses."""
+    p1, p2, w1, w2, rest, at = np.array([0.0, 0, 0]), np.array([1.2, 0, 0]), 2.0, 1.0, 1.0, 0.5
+    a, b, c, lam = csb.kernels.project_distance_xpbd(p1, p2, w1, w2, rest, at)
+    dl = -0.2 / (w1 + w2 + at)
+    n = np.array([-1.0, 0, 0])
+    assert c == pytest.approx(0.2) and lam == pytest.approx(dl)
+    assert np.allclose(a, p1 + w1 * n * dl) and np.allclose(b, p2 - w2 * n * dl)
+    x1, x2, gamma = np.array([0.05, 0, 0]), np.array([1.2, 0, 0]), 0.3
+    a, b, c, lam = csb.kernels.project_distance_xpbd(p1, p2, w1, w2, rest, at, 0.0, gamma, x1, x2)
+    moved = n @ ((p1 - x1) - (p2 - x2))
+    assert lam == pytest.approx((-0.2 - gamma * moved) / ((1 + gamma) * (w1 + w2) + at))
+    # An inequality C >= 0 (a rope that may not be shorter, i.e. a strut): compressed, it pushes apart
+    # (λ = 0.2/2 >= 0); stretched, it is satisfied and λ stays clamped at 0.
+    _, _, _, lam = csb.kernels.project_distance_xpbd([0, 0, 0], [0.8, 0, 0], 1.0, 1.0, 1.0, 0.0, sense=">=")
+    assert lam == pytest.approx(0.1)
+    a, b, _, lam = csb.kernels.project_distance_xpbd([0, 0, 0], [1.2, 0, 0], 1.0, 1.0, 1.0, 0.0, sense=">=")
+    assert lam == 0.0 and np.allclose(b, [1.2, 0, 0])
+
+
+def test_jakobsen_stick_kernel_without_square_roots():
+    """Jakobsen's approximation: the correction (d·d - L²)/(d·d + L²) d, shared by inverse mass;
+    near the rest length it agrees with the exact projection to second order in the strain."""
+    p1, p2 = np.array([0.0, 0, 0]), np.array([1.01, 0, 0])
+    a, b, v = csb.kernels.project_distance_jakobsen(p1, p2, 1.0, 1.0, 1.0)
+    dd = 1.01**2
+    assert v == pytest.approx((dd - 1) / 2)
+    assert np.allclose(a, p1 + 0.5 * (dd - 1) / (dd + 1) * (p2 - p1))
+    exact, _, _ = csb.kernels.project_distance(p1, p2, 1.0, 1.0, 1.0)
+    assert abs(a[0] - exact[0]) < 0.01**2
+
+
+def test_xpbd_attachment_and_bending_kernels():
+    p, v, lam = csb.kernels.project_attachment_xpbd([0.0, 0.3, 0.0], 4.0, [0.0, 0.0, 0.0], 1.0)
+    assert v == pytest.approx(0.3) and lam == pytest.approx(-0.3 / 5.0) and np.allclose(p, [0, 0.3 - 4 * 0.06, 0])
+    # A hinge bent to 90 degrees, rest 0: hard (α̃ = 0) XPBD closes the angle as PBD with k = 1 does.
+    a, b, c, d = [0, 0, 0], [0, 0, 1], [1, 0, 0], [0, 1, 0]
+    w = [1.0, 1.0, 1.0, 1.0]
+    xpbd = csb.kernels.project_bending_xpbd(a, b, c, d, w, 0.0, 0.0)
+    pbd = csb.kernels.project_bending(a, b, c, d, w, 0.0, 1.0)
+    assert abs(xpbd[4]) == pytest.approx(np.pi / 2)
+    for k in range(4):
+        assert np.allclose(xpbd[k], pbd[k], atol=1e-12)

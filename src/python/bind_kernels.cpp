@@ -12,7 +12,36 @@ void bind_kernels(py::module_& m) {
     const Real c = project_distance(a.data(), b.data(), w1, w2, rest_length, stiffness, parse_sense(sense));
     return py::make_tuple(vec3_array(a), vec3_array(b), c);
   }, py::arg("p1"), py::arg("p2"), py::arg("w1"), py::arg("w2"), py::arg("rest_length"), py::arg("stiffness") = 1.0,
-     py::arg("sense") = "==", "Returns (p1', p2', violation before projection).");
+     py::arg("sense") = "==",
+     "PBD's distance projection (Müller et al. 2007, Eq. 9-10): C = |p1 - p2| - L, Δp1 = -w1/(w1 + w2) k C n, "
+     "Δp2 = +w2/(w1 + w2) k C n, n = (p1 - p2)/|p1 - p2|; sense '<=' or '>=' projects only a violated "
+     "inequality. Also Jakobsen's stick with square roots. Returns (p1', p2', violation before, m).");
+  k.def("project_distance_xpbd", [](py::handle p1, py::handle p2, double w1, double w2, double rest_length,
+                                    double alpha_tilde, double lambda, double gamma, py::handle x1, py::handle x2,
+                                    const std::string& sense) {
+    Vec3 a = to_vec3(p1, "p1"), b = to_vec3(p2, "p2");
+    const Vec3 xa = x1.is_none() ? a : to_vec3(x1, "x1"), xb = x2.is_none() ? b : to_vec3(x2, "x2");
+    const Real c = project_distance_xpbd(a.data(), b.data(), xa.data(), xb.data(), w1, w2, rest_length, alpha_tilde,
+                                         gamma, lambda, parse_sense(sense));
+    return py::make_tuple(vec3_array(a), vec3_array(b), c, lambda);
+  }, py::arg("p1"), py::arg("p2"), py::arg("w1"), py::arg("w2"), py::arg("rest_length"), py::arg("alpha_tilde"),
+     py::arg("lambda_") = 0.0, py::arg("gamma") = 0.0, py::arg("x1") = py::none(), py::arg("x2") = py::none(),
+     py::arg("sense") = "==",
+     "XPBD's distance projection (Macklin et al. 2016, Eq. 18 and 26): C = |p1 - p2| - L, "
+     "Δλ = (-C - α̃λ - γ ∇C·(p - x)) / ((1 + γ)(w1 + w2) + α̃), Δp1 = w1 n Δλ, Δp2 = -w2 n Δλ, with α̃ = α/h² "
+     "(kg⁻¹, α in m/N), γ = αβ/h the damping (x1, x2 the positions at the start of the sub-step; default p1, p2). "
+     "sense '<=' or '>=' makes it an inequality (λ clamped to its sign). Returns (p1', p2', violation before, "
+     "λ + Δλ); λ/h² is the force, N.");
+  k.def("project_distance_jakobsen", [](py::handle p1, py::handle p2, double w1, double w2, double rest_length,
+                                         double stiffness, const std::string& sense) {
+    Vec3 a = to_vec3(p1, "p1"), b = to_vec3(p2, "p2");
+    const Real c = project_distance_jakobsen(a.data(), b.data(), w1, w2, rest_length, stiffness, parse_sense(sense));
+    return py::make_tuple(vec3_array(a), vec3_array(b), c);
+  }, py::arg("p1"), py::arg("p2"), py::arg("w1"), py::arg("w2"), py::arg("rest_length"), py::arg("stiffness") = 1.0,
+     py::arg("sense") = "==",
+     "Jakobsen's stick without a square root (2001, §4): |d| ≈ (d·d + L²)/(2L), so the correction is "
+     "(d·d - L²)/(d·d + L²) d shared by inverse mass and scaled by the stiffness. Returns (p1', p2', the "
+     "approximate violation (d·d - L²)/(2L), m). (With square roots Jakobsen's stick is project_distance.)");
   k.def("project_bending", [](py::handle a, py::handle b, py::handle c, py::handle d, std::array<double, 4> w,
                               double rest_angle, double stiffness) {
     Vec3 p[4] = {to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d")};
@@ -20,13 +49,47 @@ void bind_kernels(py::module_& m) {
                                    rest_angle, stiffness);
     return py::make_tuple(vec3_array(p[0]), vec3_array(p[1]), vec3_array(p[2]), vec3_array(p[3]), v);
   }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), py::arg("inv_mass"), py::arg("rest_angle"),
-     py::arg("stiffness") = 1.0, "Returns (a', b', c', d', violation before projection).");
+     py::arg("stiffness") = 1.0,
+     "PBD's dihedral bending projection (Müller et al. 2007, Appendix A; the angle by atan2): C = θ - θ0 over "
+     "the shared edge (a, b) with opposite vertices c and d, Δp_i = -k w_i C ∇_i C / Σ_j w_j |∇_j C|². "
+     "Returns (a', b', c', d', violation before, rad).");
+  k.def("project_bending_xpbd", [](py::handle a, py::handle b, py::handle c, py::handle d, std::array<double, 4> w,
+                                   double rest_angle, double alpha_tilde, double lambda, double gamma, py::handle x) {
+    Vec3 p[4] = {to_vec3(a, "a"), to_vec3(b, "b"), to_vec3(c, "c"), to_vec3(d, "d")};
+    Vec3 x0[4] = {p[0], p[1], p[2], p[3]};
+    if (!x.is_none()) {
+      const auto rows = to_positions(x, "x");
+      if (rows.cols() != 4) throw InvalidArgument("project_bending_xpbd: x must be the 4 start positions (4, 3), m");
+      for (int k = 0; k < 4; ++k) x0[k] = rows.col(k);
+    }
+    const Real v = project_bending_xpbd(p[0].data(), p[1].data(), p[2].data(), p[3].data(), x0[0].data(), x0[1].data(),
+                                        x0[2].data(), x0[3].data(), w[0], w[1], w[2], w[3], rest_angle, alpha_tilde,
+                                        gamma, lambda);
+    return py::make_tuple(vec3_array(p[0]), vec3_array(p[1]), vec3_array(p[2]), vec3_array(p[3]), v, lambda);
+  }, py::arg("a"), py::arg("b"), py::arg("c"), py::arg("d"), py::arg("inv_mass"), py::arg("rest_angle"),
+     py::arg("alpha_tilde"), py::arg("lambda_") = 0.0, py::arg("gamma") = 0.0, py::arg("x") = py::none(),
+     "XPBD's dihedral bending projection: C = θ - θ0 over the shared edge (a, b) with opposite vertices c and d, "
+     "Δλ = (-C - α̃λ - γ Σ ∇C·(p - x)) / ((1 + γ) Σ w |∇C|² + α̃), Δp_i = w_i ∇_i C Δλ; α̃ = α/h² (α in "
+     "1/(N m)), γ the damping, x the (4, 3) start positions (default the given ones). Returns (a', b', c', d', "
+     "violation before, rad, λ + Δλ).");
+  k.def("project_attachment_xpbd", [](py::handle p, double w, py::handle target, double alpha_tilde, double lambda,
+                                      double gamma, py::handle x) {
+    Vec3 q = to_vec3(p, "p");
+    const Vec3 t = to_vec3(target, "target"), x0 = x.is_none() ? q : to_vec3(x, "x");
+    const Real v = project_attachment_xpbd(q.data(), x0.data(), w, t.data(), alpha_tilde, gamma, lambda);
+    return py::make_tuple(vec3_array(q), v, lambda);
+  }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("alpha_tilde"), py::arg("lambda_") = 0.0,
+     py::arg("gamma") = 0.0, py::arg("x") = py::none(),
+     "XPBD's attachment: C = |p - target|, Δλ = (-C - α̃λ - γ n·(p - x)) / ((1 + γ) w + α̃), Δp = w n Δλ; "
+     "α̃ = α/h² (α in m/N). Returns (p', violation before, m, λ + Δλ).");
   k.def("project_attachment", [](py::handle p, double w, py::handle target, double stiffness) {
     Vec3 x = to_vec3(p, "p");
     const Vec3 t = to_vec3(target, "target");
     const Real v = project_attachment(x.data(), w, t.data(), stiffness);
     return py::make_tuple(vec3_array(x), v);
-  }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("stiffness") = 1.0);
+  }, py::arg("p"), py::arg("w"), py::arg("target"), py::arg("stiffness") = 1.0,
+     "PBD's attachment (a particle held at a world point): C = |p - target|, Δp = -k C n for a particle that can "
+     "move (w > 0). Returns (p', violation before, m).");
   k.def("additive_ccd", [](const std::string& kind, const Eigen::Matrix<double, 4, 3>& x,
                            const Eigen::Matrix<double, 4, 3>& dx, double separation, double thickness) {
     if (kind != "point-triangle" && kind != "edge-edge")
