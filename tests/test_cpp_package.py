@@ -12,6 +12,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,3 +56,13 @@ def test_find_package_csb_builds_and_runs_a_cpp_program(tmp_path):
     assert m, out
     r = subprocess.run([str(exe), str(tmp_path / "nothere.obj")], capture_output=True, text=True)
     assert r.returncode == 1 and "nothere.obj: no such file" in r.stderr
+    # csb in the user's own loop: positions and normals to a renderer every frame; the last frame an image.
+    out = sh(tmp_path / "example" / "own_loop", "60", tmp_path / "last.ppm")
+    m = re.match(r"60 frames of 1024 vertices and 1922 triangles, t = 1\.000 s, lowest point ([0-9.-]+) m", out)
+    assert m, out
+    assert 0.0 < float(m.group(1)) < 0.3  # draped over the ball (its top at 0.55 m), not through it
+    image = (tmp_path / "last.ppm").read_bytes()
+    assert image.startswith(b"P6\n480 300\n255\n") and len(image) == len(b"P6\n480 300\n255\n") + 480 * 300 * 3
+    pixels = np.frombuffer(image[-480 * 300 * 3:], dtype=np.uint8).reshape(300, 480, 3).astype(int)
+    blue = (pixels[..., 2] > pixels[..., 0] + 60).mean()
+    assert 0.02 < blue < 0.8  # the blue cloth covers part of the grey frame

@@ -220,6 +220,19 @@ Mesh clean(const Mesh& mesh, const CleanOptions& options, MeshReport* report_out
   return out;
 }
 
+void vertex_normals(const Positions& x, const std::vector<Triangle>& triangles, Positions& normals) {
+  normals.setZero(3, x.cols());
+  for (const Triangle& t : triangles) {
+    const Vec3 a = x.col(t[0]);
+    const Vec3 n = (x.col(t[1]) - a).cross(x.col(t[2]) - a);
+    for (const Index i : t) normals.col(i) += n;
+  }
+  for (Eigen::Index i = 0; i < normals.cols(); ++i) {
+    const Real length = normals.col(i).norm();
+    if (length > 0) normals.col(i) /= length;
+  }
+}
+
 Topology topology(const Mesh& mesh) {
   struct HalfEdge {
     Index a, b, opposite;  // a < b; opposite = -1 for an explicit line

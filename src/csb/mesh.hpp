@@ -63,6 +63,12 @@ Mesh clean(const Mesh& mesh, const CleanOptions& options, MeshReport* report = n
 
 Topology topology(const Mesh& mesh);
 
+// Unit vertex normals of triangles over positions x (3 x N, m): each vertex sums the area-weighted
+// normals of its triangles ((b - a) x (c - a), counterclockwise in front), then is normalised; a
+// vertex in no triangle, or whose triangles cancel, gets 0. What a renderer takes with the
+// positions each frame (examples/cpp/own_loop.cpp). `normals` is resized to 3 x N.
+void vertex_normals(const Positions& x, const std::vector<Triangle>& triangles, Positions& normals);
+
 // The order a mesh's edges become distance constraints in: first-fit colour classes (edges that
 // share no vertex), class after class, in (min, max) order within a class. One Gauss-Seidel sweep
 // in index order (each vertex's edges together, row after row on a grid) carries a pull against
