@@ -261,16 +261,10 @@ def plot_usd(path: str | Path, png: str | Path, time: float | None = None, title
             drawn += 1
     if drawn == 0:
         raise _core.ParameterError(f"{path}: no mesh under /World to draw")
-    centre, half = (lo + hi) / 2, 0.65 * max(float(np.max(hi - lo)), 1e-3)
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(-centre[2] - half, -centre[2] + half)
-    ax.set_zlim(centre[1] - half, centre[1] + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("-z (m)")
-    ax.set_zlabel("y (m)")
-    ax.view_init(elev=22, azim=-60)
-    ax.set_title(title or f"{Path(path).name} at time code {code.GetValue():g}", fontsize="medium")
+    from .output import frame_axes
+
+    frame_axes(ax, (lo + hi) / 2, 0.65 * max(float(np.max(hi - lo)), 1e-3),
+               title or f"{Path(path).name} at time code {code.GetValue():g}")
     fig.savefig(png, dpi=110)
     plt.close(fig)
     return Path(png)

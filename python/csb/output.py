@@ -259,6 +259,20 @@ def _collider_triangles(c: dict[str, Any], extent: float) -> np.ndarray:
     return np.array([t for a, b, c_, d in quads for t in ((a, b, c_), (a, c_, d))])
 
 
+def frame_axes(ax: Any, centre: np.ndarray, half: float, title: str) -> None:
+    """A 3D axes of matplotlib (z up) framing a y-up scene: a cube of half-width `half` (m) about
+    `centre`, drawn as (x, -z, y), the view from the front left and above."""
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(-centre[2] - half, -centre[2] + half)
+    ax.set_zlim(centre[1] - half, centre[1] + half)
+    ax.set_box_aspect((1, 1, 1))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("-z (m)")
+    ax.set_zlabel("y (m)")
+    ax.view_init(elev=22, azim=-60)
+    ax.set_title(title, fontsize="medium")
+
+
 def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str,
                   poses: Sequence[tuple[Any, Any]] | None = None,
                   vertices: Sequence[Any | None] | None = None) -> Path:
@@ -297,16 +311,7 @@ def plot_snapshot(path: Path, model: _core.Model, state: _core.State, title: str
                                              edgecolor=(0.1, 0.2, 0.4, 0.5), linewidth=0.2))
     else:
         ax.scatter(*to_plot(x).T, s=4)
-    half = 0.65 * extent
-    ax.set_xlim(centre[0] - half, centre[0] + half)
-    ax.set_ylim(-centre[2] - half, -centre[2] + half)
-    ax.set_zlim(centre[1] - half, centre[1] + half)
-    ax.set_box_aspect((1, 1, 1))
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("-z (m)")
-    ax.set_zlabel("y (m)")
-    ax.view_init(elev=22, azim=-60)
-    ax.set_title(title, fontsize="medium")
+    frame_axes(ax, centre, 0.65 * extent, title)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -35,7 +35,6 @@ Callable hold(py::object o) {
   });
 }
 
-class PythonFamilyBatch;
 std::unique_ptr<FamilyBatch> make_python_family(const Callable& evaluate, const FamilyInfo& base);
 
 class PythonFamilyBatch final : public FamilyBatch {
@@ -84,9 +83,7 @@ class PythonFamilyBatch final : public FamilyBatch {
     std::vector<Real> c;
     std::vector<Vec3> g;
     if (s.jacobi) {
-      std::vector<Index> all(static_cast<std::size_t>(size()));
-      for (Index k = 0; k < size(); ++k) all[static_cast<std::size_t>(k)] = k;
-      evaluate_at(s.read, all, c, g);
+      evaluate_at(s.read, every(), c, g);
       std::vector<Real> local(static_cast<std::size_t>(3 * n));
       for (Index k = 0; k < size(); ++k) {
         for (int j = 0; j < n; ++j)
@@ -113,36 +110,32 @@ class PythonFamilyBatch final : public FamilyBatch {
   }
 
   void evaluate(const Real* x, Real* c, Real* grad) const override {
-    py::gil_scoped_acquire gil;
     std::vector<Real> cs;
     std::vector<Vec3> gs;
-    evaluate_at(x, every(), cs, gs);
+    evaluate_all(x, cs, gs);
     std::copy(cs.begin(), cs.end(), c);
     for (std::size_t k = 0; k < gs.size(); ++k)
       for (int e = 0; e < 3; ++e) grad[3 * k + e] = gs[k][e];
   }
   void violations(const Real* x, Real* v) const override {
-    py::gil_scoped_acquire gil;
     std::vector<Real> cs;
     std::vector<Vec3> gs;
-    evaluate_at(x, every(), cs, gs);
+    evaluate_all(x, cs, gs);
     for (std::size_t k = 0; k < cs.size(); ++k) v[k] = violation(cs[k]);
   }
   Real energy(const Real* x) const override {
-    py::gil_scoped_acquire gil;
     std::vector<Real> cs;
     std::vector<Vec3> gs;
-    evaluate_at(x, every(), cs, gs);
+    evaluate_all(x, cs, gs);
     Real e = 0;
     for (std::size_t k = 0; k < cs.size(); ++k)
       if (compliance[k] > 0) e += violation(cs[k]) * violation(cs[k]) / (2 * compliance[k]);
     return e;
   }
   void add_forces(const Real* x, Real* f) const override {
-    py::gil_scoped_acquire gil;
     std::vector<Real> cs;
     std::vector<Vec3> gs;
-    evaluate_at(x, every(), cs, gs);
+    evaluate_all(x, cs, gs);
     const int n = info_->arity;
     for (std::size_t k = 0; k < cs.size(); ++k) {
       const Real v = violation(cs[k]);
@@ -154,10 +147,9 @@ class PythonFamilyBatch final : public FamilyBatch {
   }
   // The Gauss-Newton term -(1/α) ∇_i C ∇_j Cᵀ (a family written in Python gives no Hessian).
   void stiffness_blocks(const Real* x, Real* blocks) const override {
-    py::gil_scoped_acquire gil;
     std::vector<Real> cs;
     std::vector<Vec3> gs;
-    evaluate_at(x, every(), cs, gs);
+    evaluate_all(x, cs, gs);
     const int n = info_->arity;
     const std::size_t per = static_cast<std::size_t>(n) * n * 9;
     std::fill(blocks, blocks + per * cs.size(), 0.0);
@@ -179,6 +171,11 @@ class PythonFamilyBatch final : public FamilyBatch {
     std::vector<Index> all(static_cast<std::size_t>(size()));
     for (Index k = 0; k < size(); ++k) all[static_cast<std::size_t>(k)] = k;
     return all;
+  }
+  // C and ∇C of every constraint at x, the GIL taken for the call (the references and metrics).
+  void evaluate_all(const Real* x, std::vector<Real>& c, std::vector<Vec3>& g) const {
+    py::gil_scoped_acquire gil;
+    evaluate_at(x, every(), c, g);
   }
 
   // C and ∇C of the constraints `which` at positions x (3 per particle), from the family's
