@@ -211,6 +211,11 @@ def test_without_usd_core_the_writer_says_how_to_get_it(tmp_path):
     """)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert "writing USD needs Pixar's usd-core, the 'usd' extra: pip install 'csb[usd]'" in r.stdout, r.stderr
+    # The command line says so in one line, without a traceback.
+    cli = ('import sys; sys.modules["pxr"] = None; from csb.cli import main; '
+           f'sys.exit(main(["run", "cloth_drop", "--duration", "0.1", "--quiet", "--format", "usd", "--out", {str(tmp_path)!r}]))')
+    r = subprocess.run([sys.executable, "-c", cli], capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.startswith("csb: error: writing USD needs Pixar's usd-core"), r.stderr
 
 
 def test_a_material_of_the_file_selects_its_vertices(tmp_path):

@@ -316,7 +316,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
-    except (_core.Error, FileNotFoundError) as e:
+    except (_core.Error, FileNotFoundError, ImportError) as e:  # ImportError: an optional extra that is absent
         print(f"csb: error: {e}", file=sys.stderr)
         return 2
 
