@@ -50,6 +50,36 @@ def _pxr():
     return Gf, Sdf, Tf, Usd, UsdGeom, Vt
 
 
+def _next_frame(writer: str, state: _core.State, last: float | None) -> tuple[float, np.ndarray]:
+    """A frame's time (s) and positions (N, 3) m, checked: later than the last frame written (at
+    `last`) and finite; `writer` names the writer in the errors."""
+    t = float(state.t)
+    if last is not None and not t > last:
+        raise _core.ParameterError(f"{writer}: frame at t = {t} s does not come after the last, t = {last} s")
+    x = np.asarray(state.x)
+    if not np.all(np.isfinite(x)):
+        raise _core.SimulationError(f"{writer}: the state at t = {t} s has non-finite positions; not written")
+    return t, x
+
+
+def _surface(inst: MeshInstance) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None, bool]:
+    """What a mesh is written as: (keep, face_sizes, faces, uv, normals?) over the file's distinct
+    vertices (keep: into SourceMesh.vertices) or, built in code, its triangles over its particles
+    (keep None)."""
+    src = inst.source
+    if src is not None:
+        keep, index = src.distinct_vertices()
+        uv = np.asarray(src.uv, dtype=float)[keep] if src.uv is not None else None
+        return keep, np.asarray(src.face_sizes), index[np.asarray(src.face_vertices)], uv, src.normals is not None
+    tris = np.asarray(inst.triangles, dtype=np.int64) - inst.first_particle
+    return None, np.full(len(tris), 3), tris.reshape(-1), None, len(tris) > 0
+
+
+def _points(inst: MeshInstance, x: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
+    welded = np.asarray(x)[inst.first_particle:inst.first_particle + inst.num_particles]
+    return inst.source.positions(welded)[keep] if keep is not None else welded
+
+
 def polygon_normals(points: np.ndarray, face_sizes: np.ndarray, face_vertices: np.ndarray) -> np.ndarray:
     """(M, 3) unit vertex normals of a polygon mesh at `points` ((M, 3), m): each vertex sums the
     area-weighted normals of the polygons using it (Newell's method, right-handed: counterclockwise
@@ -108,37 +138,29 @@ class UsdWriter:
             used.add(out)
             return out
 
-        # (instance, points attribute, normals attribute, the file's distinct vertices and its polygons over them)
-        self._meshes: list[tuple[MeshInstance, Any, Any, Any, Any]] = []
+        # (instance, points attribute, normals attribute, and what _surface gives: the file's distinct
+        # vertices, its polygons' sizes and corners over them)
+        self._meshes: list[tuple[MeshInstance, Any, Any, Any, Any, Any]] = []
         for name, inst in meshes.items():
             path_ = f"/World/{prim_name(name)}"
-            src = inst.source
-            if src is not None:
-                keep, index = src.distinct_vertices()
-                faces = index[np.asarray(src.face_vertices)]
-                mesh = UsdGeom.Mesh.Define(stage, path_)
-                mesh.CreateFaceVertexCountsAttr(Vt.IntArray([int(n) for n in src.face_sizes]))
-                mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(faces.tolist()))
-                mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-                if src.uv is not None:
-                    st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
-                                                                 UsdGeom.Tokens.vertex)
-                    st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(src.uv, dtype=np.float32)[keep]))
-                normals = None
-                if src.normals is not None:
-                    normals = mesh.CreateNormalsAttr()
-                    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-                self._meshes.append((inst, mesh.CreatePointsAttr(), normals, keep, faces))
-            elif len(inst.triangles):
-                mesh = UsdGeom.Mesh.Define(stage, path_)
-                tris = np.asarray(inst.triangles, dtype=np.int64) - inst.first_particle
-                mesh.CreateFaceVertexCountsAttr(Vt.IntArray([3] * len(tris)))
-                mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(tris.reshape(-1).tolist()))
-                mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-                self._meshes.append((inst, mesh.CreatePointsAttr(), None, None, None))
-            else:  # a rope or chain: its particles as points
+            if not len(inst.triangles):  # a rope or chain: its particles as points
                 points = UsdGeom.Points.Define(stage, path_)
-                self._meshes.append((inst, points.CreatePointsAttr(), None, None, None))
+                self._meshes.append((inst, points.CreatePointsAttr(), None, None, None, None))
+                continue
+            keep, sizes, faces, uv, _ = _surface(inst)
+            mesh = UsdGeom.Mesh.Define(stage, path_)
+            mesh.CreateFaceVertexCountsAttr(Vt.IntArray(sizes.tolist()))
+            mesh.CreateFaceVertexIndicesAttr(Vt.IntArray(faces.tolist()))
+            mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+            if uv is not None:
+                st = UsdGeom.PrimvarsAPI(mesh).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray,
+                                                             UsdGeom.Tokens.vertex)
+                st.Set(Vt.Vec2fArray.FromNumpy(np.asarray(uv, dtype=np.float32)))
+            normals = None
+            if inst.source is not None and inst.source.normals is not None:  # where the file had normals
+                normals = mesh.CreateNormalsAttr()
+                mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+            self._meshes.append((inst, mesh.CreatePointsAttr(), normals, keep, sizes, faces))
         self._colliders: list[tuple[int, Any, Any, bool]] = []   # (index, transform op, points attribute, deforms)
         if model is not None and len(model.colliders):
             from .output import _collider_triangles
@@ -170,21 +192,14 @@ class UsdWriter:
         """One frame at ``state.t``: every mesh's points (and normals), and per collider its pose
         (R, translation in m; None: as declared) and a deforming mesh collider's vertices (m)."""
         Gf, Sdf, Tf, Usd, UsdGeom, Vt = _pxr()
-        t = float(state.t)
-        if self.last_time is not None and not t > self.last_time:
-            raise _core.ParameterError(f"UsdWriter: frame at t = {t} s does not come after the last, "
-                                       f"t = {self.last_time} s")
+        t, x = _next_frame("UsdWriter", state, self.last_time)
         # t sums the steps' dt: a frame's time code is t x fps to 1e-9 (3, not 2.9999999999999996).
         code = Usd.TimeCode(round(t * self.fps, 9))
-        x = np.asarray(state.x)
-        if not np.all(np.isfinite(x)):
-            raise _core.SimulationError(f"UsdWriter: the state at t = {t} s has non-finite positions; not written")
-        for inst, points, normals, keep, faces in self._meshes:
-            welded = x[inst.first_particle:inst.first_particle + inst.num_particles]
-            p = inst.source.positions(welded)[keep] if inst.source is not None else welded
+        for inst, points, normals, keep, sizes, faces in self._meshes:
+            p = _points(inst, x, keep)
             points.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(p, dtype=np.float32)), code)
             if normals is not None:
-                n = polygon_normals(p, inst.source.face_sizes, faces)
+                n = polygon_normals(p, sizes, faces)
                 normals.Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(n, dtype=np.float32)), code)
         for k, op, points, deforms in self._colliders:
             R, tr = (np.eye(3), np.zeros(3)) if poses is None or poses[k] is None else (np.asarray(poses[k][0]),
@@ -273,24 +288,6 @@ def plot_usd(path: str | Path, png: str | Path, time: float | None = None, title
 # ------------------------------------------------------------------------ game engines: glTF, OBJ, PLY
 
 
-def _surface(inst: MeshInstance) -> tuple[np.ndarray | None, np.ndarray, np.ndarray, np.ndarray | None, bool]:
-    """What a mesh is written as: (keep, face_sizes, faces, uv, normals?) over the file's distinct
-    vertices (keep: into SourceMesh.vertices) or, built in code, its triangles over its particles
-    (keep None)."""
-    src = inst.source
-    if src is not None:
-        keep, index = src.distinct_vertices()
-        uv = np.asarray(src.uv, dtype=float)[keep] if src.uv is not None else None
-        return keep, np.asarray(src.face_sizes), index[np.asarray(src.face_vertices)], uv, src.normals is not None
-    tris = np.asarray(inst.triangles, dtype=np.int64) - inst.first_particle
-    return None, np.full(len(tris), 3), tris.reshape(-1), None, len(tris) > 0
-
-
-def _points(inst: MeshInstance, x: np.ndarray, keep: np.ndarray | None) -> np.ndarray:
-    welded = np.asarray(x)[inst.first_particle:inst.first_particle + inst.num_particles]
-    return inst.source.positions(welded)[keep] if keep is not None else welded
-
-
 def _fan(face_sizes: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(T, 3) the polygons as triangle fans from their first corner (glTF holds triangles only;
     a convex polygon, as cloth quads are, is covered exactly)."""
@@ -373,12 +370,7 @@ class GltfWriter:
         self.frames: list[list[np.ndarray]] = []
 
     def write(self, state: _core.State) -> None:
-        t = float(state.t)
-        if self.times and not t > self.times[-1]:
-            raise _core.ParameterError(f"GltfWriter: frame at t = {t} s does not come after the last, t = {self.times[-1]} s")
-        x = np.asarray(state.x)
-        if not np.all(np.isfinite(x)):
-            raise _core.SimulationError(f"GltfWriter: the state at t = {t} s has non-finite positions; not written")
+        t, x = _next_frame("GltfWriter", state, self.times[-1] if self.times else None)
         self.times.append(t)
         self.frames.append([_points(inst, x, keep) for _, inst, keep, *_ in self.meshes])
 
@@ -440,12 +432,7 @@ class SequenceWriter:
         self.last_time: float | None = None
 
     def write(self, state: _core.State) -> None:
-        t = float(state.t)
-        if self.last_time is not None and not t > self.last_time:
-            raise _core.ParameterError(f"SequenceWriter: frame at t = {t} s does not come after the last, t = {self.last_time} s")
-        x = np.asarray(state.x)
-        if not np.all(np.isfinite(x)):
-            raise _core.SimulationError(f"SequenceWriter: the state at t = {t} s has non-finite positions; not written")
+        t, x = _next_frame("SequenceWriter", state, self.last_time)
         frame = len(self.files) if self.format == "obj" else len(self.files) // max(len(self.meshes), 1)
         if self.format == "obj":
             self.files.append(self._obj(self.directory / f"{self.name}_{frame:05d}.obj", x, t))
