@@ -82,14 +82,17 @@ CASES = [
     ("benchmark_plain_distance repeats",
      lambda w, v: _core.benchmark_plain_distance(w["model"], w["state"].x, 1, v), "repeats", (1, MAX)),
 ]
-if hasattr(_core, "Viewer"):  # the checks run before any window or context is made
+if csb.viewer_available():  # the checks run before any window or context is made
+    from csb.view import viewer_module
+
+    Viewer = viewer_module().Viewer
     CASES += [
-        ("Viewer width", lambda w, v: _core.Viewer(w["model"], w["state"], csb.PbdStepper().settings, width=v,
+        ("Viewer width", lambda w, v: Viewer(w["model"], w["state"], csb.PbdStepper().settings, width=v,
                                                    offscreen=True), "viewer: width", (16, 16384)),
-        ("Viewer samples", lambda w, v: _core.Viewer(w["model"], w["state"], csb.PbdStepper().settings, samples=v,
+        ("Viewer samples", lambda w, v: Viewer(w["model"], w["state"], csb.PbdStepper().settings, samples=v,
                                                      offscreen=True), "viewer: samples", (0, 16)),
         ("Viewer tear_max_per_step",
-         lambda w, v: _core.Viewer(w["model"], w["state"], csb.PbdStepper().settings, tear_max_per_step=v,
+         lambda w, v: Viewer(w["model"], w["state"], csb.PbdStepper().settings, tear_max_per_step=v,
                                    offscreen=True), "viewer: tear_max_per_step", (1, MAX)),
     ]
 

@@ -363,7 +363,7 @@ def test_cpp_keeps_a_python_method_alive():
     m.notes = ["kept"]
     alive = weakref.ref(m)
     try:
-        v = csb._core.Viewer(sim.model, sim.state, m, offscreen=True, width=64, height=64, overlay=False, grid=False,
+        v = csb._viewer.Viewer(sim.model, sim.state, m, offscreen=True, width=64, height=64, overlay=False, grid=False,
                              samples=0)
     except csb.Error as e:  # no EGL here
         if os.environ.get("CSB_REQUIRE_VIEWER") == "1":

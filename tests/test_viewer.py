@@ -454,7 +454,7 @@ def test_capture_reports_its_progress_frame_by_frame(tmp_path, capsys):
     render(progress=True) draws a bar on stderr and leaves the images as without it."""
     sim = csb.load_scene("cloth_drop").build()
     done = []
-    with csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, width=W, height=H, offscreen=True) as v:
+    with csb._viewer.Viewer(sim.model, sim.state, sim.stepper.settings, width=W, height=H, offscreen=True) as v:
         v.capture(frames=4, directory=str(tmp_path), png=False, video=False, progress=done.append)
     assert done == [1, 2, 3, 4]
     r = csb.render("cloth_drop", tmp_path / "bar", frames=3, width=W, height=H, video=False, progress=True)
@@ -526,9 +526,9 @@ def test_offscreen_render_writes_an_mp4_with_ffmpeg(tmp_path):
 def test_bad_viewer_parameters_are_named(viewer_on):
     sim = csb.load_scene("cloth_drop").build()
     with pytest.raises(csb.ParameterError, match=r"viewer: width must be an integer in \[16, 16384\], got 0"):
-        csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, width=0, offscreen=True)
+        csb._viewer.Viewer(sim.model, sim.state, sim.stepper.settings, width=0, offscreen=True)
     with pytest.raises(csb.ParameterError, match="frame_time"):
-        csb._core.Viewer(sim.model, sim.state, sim.stepper.settings, frame_time=0.0, offscreen=True)
+        csb._viewer.Viewer(sim.model, sim.state, sim.stepper.settings, frame_time=0.0, offscreen=True)
     with pytest.raises(csb.ParameterError, match="frames"):
         csb.render("cloth_drop", "unused", frames=0)
     with pytest.raises(csb.ParameterError, match="zoom"):

@@ -159,6 +159,10 @@ def _cmd_info(args: argparse.Namespace) -> int:
             isa = _core.kernels.kernel_isa()
             print(f"{'simd kernels':13s} {isa}: {_KERNEL_ISA.get(isa, isa)} (the blocked coloured kernels in use, "
                   "chosen at run time)")
+        elif k == "viewer":
+            from .view import viewer_missing
+
+            print(f"{k:13s} {viewer_missing() or 'built, and it loads'}")
         else:
             print(f"{k:13s} {v}")
     print(f"{'mesh formats':13s} {' '.join(_core.readable_extensions())}")
@@ -319,6 +323,22 @@ def main(argv: list[str] | None = None) -> int:
     except (_core.Error, FileNotFoundError, ImportError) as e:  # ImportError: an optional extra that is absent
         print(f"csb: error: {e}", file=sys.stderr)
         return 2
+
+
+def view_main() -> None:
+    """The `csb-view` command: a mesh file as a cloth in the viewer (`csb-view --help`)."""
+    import signal
+
+    from .view import viewer_module
+
+    try:
+        command = viewer_module().command
+    except _core.Error as e:
+        print(f"csb-view: error: {e}", file=sys.stderr)
+        sys.exit(2)
+    # The command runs in C++ without the interpreter: Ctrl-C ends it as it would the C++ program.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    sys.exit(command(sys.argv[1:]))
 
 
 if __name__ == "__main__":

@@ -1,9 +1,11 @@
 """The real-time viewer from Python: :func:`view` opens a window on a scene, :func:`render` draws
 frames of it offscreen into PNG files (and an MP4 when ffmpeg is installed).
 
-The viewer is C++ (GLFW, OpenGL 3.3 core, GLSL; ``src/viewer/``) and optional in the build: when
-its libraries were missing, :func:`viewer_available` is False and every function here raises
-:class:`csb.Error` naming what was missing.
+The viewer is C++ (GLFW, OpenGL 3.3 core, GLSL; ``src/viewer/``) in a module of its own,
+``csb._viewer``, apart from the simulation in ``csb._core``: csb imports and simulates without
+it. It is optional in the build, and a wheel carries it but not the system's OpenGL and X11
+libraries. When it was not built or cannot load, :func:`viewer_available` is False and every
+function here raises :class:`csb.Error` saying what is missing.
 
 In the window: the left button on the mesh grabs the particle under the cursor and drags it in
 the plane facing the camera; elsewhere it orbits. Right or middle button (or shift + left) pans,
@@ -38,9 +40,12 @@ methods after a reset (``r``). The camera frames the scene as declared.
 
 from __future__ import annotations
 
+import functools
+import importlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import ModuleType
 from typing import Any, Callable, Union
 
 from . import _core
@@ -49,22 +54,41 @@ from .scene import Scene, Simulation, load_scene
 SceneLike = Union[str, "os.PathLike[str]", Scene, Simulation, _core.Model]
 
 
+@functools.cache
+def _viewer_or_why() -> tuple[ModuleType | None, str]:
+    status = _core.build_info().get("viewer", "not built")
+    if status != "built":
+        return None, ("the viewer is not part of this build of csb: missing " + status.removeprefix("not built: ")
+                      + ". On Debian/Ubuntu: apt-get install libglfw3-dev libepoxy-dev libegl-dev libimgui-dev "
+                      "libpng-dev, then rebuild (./dev setup)")
+    try:
+        return importlib.import_module("csb._viewer"), ""
+    except ImportError as e:  # a wheel's viewer on a machine without the display libraries it uses
+        return None, (f"the viewer cannot load: {e}. It needs the system's X11 and OpenGL libraries "
+                      "(on Debian/Ubuntu: apt-get install libx11-6 libgl1 libegl1); the rest of csb works without them")
+
+
 def viewer_available() -> bool:
-    """Whether this build of csb has the viewer."""
-    return hasattr(_core, "Viewer")
+    """Whether the viewer was built and loads on this machine."""
+    return _viewer_or_why()[0] is not None
 
 
 def viewer_missing() -> str:
     """Why the viewer is not available ('' when it is)."""
-    status = _core.build_info().get("viewer", "not built")
-    return "" if status == "built" else status.removeprefix("not built: ")
+    return _viewer_or_why()[1]
+
+
+def viewer_module() -> ModuleType:
+    """The compiled viewer, ``csb._viewer`` (its ``Viewer`` and ``Camera``); :class:`csb.Error` saying
+    what is missing when it is not available."""
+    module, why = _viewer_or_why()
+    if module is None:
+        raise _core.Error(why)
+    return module
 
 
 def _require_viewer() -> None:
-    if not viewer_available():
-        raise _core.Error(
-            f"the viewer is not part of this build of csb: missing {viewer_missing()}. On Debian/Ubuntu: "
-            "apt-get install libglfw3-dev libepoxy-dev libegl-dev libimgui-dev libpng-dev, then rebuild (./dev setup)")
+    viewer_module()
 
 
 def _simulation(scene: SceneLike) -> Simulation:
@@ -87,7 +111,7 @@ class CameraPose:
 def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280, height: int = 800,
                 method: str | None = None, camera: CameraPose | None = None,
                 stepper: "_core.Integrator | None" = None, state: "_core.State | None" = None,
-                **options: Any) -> "_core.Viewer":
+                **options: Any) -> "csb._viewer.Viewer":
     """A viewer on a scene (a bundled scene's name, a scene file, a Scene or a built Simulation)
     or on a Model built in Python, from `state` (default its initial state) with `stepper` (any
     csb.Integrator; default a PbdStepper of default settings), not yet running: call ``run()``
@@ -98,7 +122,7 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
     model given constraints of compliance 0, say) is a :class:`csb.ParameterError` saying why. `stepper`, any csb.Integrator (a built-in or a user's own method), steps the scene
     instead of its solver: the method keys then work from a built-in's settings (its dt, and its
     substeps or the solver's) and are off for a user's own; grabbing works with a PbdStepper only.
-    `options` go to :class:`csb._core.Viewer` (overlay, wireframe, particles, paused, frame_time,
+    `options` go to :class:`csb._viewer.Viewer` (overlay, wireframe, particles, paused, frame_time,
     grab_compliance, samples, vsync, title, ...). A scene with tearing tears in the viewer too."""
     _require_viewer()
     if stepper is not None and not isinstance(stepper, _core.Integrator):
@@ -115,7 +139,7 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
         options.setdefault("tear_max_per_step", tearing.max_per_step)
     options.setdefault("title", f"csb - {sim.scene.name}")
     if stepper is None and isinstance(sim.stepper, _core.PbdStepper):  # a fresh one, of the scene's settings
-        v = _core.Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
+        v = viewer_module().Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
                          **options)
     else:
         given = stepper if stepper is not None else sim.stepper
@@ -128,7 +152,7 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
             own = getattr(given, "settings", None)
             options.setdefault("substeps", getattr(own, "substeps", solver.substeps))
             options.setdefault("iterations", getattr(own, "iterations", solver.iterations))
-        v = _core.Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
+        v = viewer_module().Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
                          gravity=sim.gravity, **options)
     before_step = _scene_motion(sim)
     if before_step is not None:
@@ -137,7 +161,7 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
 
 
 def _model_viewer(model: _core.Model, state: "_core.State | None", stepper: "_core.Integrator | None",
-                  **options: Any) -> "_core.Viewer":
+                  **options: Any) -> "csb._viewer.Viewer":
     """A viewer on a Model and State: the stepper's settings for a PbdStepper (grabbing on), else
     the Integrator itself; gravity the PbdStepper's, else (0, -9.81, 0) m/s²."""
     if state is None:
@@ -149,12 +173,12 @@ def _model_viewer(model: _core.Model, state: "_core.State | None", stepper: "_co
     options.setdefault("title", "csb - model")
     if stepper is None or isinstance(stepper, _core.PbdStepper):
         settings = (stepper or _core.PbdStepper()).settings
-        return _core.Viewer(model, state, settings, **options)
+        return viewer_module().Viewer(model, state, settings, **options)
     gravity = options.pop("gravity", (0.0, -9.81, 0.0))
-    return _core.Viewer(model, state, stepper, gravity=gravity, **options)
+    return viewer_module().Viewer(model, state, stepper, gravity=gravity, **options)
 
 
-def _finish(v: "_core.Viewer", method: str | None, camera: CameraPose | None) -> "_core.Viewer":
+def _finish(v: "csb._viewer.Viewer", method: str | None, camera: CameraPose | None) -> "csb._viewer.Viewer":
     if method is not None:
         try:
             v.method = method

@@ -2,9 +2,6 @@
 // arrays of the (immutable) Model are zero-copy, read-only views. Parameters are keyword
 // arguments in SI units.
 #include "bindings.hpp"
-#ifdef CSB_HAS_VIEWER
-#include "viewer.hpp"
-#endif
 
 using namespace csb;
 using namespace csb::python;
@@ -64,10 +61,11 @@ PYBIND11_MODULE(_core, m) {
     d["sundials_klu"] = b.sundials_klu;
     d["compiler"] = b.compiler;
     d["simd"] = b.simd;
-#ifdef CSB_HAS_VIEWER
-    d["viewer"] = "built";
-#else
+    // csb._viewer, a module of its own, says whether it loads (csb.viewer_missing()).
+#ifdef CSB_VIEWER_MISSING
     d["viewer"] = std::string("not built: ") + CSB_VIEWER_MISSING;
+#else
+    d["viewer"] = "built";
 #endif
     return d;
   }, "Versions of csb and of the libraries it was built against, and whether the viewer was built.");
@@ -83,7 +81,4 @@ PYBIND11_MODULE(_core, m) {
   bind_projective(m);
   bind_metrics(m);
   bind_kernels(m);
-#ifdef CSB_HAS_VIEWER
-  bind_viewer(m);  // after the types it takes, so that its signatures name them
-#endif
 }

@@ -1,12 +1,12 @@
-// csb._core.Viewer — the OpenGL viewer from Python (built when the viewer's libraries were found;
-// see src/viewer/CMakeLists.txt).
-#include "viewer.hpp"
-
+// csb._viewer — the OpenGL viewer from Python, a module of its own over the csb library that
+// csb._core uses (built when the viewer's libraries were found; see src/viewer/CMakeLists.txt).
+// It takes csb._core's types (Model, State, Integrator, PbdSettings) and raises its exceptions.
 #include "bindings.hpp"
 #include "int_arg.hpp"
 
 #include "csb/methods/registry.hpp"
 #include "viewer/capture.hpp"
+#include "viewer/command.hpp"
 #include "viewer/viewer.hpp"
 
 #include <pybind11/eigen.h>
@@ -71,7 +71,18 @@ csb::viewer::ViewerOptions viewer_options(IntArg width, IntArg height, bool offs
 
 }  // namespace
 
-void bind_viewer(py::module_& m) {
+PYBIND11_MODULE(_viewer, m) {
+  m.doc() = "csb's OpenGL viewer: a window, or offscreen rendering into images and MP4";
+  // csb._core's types first: the signatures below name them, and its exception translator
+  // turns csb's errors raised here into csb.Error and its subclasses.
+  py::module_::import("csb._core");
+  m.def("command", [](const std::vector<std::string>& args) {
+    std::vector<const char*> argv{"csb-view"};
+    for (const std::string& a : args) argv.push_back(a.c_str());
+    py::gil_scoped_release unlocked;
+    return csb::viewer::command(static_cast<int>(argv.size()), argv.data());
+  }, py::arg("args"), "Runs the csb-view command on args (without the program's name); returns its exit status.");
+
   using csb::viewer::Camera;
   py::class_<Camera>(m, "Camera", "The viewer's orbit camera (m, rad; pixels from the top-left corner).")
       .def_property("target", [](const Camera& c) { return Vec3(c.target); },

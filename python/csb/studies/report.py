@@ -29,6 +29,7 @@ import argparse
 import ast
 import datetime
 import hashlib
+import importlib.util
 import json
 import os
 import shutil
@@ -245,7 +246,11 @@ def run_study_files(files: list[Path], out: Path) -> list[StudySection]:
     sections = []
     cluster = client = None
     try:
-        if any(pending(f) for f in files):
+        if not any(pending(f) for f in files):
+            pass
+        elif importlib.util.find_spec("dask") is None:
+            print("[report] Dask (csb's 'study' extra) is not installed: the studies run in this process", flush=True)
+        else:
             from dask.distributed import Client, LocalCluster
 
             cluster = LocalCluster(n_workers=PARALLEL, threads_per_worker=1, processes=True, dashboard_address=":0",

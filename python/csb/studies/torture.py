@@ -492,14 +492,14 @@ def render_video(scene: TortureScene, frames: np.ndarray, out: str | Path, *, wi
     True) returns) offscreen with the viewer and writes ``<out>/<scene>.mp4`` (ffmpeg) and the
     last frame as ``<out>/<scene>_NNNNN.png``. Returns the viewer's capture record (video, its
     note, images). Needs the viewer in the build (csb.view's viewer_available)."""
-    from ..view import _require_viewer
+    from ..view import viewer_module
 
-    _require_viewer()
+    Viewer = viewer_module().Viewer
     frames = np.asarray(frames, float)
     state = scene.model.initial_state()
     state.x = frames[0]
-    v = _core.Viewer(scene.model, state, _Replay(frames), width=width, height=height, offscreen=True, overlay=False,
-                     title=f"csb - {scene.name}", gravity=G)
+    v = Viewer(scene.model, state, _Replay(frames), width=width, height=height, offscreen=True, overlay=False,
+               title=f"csb - {scene.name}", gravity=G)
     try:
         return v.capture(frames=len(frames) - 1, directory=str(out), every=len(frames), prefix=scene.name, video=True)
     finally:
