@@ -10,7 +10,9 @@
 #    GLFW or libepoxy library and no Eigen header is left;
 # 3. an unprivileged user installs the wheel with its test extra into a new virtual environment,
 #    runs a bundled scene with `csb run`, checks that the viewer reports what it lacks, and runs
-#    the quick tests (pytest -m "not slow") from a copy of the sources against the installed wheel.
+#    the quick tests (pytest -m "not slow") from a copy of the sources against the installed wheel;
+# 4. installs the display libraries the wheel leaves to the system (X11, OpenGL, EGL, Mesa) and
+#    renders frames of a scene offscreen with the wheel's viewer.
 #
 # Step 2 removes system packages, so the script runs only where that is wanted: a fresh root, a
 # container or a throw-away virtual machine (--disposable). Debian/Ubuntu, as root.
@@ -23,6 +25,8 @@ if [ "${1:-}" != "--disposable" ]; then
 fi
 [ "$(id -u)" -eq 0 ] || { echo "$0: needs root (it installs and purges system packages)" >&2; exit 2; }
 log() { printf '\033[1m[check_wheel]\033[0m %s\n' "$*" >&2; }
+# What the wheel's viewer needs of the system (csb.view says the same when it cannot load).
+VIEWER_PACKAGES="libx11-6 libgl1 libegl1 libegl-mesa0 libgl1-mesa-dri"
 
 packages() { dpkg-query -W -f='${db:Status-Abbrev} ${Package}\n' | awk '$1 == "ii" {print $2}' | sort; }
 before=$(mktemp); packages > "$before"
@@ -63,3 +67,15 @@ runuser -u "$user" -- env -C "$home" bash -euo pipefail -c '
   ../env/bin/python -m pytest -q -p no:cacheprovider -m "not slow"
 '
 log "the wheel installs, runs a scene and passes the quick tests on a machine without csb's system libraries"
+
+# 4. The viewer, the wheel's optional part, once the display libraries it leaves to the system are
+#    there (X11 for GLFW; OpenGL and EGL with Mesa's software renderer, which libepoxy loads).
+log "installing the system's X11, OpenGL and EGL libraries for the viewer: $VIEWER_PACKAGES"
+# shellcheck disable=SC2086 # one package a word
+DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $VIEWER_PACKAGES >/dev/null
+runuser -u "$user" -- env -C "$home" bash -euo pipefail -c '
+  env/bin/python -c "import csb; assert csb.viewer_available(), csb.viewer_missing()"
+  env/bin/csb render cloth_drop --frames 3 --size 320x240 --out frames --no-video
+  ls frames
+'
+log "the wheel's viewer renders once the system has X11, OpenGL and EGL"

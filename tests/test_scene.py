@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import os
 import subprocess
 import sys
 import textwrap
@@ -324,8 +325,14 @@ def test_the_readme_command_line_examples_run_as_written(tmp_path):
     exe = Path(sys.executable).parent / "csb"
     commands = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.startswith("csb ")]
     assert len(commands) == 4
+    # `csb render` needs the viewer: where it cannot load (a wheel without the system's display
+    # libraries), that command says so, in one line, and the others run.
+    viewer = csb.viewer_available() or os.environ.get("CSB_REQUIRE_VIEWER") == "1"
     for argv in commands:
         r = subprocess.run([exe, *argv[1:]], capture_output=True, text=True, cwd=tmp_path, timeout=300)
+        if argv[1] == "render" and not viewer:
+            assert r.returncode == 2 and r.stderr.count("\n") == 1 and "the viewer" in r.stderr, r.stderr
+            continue
         assert r.returncode == 0, (argv, r.stderr)
     assert (tmp_path / "out" / "cloth_drop" / "cloth_drop.usd").exists()
-    assert (tmp_path / "out" / "cloth_drop" / "frames" / "frame_00059.png").exists()
+    assert (tmp_path / "out" / "cloth_drop" / "frames" / "frame_00059.png").exists() or not viewer

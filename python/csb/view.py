@@ -64,8 +64,9 @@ def _viewer_or_why() -> tuple[ModuleType | None, str]:
     try:
         return importlib.import_module("csb._viewer"), ""
     except ImportError as e:  # a wheel's viewer on a machine without the display libraries it uses
-        return None, (f"the viewer cannot load: {e}. It needs the system's X11 and OpenGL libraries "
-                      "(on Debian/Ubuntu: apt-get install libx11-6 libgl1 libegl1); the rest of csb works without them")
+        return None, (f"the viewer cannot load: {e}. It needs the system's X11, OpenGL and EGL libraries (on "
+                      "Debian/Ubuntu: apt-get install libx11-6 libgl1 libegl1 libegl-mesa0 libgl1-mesa-dri); the rest "
+                      "of csb works without them")
 
 
 def viewer_available() -> bool:
