@@ -102,6 +102,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     d.inv_den.assign(xpbd ? m : 0, 0);
     fill(d.alpha, a_distance_, order);
     fill(d.gamma, g_distance_, order);
+    d.damped = any_damping(d.gamma);
     d.lambda.assign(xpbd ? m : 0, 0);
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = order[c], i = b.particles[o][0], j = b.particles[o][1];
@@ -132,6 +133,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     f.k.resize(xpbd ? 0 : m);
     fill(f.alpha, a, order);
     fill(f.gamma, g, order);
+    f.damped = any_damping(f.gamma);
     f.lambda.assign(xpbd ? m : 0, 0);
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = order[c];

@@ -136,8 +136,7 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
     }
     if constexpr (M == Method::Xpbd) {
       if (independent) {
-#pragma omp simd
-        for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
+        distance_xpbd_range(d, begin, end, r, o, x);
       } else {
         for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
       }

@@ -15,7 +15,9 @@
 #include "csb/model.hpp"
 #include "csb/types.hpp"
 
+#include <algorithm>
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -28,6 +30,7 @@ struct ColouredDistance {
   std::vector<Real> ci, cj;          // PBD, Jakobsen: k w_i/(w_i + w_j), k w_j/(w_i + w_j); XPBD: w_i, w_j
   std::vector<Real> alpha, gamma, inv_den;  // XPBD: α̃, γ, 1/((1 + γ)(w_i + w_j) + α̃) (0: not projected)
   std::vector<Real> lambda;          // XPBD
+  bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
 };
 
 // Bending (a, b, c, d) or tet volume (p0, p1, p2, p3).
@@ -38,6 +41,7 @@ struct ColouredFour {
   std::vector<Real> k;               // PBD, Jakobsen
   std::vector<Real> alpha, gamma;    // XPBD
   std::vector<Real> lambda;
+  bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
   // Bending with PBD or Jakobsen, Gauss-Seidel, exact square root: the distance constraint on
   // each element's edge (a, b), when the model has one, projected by the same kernel just before
   // the bending constraint (see PbdStepper::build_coloured); empty otherwise. Its rest length
@@ -51,6 +55,11 @@ struct ColouredAttachments {
   std::vector<std::array<Real, 3>> target;  // m
   std::vector<Real> w, k, alpha, gamma, lambda;
 };
+
+// Whether some damping coefficient γ is not +0 (ColouredDistance::damped, ColouredFour::damped).
+inline bool any_damping(const std::vector<Real>& gamma) {
+  return std::any_of(gamma.begin(), gamma.end(), [](Real g) { return g != 0 || std::signbit(g); });
+}
 
 struct ColouredBatches {
   std::uint64_t model_id = 0;        // the model they were built from

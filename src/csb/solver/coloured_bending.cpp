@@ -25,19 +25,19 @@ namespace csb {
 
 namespace {
 
-template <bool Xpbd>
+template <bool Xpbd, bool Damped>
 CSB_ATAN2_INLINE void blocks(ColouredFour& b, Index begin, Index end, const Real* r, Real* o, const Real* x) {
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock)
-    bending_block<Xpbd>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
+    bending_block<Xpbd, Damped>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
 }
 
 #if CSB_HAS_AVX2_ROWS
 // The AVX2 copy also gathers and scatters four constraints at a time in AVX2 registers
 // (csb/avx2_rows.hpp); a block's last m % 4 constraints go one at a time.
-template <bool Xpbd>
+template <bool Xpbd, bool Damped>
 CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
   using namespace avx2;
-  BendingBlock<Xpbd> t;
+  BendingBlock<Xpbd, Damped> t;
   const Index m4 = m - m % 4;
   for (Index k = 0; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
@@ -46,14 +46,14 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
       for (int l = 0; l < 4; ++l) {
         const Index i = 3 * q[l][s];
         v[l] = load_xyz(r + i);
-        if constexpr (Xpbd) d[l] = _mm256_sub_pd(v[l], load_xyz(x + i));
+        if constexpr (Damped) d[l] = _mm256_sub_pd(v[l], load_xyz(x + i));
       }
       __m256d ex, ey, ez;
       rows(v[0], v[1], v[2], v[3], ex, ey, ez);
       _mm256_store_pd(&t.P[3 * s][k], ex);
       _mm256_store_pd(&t.P[3 * s + 1][k], ey);
       _mm256_store_pd(&t.P[3 * s + 2][k], ez);
-      if constexpr (Xpbd) {
+      if constexpr (Damped) {
         rows(d[0], d[1], d[2], d[3], ex, ey, ez);
         _mm256_store_pd(&t.X[3 * s][k], ex);
         _mm256_store_pd(&t.X[3 * s + 1][k], ey);
@@ -94,10 +94,12 @@ CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, Index begin, Index 
                                  const Real* x) {
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
     const Index m = std::min(kBendingBlock, end - c0);
-    if (xpbd)
-      block_rows<true>(b, c0, m, r, o, x);
+    if (xpbd && b.damped)
+      block_rows<true, true>(b, c0, m, r, o, x);
+    else if (xpbd)
+      block_rows<true, false>(b, c0, m, r, o, x);
     else
-      block_rows<false>(b, c0, m, r, o, x);
+      block_rows<false, false>(b, c0, m, r, o, x);
   }
 }
 
@@ -123,10 +125,12 @@ void blocks_base(ColouredFour& b, bool xpbd, Index begin, Index end, const Real*
 #if CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
   blocks_avx2(b, xpbd, begin, end, r, o, x);
 #else
-  if (xpbd)
-    blocks<true>(b, begin, end, r, o, x);
+  if (xpbd && b.damped)
+    blocks<true, true>(b, begin, end, r, o, x);
+  else if (xpbd)
+    blocks<true, false>(b, begin, end, r, o, x);
   else
-    blocks<false>(b, begin, end, r, o, x);
+    blocks<false, false>(b, begin, end, r, o, x);
 #endif
 }
 
@@ -192,6 +196,7 @@ void set_kernel_isa(const std::string& isa) {
 
 void project_bending_coloured(ColouredFour& b, bool xpbd, bool independent, Real* p, const Real* x) {
   const Index m = static_cast<Index>(b.q.size());
+  b.damped = any_damping(b.gamma);
   if (xpbd)
     project_bending_range<true>(b, 0, m, independent, p, p, x);
   else

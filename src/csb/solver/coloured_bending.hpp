@@ -46,19 +46,21 @@ constexpr Index kBendingBlock = 48;
 
 // A block's working arrays. P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint
 // c0 + k (a and b moved by the edge's distance constraint, if projected with the element);
-// G[3 s + e][k]: ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x; Theta: the angle; S: the
-// multiplier step, Δp_s = S w_s ∇_s C.
-template <bool Xpbd>
+// G[3 s + e][k]: ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x, for damping; Theta: the
+// angle; S: the multiplier step, Δp_s = S w_s ∇_s C. Damped: XPBD on a batch with damping
+// (ColouredFour::damped); without, the damping term is zero and X is neither gathered nor read.
+template <bool Xpbd, bool Damped = Xpbd>
 struct BendingBlock {
+  static_assert(Xpbd || !Damped);
   static constexpr Index B = kBendingBlock;
   alignas(64) Real P[12][B], G[12][B], W[4][B];
-  alignas(64) Real X[Xpbd ? 12 : 1][B];
+  alignas(64) Real X[Damped ? 12 : 1][B];
   alignas(64) Real Theta[B], Cos[B], Wgrad[B], S[B];
 };
 
 // 1. Gather constraints c0 + [k0, m) into t, one at a time.
-template <bool Xpbd>
-CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd>& t, const ColouredFour& b, Index c0, Index k0, Index m,
+template <bool Xpbd, bool Damped>
+CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped>& t, const ColouredFour& b, Index c0, Index k0, Index m,
                                      const Real* r, const Real* x) {
   for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
@@ -69,7 +71,7 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd>& t, const ColouredFour& 
       t.P[3 * s + 1][k] = r[i + 1];
       t.P[3 * s + 2][k] = r[i + 2];
       t.W[s][k] = w[s];
-      if constexpr (Xpbd) {
+      if constexpr (Damped) {
         t.X[3 * s][k] = r[i] - x[i];
         t.X[3 * s + 1][k] = r[i + 1] - x[i + 1];
         t.X[3 * s + 2][k] = r[i + 2] - x[i + 2];
@@ -83,8 +85,8 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd>& t, const ColouredFour& 
 // and the polynomials (~100 cycles of latency), and only a short loop body lets the processor
 // overlap that chain across iterations (in a micro-benchmark one fused loop ran at 1.25x the old
 // scalar kernel, the split one at 1.7x).
-template <bool Xpbd>
-CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, Index c0, Index m) {
+template <bool Xpbd, bool Damped>
+CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFour& b, Index c0, Index m) {
   auto& P = t.P;
   auto& G = t.G;
   const auto& W = t.W;
@@ -147,7 +149,7 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
 #pragma omp simd
   for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
   const Real* rest = b.rest.data() + c0;
-  if constexpr (Xpbd) {
+  if constexpr (Damped) {
     const auto& X = t.X;
     const Real* alpha = b.alpha.data() + c0;
     const Real* gamma = b.gamma.data() + c0;
@@ -168,6 +170,22 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
       t.S[k] = move ? dl : Real(0);
       lambda[k] = l + t.S[k];
     }
+  } else if constexpr (Xpbd) {
+    // Every γ is +0: (1 + γ) w|∇C|² is w|∇C|², and γ moved is +0, whose subtraction changes no
+    // value; the same bits as the damped loop.
+    const Real* alpha = b.alpha.data() + c0;
+    Real* lambda = b.lambda.data() + c0;
+#pragma omp simd
+    for (Index k = 0; k < m; ++k) {
+      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
+      const Real wgrad = t.Wgrad[k];
+      const bool move = wgrad > 0;
+      const Real l = lambda[k];
+      const Real den = wgrad + alpha[k];
+      const Real dl = (-violation - alpha[k] * l) / (move ? den : Real(1));
+      t.S[k] = move ? dl : Real(0);
+      lambda[k] = l + t.S[k];
+    }
   } else {
     const Real* kk = b.k.data() + c0;
 #pragma omp simd
@@ -183,8 +201,8 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd>& t, ColouredFour& b, In
 
 // 3. Scatter constraints c0 + [k0, m), one at a time. In place (Gauss-Seidel, o = r): the new
 // positions written, P + S w_s ∇_s C; else (Jacobi) the correction added to o.
-template <bool Xpbd>
-CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd>& t, const ColouredFour& b, Index c0, Index k0, Index m,
+template <bool Xpbd, bool Damped>
+CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped>& t, const ColouredFour& b, Index c0, Index k0, Index m,
                                       bool in_place, Real* o) {
   for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
@@ -198,9 +216,9 @@ CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd>& t, const Coloure
 }
 
 // Constraints c0 + [0, m) as one block, gathered and scattered one constraint at a time.
-template <bool Xpbd>
+template <bool Xpbd, bool Damped = Xpbd>
 CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
-  BendingBlock<Xpbd> t;
+  BendingBlock<Xpbd, Damped> t;
   bending_gather(t, b, c0, 0, m, r, x);
   bending_compute(t, b, c0, m);
   bending_scatter(t, b, c0, 0, m, o == r, o);

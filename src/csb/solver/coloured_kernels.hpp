@@ -205,6 +205,159 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
   o[j + 2] -= dj * nz;
 }
 
+// XPBD over the independent constraints [begin, end) of one colour in gathered blocks, as
+// distance_pbd_blocks: per constraint the operations of distance_xpbd in its order, so the same
+// bits. Damped: the batch has damping (ColouredDistance::damped), and the gather also takes the
+// motion since the sub-step's start, u = (p_i - x_i) - (p_j - x_j); without it every γ is +0,
+// γ moved is +0, and its subtraction changes no value.
+template <bool Damped>
+CSB_INLINE void distance_xpbd_block_s(ColouredDistance& b, Index c0, Index m, Real* dx, Real* dy, Real* dz,
+                                      const Real* ux, const Real* uy, const Real* uz, Real* s) {
+  const Real* rest = b.rest.data() + c0;
+  const std::int8_t* sense = b.sense.data() + c0;
+  const Real* alpha = b.alpha.data() + c0;
+  const Real* gamma = b.gamma.data() + c0;
+  const Real* inv_den = b.inv_den.data() + c0;
+  Real* lambda = b.lambda.data() + c0;
+#pragma omp simd
+  for (Index k = 0; k < m; ++k) {
+    const Real len = std::sqrt(dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k]);
+    const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
+    const Real nx = dx[k] * inv_len, ny = dy[k] * inv_len, nz = dz[k] * inv_len;
+    const Real cl = len - rest[k];
+    const Real l = lambda[k];
+    Real dl;
+    if constexpr (Damped) {
+      const Real g = gamma[k];
+      const Real along = nx * ux[k] + ny * uy[k] + nz * uz[k];
+      const Real moved = g == 0 ? Real(0) : along;
+      dl = (-cl - alpha[k] * l - g * moved) * inv_den[k];
+    } else {
+      dl = (-cl - alpha[k] * l) * inv_den[k];
+    }
+    const Real sn = sense[k];
+    const Real next = l + dl;
+    const Real clamped = sn > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
+    dl = sn == 0 ? dl : clamped - l;
+    dl = len > 0 ? dl : Real(0);
+    lambda[k] = l + dl;
+    s[k] = dl;
+    dx[k] = nx, dy[k] = ny, dz[k] = nz;
+  }
+}
+
+// u = (p_i - x_i) - (p_j - x_j) of constraints c0 + [k0, m), one at a time.
+CSB_INLINE void distance_motion_gather(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* r,
+                                       const Real* x, Real* ux, Real* uy, Real* uz) {
+  for (Index k = k0; k < m; ++k) {
+    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    ux[k] = (r[i] - x[i]) - (r[j] - x[j]);
+    uy[k] = (r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1]);
+    uz[k] = (r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]);
+  }
+}
+
+// XPBD's corrections +w_i Δλ n and -w_j Δλ n of constraints c0 + [k0, m), one at a time.
+CSB_INLINE void distance_xpbd_scatter(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* s,
+                                      const Real* nx, const Real* ny, const Real* nz, Real* o) {
+  for (Index k = k0; k < m; ++k) {
+    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    const Real di = b.ci[c0 + k] * s[k], dj = b.cj[c0 + k] * s[k];
+    o[i] += di * nx[k];
+    o[i + 1] += di * ny[k];
+    o[i + 2] += di * nz[k];
+    o[j] -= dj * nx[k];
+    o[j + 1] -= dj * ny[k];
+    o[j + 2] -= dj * nz[k];
+  }
+}
+
+template <bool Damped>
+CSB_INLINE void distance_xpbd_blocks(ColouredDistance& b, Index begin, Index end, const Real* r, Real* o,
+                                     const Real* x) {
+  constexpr Index B = kDistanceBlock;
+  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  alignas(64) Real ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0);
+    distance_gather(b, c0, 0, m, r, dx, dy, dz);
+    if constexpr (Damped) distance_motion_gather(b, c0, 0, m, r, x, ux, uy, uz);
+    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_xpbd_scatter(b, c0, 0, m, s, dx, dy, dz, o);
+  }
+}
+
+#if CSB_HAS_AVX2_ROWS
+// The XPBD blocks with AVX2 gathers and scatters, four constraints at a time, as
+// distance_pbd_blocks_avx2.
+template <bool Damped>
+__attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistance& b, Index begin, Index end,
+                                                                const Real* r, Real* o, const Real* x) {
+  using namespace avx2;
+  constexpr Index B = kDistanceBlock;
+  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  alignas(64) Real ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0), m4 = m - m % 4;
+    const Index* bi = b.i.data() + c0;
+    const Index* bj = b.j.data() + c0;
+    for (Index k = 0; k < m4; k += 4) {
+      __m256d d[4], u[4];
+      for (int l = 0; l < 4; ++l) {
+        const __m256d pi = load_xyz(r + 3 * bi[k + l]), pj = load_xyz(r + 3 * bj[k + l]);
+        d[l] = _mm256_sub_pd(pi, pj);
+        if constexpr (Damped)
+          u[l] = _mm256_sub_pd(_mm256_sub_pd(pi, load_xyz(x + 3 * bi[k + l])),
+                               _mm256_sub_pd(pj, load_xyz(x + 3 * bj[k + l])));
+      }
+      __m256d rx, ry, rz;
+      rows(d[0], d[1], d[2], d[3], rx, ry, rz);
+      _mm256_store_pd(dx + k, rx);
+      _mm256_store_pd(dy + k, ry);
+      _mm256_store_pd(dz + k, rz);
+      if constexpr (Damped) {
+        rows(u[0], u[1], u[2], u[3], rx, ry, rz);
+        _mm256_store_pd(ux + k, rx);
+        _mm256_store_pd(uy + k, ry);
+        _mm256_store_pd(uz + k, rz);
+      }
+    }
+    distance_gather(b, c0, m4, m, r, dx, dy, dz);
+    if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
+    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    const Real* ci = b.ci.data() + c0;
+    const Real* cj = b.cj.data() + c0;
+    for (Index k = 0; k < m4; k += 4) {
+      const __m256d sk = _mm256_load_pd(s + k);
+      const __m256d nx = _mm256_load_pd(dx + k), ny = _mm256_load_pd(dy + k), nz = _mm256_load_pd(dz + k);
+      const __m256d di = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), dj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
+      const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
+      const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
+      add_rows(o, at_i, _mm256_mul_pd(di, nx), _mm256_mul_pd(di, ny), _mm256_mul_pd(di, nz));
+      add_rows<true>(o, at_j, _mm256_mul_pd(dj, nx), _mm256_mul_pd(dj, ny), _mm256_mul_pd(dj, nz));
+    }
+    distance_xpbd_scatter(b, c0, m4, m, s, dx, dy, dz, o);
+  }
+}
+#endif
+
+// XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2
+// gathers where the processor has them.
+inline void distance_xpbd_range(ColouredDistance& b, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+#if defined(CSB_DISTANCE_AVX2)
+  if (kernels_use_avx2()) {
+    b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
+             : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+    return;
+  }
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+  b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
+           : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+  return;
+#endif
+  b.damped ? distance_xpbd_blocks<true>(b, begin, end, r, o, x) : distance_xpbd_blocks<false>(b, begin, end, r, o, x);
+}
+
 // Dihedral bending: csb/solver/coloured_bending.hpp (SIMD blocks, polynomial atan2).
 
 // A scalar kernel of constraints/ called as one out-of-line function with every call in it
