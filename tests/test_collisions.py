@@ -66,10 +66,14 @@ def test_a_cloth_draped_on_a_sphere_stays_outside(method):
     state = model.initial_state()
     stepper = csb.PbdStepper(method=method, dt=1 / 60, substeps=2, iterations=10)
     sphere = model.colliders[0]
-    for _ in range(90):
+    for frame in range(90):
         stepper.step(model, state)
         assert cs.signed_distance(sphere, state.x).min() >= -ROUND_OFF
-    assert stepper.contacts()["active"] >= 4  # draped: the middle of the cloth rests on the sphere
+        if frame >= 30:  # draped over the last second: always touching (XPBD's stiff cloth bounces on it)
+            assert stepper.contacts()["active"] >= 1
+    # the middle of the cloth rests on top of the sphere
+    middle = np.argmin(np.linalg.norm(np.asarray(model.rest_positions)[:, [0, 2]], axis=1))
+    assert abs(cs.signed_distance(sphere, state.x[middle:middle + 1])[0]) <= 1e-6 and state.x[middle, 1] > 0.49
     assert stepper.contacts()["max_penetration"] <= ROUND_OFF
 
 

@@ -257,6 +257,80 @@ def test_xpbd_multipliers_come_back_in_the_model_order():
         assert np.abs(a - b).max() <= 1e-9 * np.abs(b).max(), batch
 
 
+def _xpbd_fused_reference(model, x, v, h, gamma_distance, gamma_bending):
+    """One XPBD Gauss-Seidel sweep of one sub-step (no gravity: p = x + h v) with csb.kernels'
+    scalar projections, in the coloured order with each bending element carrying its edge: per
+    group, the distance constraints no element carries, colour by colour, then the bending
+    elements colour by colour, each projecting the first bilateral distance constraint on its
+    edge (a, b), if not taken by an earlier element, just before itself."""
+    K = csb.kernels
+    p, start = x + h * v, x.copy()
+    w = np.asarray(model.inv_mass)
+    d, bend = model.distance, model.bending
+    pairs, rest, sense = np.asarray(d["particles"]), np.asarray(d["rest_length"]), np.asarray(d["sense"])
+    alpha_d = np.asarray(d["compliance"]) / h**2
+    quads, theta0, alpha_b = np.asarray(bend["particles"]), np.asarray(bend["rest_angle"]), np.asarray(bend["compliance"]) / h**2
+    dc, bc = model.colouring("distance"), model.colouring("bending")
+    first = {}
+    for o in range(len(pairs)):
+        if sense[o] == 0:
+            first.setdefault(tuple(sorted(pairs[o])), o)
+    carried = {}
+    for c in bc["order"]:
+        o = first.get(tuple(sorted(quads[c][:2])))
+        if o is not None and o not in carried.values():
+            carried[c] = o
+
+    def distance(o):
+        i, j = pairs[o]
+        p[i], p[j], _, _ = K.project_distance_xpbd(p[i], p[j], w[i], w[j], rest[o], alpha_d[o], 0.0, gamma_distance,
+                                                  start[i], start[j])
+
+    def bending(c):
+        if c in carried:
+            distance(carried[c])
+        q = quads[c]
+        out = K.project_bending_xpbd(p[q[0]], p[q[1]], p[q[2]], p[q[3]], w[q], theta0[c], alpha_b[c], 0.0,
+                                     gamma_bending, start[q])
+        for s in range(4):
+            p[q[s]] = out[s]
+
+    own = set(range(len(pairs))) - set(carried.values())
+    for g in range(len(dc["group_colours"]) - 1):
+        for k in range(dc["group_colours"][g], dc["group_colours"][g + 1]):
+            for o in dc["order"][dc["colour_offsets"][k]:dc["colour_offsets"][k + 1]]:
+                if o in own:
+                    distance(o)
+        for k in range(bc["group_colours"][g], bc["group_colours"][g + 1]):
+            for c in bc["order"][bc["colour_offsets"][k]:bc["colour_offsets"][k + 1]]:
+                bending(c)
+    return p
+
+
+@pytest.mark.parametrize("damping", [0.0, 0.3])
+def test_xpbd_bending_elements_carry_their_edge_in_gauss_seidel(damping):
+    """XPBD's coloured Gauss-Seidel projects each bending element's edge inside the element's
+    blocked kernel: the same as the scalar kernels in that order, to round-off (the blocked
+    bending kernel is a few units in the last place from the scalar one; the order before this
+    pairing was 6 mm away), with and without damping, whose motion p - x the element then reads
+    after its edge's correction."""
+    b = csb.ModelBuilder()
+    # (a bending stiffness makes the bending constraints; XPBD reads their compliance)
+    b.add_mesh(csb.cloth_grid(1.0, 1.0, 8, 8), mass=0.2, stretch_compliance=1e-5, bending_stiffness=0.5,
+               bending_compliance=0.5)
+    model = b.build()
+    state = model.initial_state()
+    state.v = np.random.default_rng(3).normal(scale=0.5, size=(model.num_particles, 3))
+    x, v, h = np.asarray(state.x).copy(), np.asarray(state.v).copy(), 1 / 60
+    csb.PbdStepper(method="xpbd", dt=h, substeps=1, iterations=1, gravity=(0, 0, 0), threads=1,
+                   xpbd_damping=damping).step(model, state)
+    (gamma_d,) = set(np.asarray(model.distance["compliance"]) * damping / h)  # γ = α β / h
+    (gamma_b,) = set(np.asarray(model.bending["compliance"]) * damping / h)
+    expected = _xpbd_fused_reference(model, x, v, h, gamma_d, gamma_b)
+    assert np.abs(np.asarray(state.x) - x).max() > 0.01  # the sweep moved the cloth
+    assert np.abs(np.asarray(state.x) - expected).max() <= 1e-13
+
+
 def test_threads_and_ordering_are_validated():
     with pytest.raises(csb.ParameterError, match=r"threads must be an integer in \[0, 1024\], got -1"):
         csb.PbdStepper(threads=-1)
@@ -345,7 +419,7 @@ def test_a_fused_step_is_the_same_as_its_sub_steps_one_at_a_time(method, front_e
     assert model.num_parts == 8
     later = 0
     for g, dt, steps in ((-9.81, 1 / 60, 20), (-1e63, 0.1, 100), (-1e65, 0.1, 100), (-1e74, 0.1, 100),
-                         (-1e76, 0.1, 100), (-1e77, 0.1, 100)):
+                         (-5e74, 0.1, 100), (-1e76, 0.1, 100), (-1e77, 0.1, 100)):
         out = []
         for threads in (1, 2):
             for held in (False, True):

@@ -383,6 +383,7 @@ class PbdStepper : public Integrator {
   ColouredBatches coloured_;             // the batches in colour order (coloured ordering)
   struct {
     std::vector<Index> distance, bending, volume, attachment;
+    std::vector<Index> distance_paired;  // the distance constraint projected with each bending element, or -1
   } coloured_order_;                     // XPBD: the colourings' orders, to put multipliers back
   int threads_used_ = 1;
   std::vector<Index> bad_;               // per thread: first non-finite position of its range (Fused)

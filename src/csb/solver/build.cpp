@@ -20,7 +20,9 @@ std::size_t ColouredBatches::bytes() const {
   for (const ColouredFour* f : {&bending, &volume})
     s += capacity_bytes(f->q) + capacity_bytes(f->rest) + capacity_bytes(f->w) + capacity_bytes(f->k) +
          capacity_bytes(f->alpha) + capacity_bytes(f->gamma) + capacity_bytes(f->lambda) +
-         capacity_bytes(f->pair_rest) + capacity_bytes(f->pair_ca) + capacity_bytes(f->pair_cb);
+         capacity_bytes(f->pair_rest) + capacity_bytes(f->pair_ca) + capacity_bytes(f->pair_cb) +
+         capacity_bytes(f->pair_alpha) + capacity_bytes(f->pair_gamma) + capacity_bytes(f->pair_inv_den) +
+         capacity_bytes(f->pair_lambda);
   const Colouring& dc = distance_colours;
   s += capacity_bytes(dc.order) + capacity_bytes(dc.colour_offsets) + capacity_bytes(dc.serial_colours) +
        capacity_bytes(dc.group_colours);
@@ -40,11 +42,12 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     out.resize(order.size());
     for (std::size_t c = 0; c < order.size(); ++c) out[c] = from[order[c]];
   };
-  // PBD and Jakobsen Gauss-Seidel (exact square root): each bending element (a, b, c, d) takes the
-  // distance constraint on its edge (a, b), when there is one (bilateral, not yet taken by
-  // another element; elements in colour order): one kernel projects it and then the bending
-  // constraint, four particles moved in and out once instead of six. (Another Gauss-Seidel
-  // order: within a bending colour, its elements' edges, then its bending constraints.)
+  // Gauss-Seidel (PBD and Jakobsen with the exact square root, and XPBD): each bending element
+  // (a, b, c, d) takes the distance constraint on its edge (a, b), when there is one (bilateral,
+  // not yet taken by another element; elements in colour order): one kernel projects it and then
+  // the bending constraint, four particles moved in and out once instead of six. (Another
+  // Gauss-Seidel order: within a bending colour, its elements' edges, then its bending
+  // constraints.)
   const DistanceBatch& db = model.distance;
   const BendingBatch& bb = model.bending;
   // PBD's shares of distance constraint o's correction for its particles i and j: k w / Σw.
@@ -53,7 +56,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     const Real wsum = w[i] + w[j];
     return {wsum > 0 ? k_distance_[o] * w[i] / wsum : 0, wsum > 0 ? k_distance_[o] * w[j] / wsum : 0};
   };
-  const bool pairs = !xpbd && settings_.solver == Solver::GaussSeidel && !settings_.sqrt_approximation &&
+  const bool pairs = settings_.solver == Solver::GaussSeidel && (xpbd || !settings_.sqrt_approximation) &&
                      bb.size() > 0 && db.size() > 0;
   // pair_of[c]: the distance constraint (model index) of the element at bending colour position c, or -1
   std::vector<Index> pair_of(pairs ? static_cast<std::size_t>(bb.size()) : 0, -1);
@@ -151,17 +154,30 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     f.pair_rest.assign(m, 0);
     f.pair_ca.assign(m, 0);
     f.pair_cb.assign(m, 0);
+    f.pair_alpha.assign(xpbd ? m : 0, 0);
+    f.pair_gamma.assign(xpbd ? m : 0, 0);
+    f.pair_inv_den.assign(xpbd ? m : 0, 0);
+    f.pair_lambda.assign(xpbd ? m : 0, 0);
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = pair_of[c];
       if (o < 0) continue;
-      const auto [ci, cj] = pbd_shares(o);
-      // the kernel takes d = a - b: Δa = -ca s d, Δb = +cb s d (the constraint's own
-      // orientation, d = p_i - p_j, gives the same values)
+      const Index i = db.particles[o][0], j = db.particles[o][1];
+      const auto [ci, cj] = xpbd ? std::array<Real, 2>{w[i], w[j]} : pbd_shares(o);
+      if (xpbd) {
+        const Real wsum = w[i] + w[j];
+        f.pair_alpha[c] = a_distance_[o];
+        f.pair_gamma[c] = g_distance_[o];
+        f.pair_inv_den[c] = wsum > 0 ? 1 / ((1 + f.pair_gamma[c]) * wsum + f.pair_alpha[c]) : 0;
+      }
+      // the kernel takes d = a - b: PBD Δa = -ca s d, Δb = +cb s d, XPBD Δa = +ca Δλ n,
+      // Δb = -cb Δλ n with n = d/|d| (the constraint's own orientation, d = p_i - p_j, gives
+      // the same values: d, n and the damping's relative motion change sign exactly)
       const bool forward = db.particles[o][0] == f.q[c][0];
       f.pair_rest[c] = db.rest_length[o];
       f.pair_ca[c] = forward ? ci : cj;
       f.pair_cb[c] = forward ? cj : ci;
     }
+    f.damped = f.damped || any_damping(f.pair_gamma);
   }
   four(cb.volume, model.volume.particles, model.volume.rest_volume, model.volume.colours, k_volume_, a_volume_, g_volume_);
   {
@@ -190,6 +206,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   if (settings_.solver != Solver::GaussSeidel) jacobi_counts(model, cb.count);
   if (xpbd) {
     coloured_order_.distance = cb.distance_colours.order;
+    coloured_order_.distance_paired = pairs ? pair_of : std::vector<Index>{};
     coloured_order_.bending = model.bending.colours.order;
     coloured_order_.volume = model.volume.colours.order;
     coloured_order_.attachment = model.attachments.colours.order;

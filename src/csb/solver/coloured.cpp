@@ -23,9 +23,9 @@ using namespace stepper_detail;
 //
 // Threads share the work by groups (see Colouring): a sweep is
 //  1. the parts' interiors, each part a task: one thread projects every batch's colours of that
-//     part (distance, then bending, volume, attachments; with PBD or Jakobsen Gauss-Seidel a
-//     bending element also projects the distance constraint on its edge, just before itself,
-//     see build_coloured), no barrier between colours;
+//     part (distance, then bending, volume, attachments; with Gauss-Seidel a bending element
+//     also projects the distance constraint on its edge, just before itself, see
+//     build_coloured), no barrier between colours;
 //  2. the interfaces (constraints between parts i and i + 1), each a task, in the model's
 //     interface phases, whose interfaces share no particle (one phase for a cloth);
 //  3. the rest, colour by colour, threads sharing ranges of a colour (`kChunk`) with a barrier
@@ -250,12 +250,13 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   // XPBD: group g's multipliers (of every batch) set to zero.
   const auto zero_group_multipliers = [&](Index g) {
     const auto zero = [g](const Colouring& c, std::vector<Real>& lambda) {
-      if (static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
+      if (lambda.empty() || static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
       std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
                 lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], 0.0);
     };
     zero(coloured_.distance_colours, coloured_.distance.lambda);
     zero(model.bending.colours, coloured_.bending.lambda);
+    zero(model.bending.colours, coloured_.bending.pair_lambda);
     zero(model.volume.colours, coloured_.volume.lambda);
     zero(model.attachments.colours, coloured_.attachments.lambda);
   };

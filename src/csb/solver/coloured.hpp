@@ -42,12 +42,14 @@ struct ColouredFour {
   std::vector<Real> alpha, gamma;    // XPBD
   std::vector<Real> lambda;
   bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
-  // Bending with PBD or Jakobsen, Gauss-Seidel, exact square root: the distance constraint on
-  // each element's edge (a, b), when the model has one, projected by the same kernel just before
-  // the bending constraint (see PbdStepper::build_coloured); empty otherwise. Its rest length
-  // (m), and the shares of the correction of a and of b (k w / Σw; 0 and 0 where the element
-  // has no distance constraint).
+  // Bending with Gauss-Seidel (PBD and Jakobsen with the exact square root, and XPBD): the
+  // distance constraint on each element's edge (a, b), when the model has one, projected by the
+  // same kernel just before the bending constraint (see PbdStepper::build_coloured); empty
+  // otherwise. Its rest length (m), and the shares of the correction of a and of b: PBD's
+  // k w / Σw, XPBD's w (0 and 0 where the element has no distance constraint). XPBD also keeps
+  // the edge's α̃, γ, 1/((1 + γ) Σw + α̃) (0: none) and multiplier, at the element's position.
   std::vector<Real> pair_rest, pair_ca, pair_cb;
+  std::vector<Real> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
 };
 
 struct ColouredAttachments {

@@ -46,7 +46,7 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
       for (int l = 0; l < 4; ++l) {
         const Index i = 3 * q[l][s];
         v[l] = load_xyz(r + i);
-        if constexpr (Damped) d[l] = _mm256_sub_pd(v[l], load_xyz(x + i));
+        if constexpr (Damped) d[l] = load_xyz(x + i);
       }
       __m256d ex, ey, ez;
       rows(v[0], v[1], v[2], v[3], ex, ey, ez);

@@ -12,9 +12,9 @@
 //  2. compute: a branch-free loop over the block that the compiler runs in SIMD lanes (`omp
 //     simd`; SSE2 in the portable build), the angle by atan2_rational (csb/atan2.hpp) instead of
 //     libm's atan2; a degenerate pair (zero-length edge, zero-area triangle) is masked by
-//     selects: its gradient and so its correction are zero. With PBD or Jakobsen Gauss-Seidel
-//     the distance constraint on the element's edge (a, b) is projected first, on the block's
-//     copy of a and b (ColouredFour::pair_rest; PbdStepper::build_coloured);
+//     selects: its gradient and so its correction are zero. With Gauss-Seidel (PBD, Jakobsen,
+//     XPBD) the distance constraint on the element's edge (a, b) is projected first, on the
+//     block's copy of a and b (ColouredFour::pair_rest; PbdStepper::build_coloured);
 //  3. scatter: Gauss-Seidel (o = r) writes the four new positions, the block's copy plus the
 //     correction (the same sum as adding the correction to the particle, which no other
 //     constraint of the colour has moved meanwhile); Jacobi adds the twelve corrections (the
@@ -46,8 +46,9 @@ constexpr Index kBendingBlock = 48;
 
 // A block's working arrays. P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint
 // c0 + k (a and b moved by the edge's distance constraint, if projected with the element);
-// G[3 s + e][k]: ∇_s C; W[s][k] its inverse mass; X: XPBD's p - x, for damping; Theta: the
-// angle; S: the multiplier step, Δp_s = S w_s ∇_s C. Damped: XPBD on a batch with damping
+// G[3 s + e][k]: ∇_s C; W[s][k] its inverse mass; X: XPBD's x, the positions at the sub-step's
+// start, for damping (the motion p - x is taken after the edge's projection); Theta: the angle;
+// S: the multiplier step, Δp_s = S w_s ∇_s C. Damped: XPBD on a batch with damping
 // (ColouredFour::damped); without, the damping term is zero and X is neither gathered nor read.
 template <bool Xpbd, bool Damped = Xpbd>
 struct BendingBlock {
@@ -72,9 +73,9 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped>& t, const Colour
       t.P[3 * s + 2][k] = r[i + 2];
       t.W[s][k] = w[s];
       if constexpr (Damped) {
-        t.X[3 * s][k] = r[i] - x[i];
-        t.X[3 * s + 1][k] = r[i + 1] - x[i + 1];
-        t.X[3 * s + 2][k] = r[i + 2] - x[i + 2];
+        t.X[3 * s][k] = x[i];
+        t.X[3 * s + 1][k] = x[i + 1];
+        t.X[3 * s + 2][k] = x[i + 2];
       }
     }
   }
@@ -90,7 +91,47 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
   auto& P = t.P;
   auto& G = t.G;
   const auto& W = t.W;
-  if (!b.pair_rest.empty()) {
+  const auto& X = t.X;
+  if constexpr (Xpbd) {
+    if (!b.pair_rest.empty()) {
+      // The distance constraints on the elements' edges (a, b) first (XPBD, as distance_xpbd:
+      // d = a - b, n = d/|d|, Δλ = (-(|d| - rest) - α̃ λ - γ n·((a - x_a) - (b - x_b))) / ((1 + γ)
+      // Σw + α̃), Δa = +ca Δλ n, Δb = -cb Δλ n; ca = cb = 0 and no multiplier step for an element
+      // without one), into the block's positions of a and b.
+      const Real* rest = b.pair_rest.data() + c0;
+      const Real* ca = b.pair_ca.data() + c0;
+      const Real* cb = b.pair_cb.data() + c0;
+      const Real* alpha = b.pair_alpha.data() + c0;
+      const Real* gamma = b.pair_gamma.data() + c0;
+      const Real* inv_den = b.pair_inv_den.data() + c0;
+      Real* lambda = b.pair_lambda.data() + c0;
+#pragma omp simd
+      for (Index k = 0; k < m; ++k) {
+        const Real dx = P[0][k] - P[3][k], dy = P[1][k] - P[4][k], dz = P[2][k] - P[5][k];
+        const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
+        const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
+        const Real nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
+        const Real cl = len - rest[k];
+        const Real l = lambda[k];
+        Real dl;
+        if constexpr (Damped) {
+          const Real g = gamma[k];
+          const Real along = nx * ((P[0][k] - X[0][k]) - (P[3][k] - X[3][k])) +
+                             ny * ((P[1][k] - X[1][k]) - (P[4][k] - X[4][k])) +
+                             nz * ((P[2][k] - X[2][k]) - (P[5][k] - X[5][k]));
+          const Real moved = g == 0 ? Real(0) : along;
+          dl = (-cl - alpha[k] * l - g * moved) * inv_den[k];
+        } else {
+          dl = (-cl - alpha[k] * l) * inv_den[k];
+        }
+        dl = len > 0 ? dl : Real(0);
+        lambda[k] = l + dl;
+        const Real da = ca[k] * dl, db = cb[k] * dl;
+        P[0][k] += da * nx, P[1][k] += da * ny, P[2][k] += da * nz;
+        P[3][k] -= db * nx, P[4][k] -= db * ny, P[5][k] -= db * nz;
+      }
+    }
+  } else if (!b.pair_rest.empty()) {
     // The distance constraints on the elements' edges (a, b) first (PBD, as distance_pbd:
     // d = a - b, s = (|d| - rest)/|d|, Δa = -ca s d, Δb = +cb s d; ca = cb = 0 for an element
     // without one), into the block's positions of a and b.
@@ -150,7 +191,6 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
   for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
   const Real* rest = b.rest.data() + c0;
   if constexpr (Damped) {
-    const auto& X = t.X;
     const Real* alpha = b.alpha.data() + c0;
     const Real* gamma = b.gamma.data() + c0;
     Real* lambda = b.lambda.data() + c0;
@@ -160,9 +200,9 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
       const Real wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
       const Real g = gamma[k];
-      const Real along = G[0][k] * X[0][k] + G[1][k] * X[1][k] + G[2][k] * X[2][k] + G[3][k] * X[3][k] +
-                         G[4][k] * X[4][k] + G[5][k] * X[5][k] + G[6][k] * X[6][k] + G[7][k] * X[7][k] +
-                         G[8][k] * X[8][k] + G[9][k] * X[9][k] + G[10][k] * X[10][k] + G[11][k] * X[11][k];
+      // the motion since the sub-step's start, p - x, along the gradient
+      Real along = G[0][k] * (P[0][k] - X[0][k]);
+      for (int e = 1; e < 12; ++e) along = along + G[e][k] * (P[e][k] - X[e][k]);
       const Real moved = g == 0 ? Real(0) : along;
       const Real l = lambda[k];
       const Real den = (1 + g) * wgrad + alpha[k];

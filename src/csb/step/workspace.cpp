@@ -5,6 +5,8 @@
 #include "csb/step/internal.hpp"
 #include "csb/solver/coloured.hpp"
 
+#include <algorithm>
+
 namespace csb {
 
 using detail::str;
@@ -89,8 +91,8 @@ void PbdStepper::zero_coloured_multipliers(int share, int shares) {
     const std::int64_t m = static_cast<std::int64_t>(l.size());
     std::fill(l.begin() + m * share / shares, l.begin() + m * (share + 1) / shares, 0.0);
   };
-  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.volume.lambda,
-                               &coloured_.attachments.lambda, &lambda_.balloon})
+  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.bending.pair_lambda,
+                               &coloured_.volume.lambda, &coloured_.attachments.lambda, &lambda_.balloon})
     zero(*l);
   for (std::vector<Real>& l : lambda_.family) zero(l);
 }
@@ -99,14 +101,23 @@ void PbdStepper::zero_coloured_multipliers(int share, int shares) {
 const Multipliers& PbdStepper::multipliers() const {
   if (lambda_stale_) {
     // The coloured batches keep their multipliers in colour order; put them in the model's.
-    const auto scatter = [](std::vector<Real>& out, const std::vector<Real>& in, const std::vector<Index>& order) {
-      out.resize(in.size());
-      for (std::size_t c = 0; c < in.size(); ++c) out[order[c]] = in[c];
+    const auto scatter = [](std::vector<Real>& out, std::size_t size, const std::vector<Real>& in,
+                            const std::vector<Index>& order) {
+      out.resize(size);
+      for (std::size_t c = 0; c < in.size(); ++c)
+        if (order[c] >= 0) out[order[c]] = in[c];
     };
-    scatter(lambda_.distance, coloured_.distance.lambda, coloured_order_.distance);
-    scatter(lambda_.bending, coloured_.bending.lambda, coloured_order_.bending);
-    scatter(lambda_.volume, coloured_.volume.lambda, coloured_order_.volume);
-    scatter(lambda_.attachment, coloured_.attachments.lambda, coloured_order_.attachment);
+    // The distance constraints projected on their own, and those projected with a bending
+    // element (at the element's position; -1 where it has none).
+    const std::vector<Index>& paired = coloured_order_.distance_paired;
+    const std::size_t distances = coloured_.distance.lambda.size() +
+        static_cast<std::size_t>(std::count_if(paired.begin(), paired.end(), [](Index o) { return o >= 0; }));
+    scatter(lambda_.distance, distances, coloured_.distance.lambda, coloured_order_.distance);
+    if (!paired.empty()) scatter(lambda_.distance, distances, coloured_.bending.pair_lambda, paired);
+    scatter(lambda_.bending, coloured_.bending.lambda.size(), coloured_.bending.lambda, coloured_order_.bending);
+    scatter(lambda_.volume, coloured_.volume.lambda.size(), coloured_.volume.lambda, coloured_order_.volume);
+    scatter(lambda_.attachment, coloured_.attachments.lambda.size(), coloured_.attachments.lambda,
+            coloured_order_.attachment);
     lambda_stale_ = false;
   }
   return lambda_;
