@@ -356,7 +356,7 @@ def test_cpp_keeps_a_python_method_alive():
     """The viewer keeps a shared_ptr of the method it steps: a Python method handed to it lives,
     with its Python state, as long as the viewer, and goes with it."""
     if not csb.viewer_available():
-        pytest.skip(f"the viewer was not built: {csb.viewer_missing()}")
+        pytest.skip(f"the viewer is not available: {csb.viewer_missing()}")
     sc = csb.load_scene("pendulum")
     sim = sc.build()
     m = SequentialPbd(sc.solver.dt)
@@ -386,8 +386,8 @@ def offscreen_viewer():
     was not built (fails instead under CSB_REQUIRE_VIEWER=1, as tests/test_viewer.py does)."""
     if not csb.viewer_available():
         if os.environ.get("CSB_REQUIRE_VIEWER") == "1":
-            raise RuntimeError(f"CSB_REQUIRE_VIEWER=1 but the viewer was not built: {csb.viewer_missing()}")
-        pytest.skip(f"the viewer was not built: {csb.viewer_missing()}")
+            raise RuntimeError(f"CSB_REQUIRE_VIEWER=1 but the viewer is not available: {csb.viewer_missing()}")
+        pytest.skip(f"the viewer is not available: {csb.viewer_missing()}")
     opened = []
 
     def open_(scene, **kw):

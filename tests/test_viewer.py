@@ -22,8 +22,8 @@ import csb
 
 if not csb.viewer_available():
     if os.environ.get("CSB_REQUIRE_VIEWER") == "1":
-        raise RuntimeError(f"CSB_REQUIRE_VIEWER=1 but the viewer was not built: {csb.viewer_missing()}")
-    pytest.skip(f"the viewer was not built: {csb.viewer_missing()}", allow_module_level=True)
+        raise RuntimeError(f"CSB_REQUIRE_VIEWER=1 but the viewer is not available: {csb.viewer_missing()}")
+    pytest.skip(f"the viewer is not available: {csb.viewer_missing()}", allow_module_level=True)
 
 BACKGROUND = np.array([219, 224, 232])  # the clear colour, sRGB (0.86, 0.88, 0.91)
 W, H = 320, 240

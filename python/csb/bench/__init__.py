@@ -216,7 +216,8 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
 # What the coloured sweep and the reference cost: ms per frame and frames per second of 128x128 and
 # 256x256 cloths, projections per second by constraint type, one against two threads (also beside a
 # busy core), cost per particle from 1k to 1M particles, memory, a 1024x1024 cloth, the reference's KLU cost.
-COST_PARTS = ("fps", "types", "threads", "busy", "particles", "memory", "big", "klu", "methods", "self-collision")
+COST_PARTS = ("fps", "xpbd", "types", "threads", "busy", "particles", "memory", "big", "klu", "methods",
+              "self-collision")
 
 
 def make_stepper(sim: Simulation, *, substeps: int, iterations: int, threads: int = 0, ordering: str = "coloured",
@@ -273,6 +274,45 @@ def fps_table(sizes: Sequence[int] = (128, 256), *, rounds: int = 5) -> list[dic
                                  spread=(float("nan"), float("nan")), fps=float("nan"),
                                  diverged=str(e).split(":")[0]))
     return rows
+
+
+def xpbd_table(sizes: Sequence[int] = (64, 128, 256), *, rounds: int = 7, threads: int = 2) -> list[dict]:
+    """XPBD's cost against PBD's at equal work: the bundled cloth_grid at n x n, dt = 1/60 s, the same
+    constraints, sub-steps and iterations, `threads` threads. The two steppers take turns within
+    each round (the order alternating), on their own cloths, so that a slow spell of the machine
+    falls on both; ms per frame, medians and min-max of the rounds."""
+    rows = []
+    for n in sizes:
+        frames = max(2, 20 * 128 * 128 // (n * n))
+        for substeps, iterations in ((10, 1), (1, 10)):
+            sides = {}
+            for method in ("pbd", "xpbd"):
+                sim = cloth_simulation(n, iterations=iterations, substeps=substeps)
+                stepper = make_stepper(sim, substeps=substeps, iterations=iterations, threads=threads, method=method)
+                stepper.step(sim.model, sim.state, 2)
+                sides[method] = (stepper, sim.model, sim.state, [])
+            for r in range(rounds):
+                for method in (("pbd", "xpbd") if r % 2 == 0 else ("xpbd", "pbd")):
+                    stepper, model, state, times = sides[method]
+                    times += time_steps(stepper, model, state, steps=frames, rounds=1, warmup=1)
+            row = dict(n=n, substeps=substeps, iterations=iterations, threads_used=sides["xpbd"][0].threads_used)
+            for method, (_, _, _, times) in sides.items():
+                row[method] = statistics.median(times)
+                row[method + "_spread"] = (min(times), max(times))
+            row["ratio"] = row["xpbd"] / row["pbd"]
+            rows.append(row)
+    return rows
+
+
+def format_xpbd_table(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'sub x it':>8} {'threads':>7} {'PBD ms':>8} {'(min-max)':>13} {'XPBD ms':>8} "
+            f"{'(min-max)':>13} {'XPBD/PBD':>8}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['substeps']:>3} x {r['iterations']:<2} {r['threads_used']:>7} "
+                     f"{r['pbd']:>8.3f} {'({:.2f}-{:.2f})'.format(*r['pbd_spread']):>13} {r['xpbd']:>8.3f} "
+                     f"{'({:.2f}-{:.2f})'.format(*r['xpbd_spread']):>13} {r['ratio']:>8.2f}")
+    return "\n".join(lines)
 
 
 def format_fps(rows: Sequence[dict]) -> str:
@@ -563,6 +603,11 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
         print("\ncloth_grid (stretch + shear + bending, 2 pinned corners), dt = 1/60 s: ms per frame and frames per second")
         out["fps"] = fps_table(rounds=rounds)
         print(format_fps(out["fps"]))
+    if "xpbd" in parts:
+        print("\nXPBD against PBD at equal work: cloth_grid (stretch + shear + bending, 2 pinned corners), dt = 1/60 s, "
+              "the same constraints, sub-steps and iterations, two threads; the two take turns within each round")
+        out["xpbd"] = xpbd_table(rounds=rounds)
+        print(format_xpbd_table(out["xpbd"]))
     if "types" in parts:
         print("\nProjections per second by constraint type (1 sub-step x 10 Gauss-Seidel sweeps, 128x128 cloth, "
               "a 21^3 x 6 tet box, 16k attachments; one thread) against a plain sequential C++ loop over the "
