@@ -37,6 +37,28 @@
 
 namespace csb {
 
+// XPBD's distance step on one constraint, distance_xpbd's operations in its order, for the blocked
+// kernels (the distance blocks and the bending elements' edges): from d = p_i - p_j (and, Damped,
+// the relative motion u = (p_i - x_i) - (p_j - x_j)) the unit n = d/|d| (0 for |d| = 0), |d| and
+// Δλ = (-(|d| - rest) - α̃ λ - γ n·u) * inv_den, before any sign clamp. Without damping γ n·u is
+// +0, whose subtraction changes no value, and is left out.
+template <bool Damped>
+CSB_ATAN2_INLINE Real xpbd_distance_step(Real dx, Real dy, Real dz, Real ux, Real uy, Real uz, Real rest, Real alpha,
+                                         Real gamma, Real inv_den, Real lambda, Real& nx, Real& ny, Real& nz,
+                                         Real& len) {
+  len = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
+  nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
+  const Real cl = len - rest;
+  if constexpr (Damped) {
+    const Real along = nx * ux + ny * uy + nz * uz;
+    const Real moved = gamma == 0 ? Real(0) : along;
+    return (-cl - alpha * lambda - gamma * moved) * inv_den;
+  } else {
+    return (-cl - alpha * lambda) * inv_den;
+  }
+}
+
 // Constraints per block: a multiple of 8 (the AVX-512 copy's compute loops run 8 lanes, its
 // gathers 4). On the Zen 4 this was measured on (32 KiB L1d), per-pair against 32: 48 took
 // 0.95-0.98 from 32² to 128² and 0.98-1.01 at 256² (two threads); 64 took 0.94-0.96 at 64² but
@@ -107,23 +129,16 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
       Real* lambda = b.pair_lambda.data() + c0;
 #pragma omp simd
       for (Index k = 0; k < m; ++k) {
-        const Real dx = P[0][k] - P[3][k], dy = P[1][k] - P[4][k], dz = P[2][k] - P[5][k];
-        const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
-        const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
-        const Real nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
-        const Real cl = len - rest[k];
-        const Real l = lambda[k];
-        Real dl;
+        Real ux = 0, uy = 0, uz = 0;
         if constexpr (Damped) {
-          const Real g = gamma[k];
-          const Real along = nx * ((P[0][k] - X[0][k]) - (P[3][k] - X[3][k])) +
-                             ny * ((P[1][k] - X[1][k]) - (P[4][k] - X[4][k])) +
-                             nz * ((P[2][k] - X[2][k]) - (P[5][k] - X[5][k]));
-          const Real moved = g == 0 ? Real(0) : along;
-          dl = (-cl - alpha[k] * l - g * moved) * inv_den[k];
-        } else {
-          dl = (-cl - alpha[k] * l) * inv_den[k];
+          ux = (P[0][k] - X[0][k]) - (P[3][k] - X[3][k]);
+          uy = (P[1][k] - X[1][k]) - (P[4][k] - X[4][k]);
+          uz = (P[2][k] - X[2][k]) - (P[5][k] - X[5][k]);
         }
+        const Real l = lambda[k];
+        Real nx, ny, nz, len;
+        Real dl = xpbd_distance_step<Damped>(P[0][k] - P[3][k], P[1][k] - P[4][k], P[2][k] - P[5][k], ux, uy, uz,
+                                             rest[k], alpha[k], gamma[k], inv_den[k], l, nx, ny, nz, len);
         dl = len > 0 ? dl : Real(0);
         lambda[k] = l + dl;
         const Real da = ca[k] * dl, db = cb[k] * dl;
@@ -190,7 +205,7 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
 #pragma omp simd
   for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
   const Real* rest = b.rest.data() + c0;
-  if constexpr (Damped) {
+  if constexpr (Xpbd) {
     const Real* alpha = b.alpha.data() + c0;
     const Real* gamma = b.gamma.data() + c0;
     Real* lambda = b.lambda.data() + c0;
@@ -199,30 +214,20 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
       const Real violation = wrap_angle(t.Theta[k] - rest[k]);
       const Real wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
-      const Real g = gamma[k];
-      // the motion since the sub-step's start, p - x, along the gradient
-      Real along = G[0][k] * (P[0][k] - X[0][k]);
-      for (int e = 1; e < 12; ++e) along = along + G[e][k] * (P[e][k] - X[e][k]);
-      const Real moved = g == 0 ? Real(0) : along;
       const Real l = lambda[k];
-      const Real den = (1 + g) * wgrad + alpha[k];
-      const Real dl = (-violation - alpha[k] * l - g * moved) / (move ? den : Real(1));
-      t.S[k] = move ? dl : Real(0);
-      lambda[k] = l + t.S[k];
-    }
-  } else if constexpr (Xpbd) {
-    // Every γ is +0: (1 + γ) w|∇C|² is w|∇C|², and γ moved is +0, whose subtraction changes no
-    // value; the same bits as the damped loop.
-    const Real* alpha = b.alpha.data() + c0;
-    Real* lambda = b.lambda.data() + c0;
-#pragma omp simd
-    for (Index k = 0; k < m; ++k) {
-      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
-      const Real wgrad = t.Wgrad[k];
-      const bool move = wgrad > 0;
-      const Real l = lambda[k];
-      const Real den = wgrad + alpha[k];
-      const Real dl = (-violation - alpha[k] * l) / (move ? den : Real(1));
+      // Without damping (every γ +0) (1 + γ) w|∇C|² is w|∇C|² and γ moved is +0, whose
+      // subtraction changes no value: the damping terms are left out, with the same bits.
+      Real num = -violation - alpha[k] * l, den = wgrad + alpha[k];
+      if constexpr (Damped) {
+        const Real g = gamma[k];
+        // the motion since the sub-step's start, p - x, along the gradient
+        Real along = G[0][k] * (P[0][k] - X[0][k]);
+        for (int e = 1; e < 12; ++e) along = along + G[e][k] * (P[e][k] - X[e][k]);
+        const Real moved = g == 0 ? Real(0) : along;
+        num = num - g * moved;
+        den = (1 + g) * wgrad + alpha[k];
+      }
+      const Real dl = num / (move ? den : Real(1));
       t.S[k] = move ? dl : Real(0);
       lambda[k] = l + t.S[k];
     }

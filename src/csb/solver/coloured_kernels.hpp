@@ -221,20 +221,11 @@ CSB_INLINE void distance_xpbd_block_s(ColouredDistance& b, Index c0, Index m, Re
   Real* lambda = b.lambda.data() + c0;
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const Real len = std::sqrt(dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k]);
-    const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
-    const Real nx = dx[k] * inv_len, ny = dy[k] * inv_len, nz = dz[k] * inv_len;
-    const Real cl = len - rest[k];
     const Real l = lambda[k];
-    Real dl;
-    if constexpr (Damped) {
-      const Real g = gamma[k];
-      const Real along = nx * ux[k] + ny * uy[k] + nz * uz[k];
-      const Real moved = g == 0 ? Real(0) : along;
-      dl = (-cl - alpha[k] * l - g * moved) * inv_den[k];
-    } else {
-      dl = (-cl - alpha[k] * l) * inv_den[k];
-    }
+    Real nx, ny, nz, len;
+    Real dl = xpbd_distance_step<Damped>(dx[k], dy[k], dz[k], Damped ? ux[k] : Real(0), Damped ? uy[k] : Real(0),
+                                         Damped ? uz[k] : Real(0), rest[k], alpha[k], gamma[k], inv_den[k], l, nx,
+                                         ny, nz, len);
     const Real sn = sense[k];
     const Real next = l + dl;
     const Real clamped = sn > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
