@@ -18,7 +18,9 @@ Threads: "1 (custom)" is SoftBodyMotionProperties::CustomUpdate on the calling t
 PhysicsSystem::Update with Jolt's JobSystemThreadPool of T - 1 workers plus the calling thread,
 the body being the only one in the system.
 
-The cloth file format is documented at the top of src/bench/jolt/jolt_cloth.cpp.
+The cloth file format is documented at the top of src/bench/jolt/jolt_cloth.cpp. The binary this
+builds is also a side of ``csb bench --peers`` (``--jolt <build dir>/jolt_cloth``), which runs it in
+its serve mode and times it in turns with the other sides.
 """
 
 from __future__ import annotations
@@ -35,21 +37,6 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 SOURCE = ROOT / "src" / "bench" / "jolt"
 SUBSTEPS = 10  # 10 sub-steps x 1 iteration per frame of 1/60 s
-
-
-def write_cloth(a: dict, path: Path) -> None:
-    """csb's arrays as jolt_cloth reads them (little endian; see jolt_cloth.cpp)."""
-    n, e, b = len(a["positions"]), len(a["rest_length"]), len(a["bending"])
-    with open(path, "wb") as f:
-        f.write(b"CSBCLTH1")
-        np.array([n, e, b], "<i8").tofile(f)
-        np.asarray(a["positions"], "<f8").tofile(f)
-        np.asarray(a["inv_mass"], "<f8").tofile(f)
-        np.asarray(a["distance"], "<i8").tofile(f)
-        np.asarray(a["rest_length"], "<f8").tofile(f)
-        np.array([a["stretch_compliance"]], "<f8").tofile(f)
-        np.asarray(a["bending"], "<i8").tofile(f)
-        np.array([a["bending_compliance"]], "<f8").tofile(f)
 
 
 def build(jolt: Path, build_dir: Path) -> Path:
@@ -93,7 +80,8 @@ def main() -> int:
             p.error("--jolt is required unless --no-build")
         exe = build(args.jolt.resolve(), args.build)
 
-    from csb.bench.peers import check_cloth, cloth_arrays
+    # the cloth file is written as csb bench --peers writes it for its Jolt side
+    from csb.bench.peers import check_cloth, cloth_arrays, write_jolt_cloth
 
     cases = ([("custom", 1)] if not args.no_custom else []) + [("system", t) for t in args.threads]
     rows, ok = [], True
@@ -102,7 +90,7 @@ def main() -> int:
         for n in args.sizes:
             a = cloth_arrays(n)
             cloth = work / f"cloth{n}.bin"
-            write_cloth(a, cloth)
+            write_jolt_cloth(a, cloth)
             csb_counts = (len(a["positions"]), len(a["distance"]), len(a["bending"]))
             for mode, threads in cases:
                 r = run(exe, cloth, work, mode, threads, args)

@@ -62,7 +62,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         peers.main(sizes=args.sizes or peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
                          min_time=peers.MIN_TIME if args.peer_min_time is None else args.peer_min_time,
                          sides=args.sides, pypbd_threads=args.pypbd_threads, newton_cold=not args.newton_cache,
-                         hold_frames=args.hold_frames)
+                         hold_frames=args.hold_frames, jolt=args.jolt, jolt_threads=args.jolt_threads)
         return 0
     from .bench import main
 
@@ -225,8 +225,8 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "
-                                     "colouring, threads, scaling, memory and the reference; --peers: against pypbd "
-                                     "and newton (prints tables)")
+                                     "colouring, threads, scaling, memory and the reference; --peers: against pypbd, "
+                                     "newton and jolt (prints tables)")
     p.add_argument("--sizes", type=_at_least(2), nargs="+", default=None,
                    help="particles per side (default: 64 128; with --peers 32 64 128 256)")
     p.add_argument("--iterations", type=_at_least(1), default=10)
@@ -245,12 +245,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--front-end-sizes", type=_at_least(2), nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
     p.add_argument("--peers", action="store_true",
-                   help="instead: the same cloth in csb, pypbd and newton (CPU), 10 substeps x 1 iteration and "
-                        "1 x 10; a peer that is not installed is skipped (pip install 'csb[bench]')")
-    p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton"], choices=["csb", "pypbd", "newton"],
-                   help="with --peers: which sides to run")
+                   help="instead: the same cloth in csb, pypbd, newton (CPU) and Jolt, 10 substeps x 1 iteration "
+                        "and 1 x 10 (Jolt: 10 x 1 only); a peer that is not installed is skipped (pip install "
+                        "'csb[bench]'; Jolt: --jolt)")
+    p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton", "jolt"],
+                   choices=["csb", "pypbd", "newton", "jolt"], help="with --peers: which sides to run")
     p.add_argument("--pypbd-threads", type=_at_least(1), nargs="+", default=[1, 2],
                    help="with --peers: OMP_NUM_THREADS values to run pypbd with (default: 1 2)")
+    p.add_argument("--jolt", metavar="PATH", default=None,
+                   help="with --peers: a built jolt_cloth (default: $CSB_JOLT_CLOTH; build it with "
+                        "scripts/jolt_cloth.py --jolt <Jolt tree> --build <dir>); none: Jolt is skipped")
+    p.add_argument("--jolt-threads", type=_at_least(1), nargs="+", default=[1, 2],
+                   help="with --peers: thread counts to run Jolt with (default: 1 2)")
     p.add_argument("--peer-frames", type=_at_least(1), default=5,
                    help="with --peers: frames per timed round, each round from rest (default: 5)")
     p.add_argument("--peer-min-time", type=_at_least(0.0, float), default=None,

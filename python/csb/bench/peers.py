@@ -1,5 +1,5 @@
 """csb against its peers: the same square cloth in csb, Bender's PositionBasedDynamics
-(``pypbd``) and NVIDIA's Newton XPBD solver on the CPU, in one run.
+(``pypbd``), NVIDIA's Newton XPBD solver on the CPU and Jolt Physics' soft bodies, in one run.
 
 The cloth is the bundled scene ``cloth_grid`` at N x N particles (1 m x 1 m in the xz plane, two
 pinned corners, density 0.2 kg/m², gravity -9.81 m/s² along y, dt = 1/60 s per frame): a
@@ -17,6 +17,14 @@ spinning threads are asleep before the next side starts). A slow spell of the sh
 which lasts a second or more, then falls on every side's rounds alike instead of on the one
 side that happened to be timed during it. A missing peer is reported and skipped. The peers are
 the optional ``bench`` extra (``pip install csb[bench]``), never a core dependency.
+
+Jolt is not a Python package: its side drives ``jolt_cloth`` (src/bench/jolt, built against the
+user's own Jolt tree by ``scripts/jolt_cloth.py --jolt <Jolt tree> --build <dir>``; csb never
+ships or downloads Jolt) in its serve mode, given by ``csb bench --peers --jolt PATH`` or the
+environment variable CSB_JOLT_CLOTH. The Python process times it as it times the others; each
+``frames K`` is one line to the program and one back. A Jolt iteration is a whole XPBD sub-step,
+so Jolt runs the 10 x 1 case only and is skipped, with that reason, at 1 x 10. Jolt runs with 1
+and with 2 threads (PhysicsSystem::Update and its job system), as pypbd runs with both.
 
 Timing: every turn begins with ``warmup`` untimed frames (the side sat idle while the others
 had their turns); then each round starts again from the cloth at rest and times the same first
@@ -84,6 +92,14 @@ MAPPING = {
               "springs on csb's distance pairs with ke = 1/(r (w_i + w_j) h²), r = 4 (no compliance 0: "
               "see NEWTON_SPRING_RELAXATION), kd = 0; bending edges on csb's interior edges with "
               "ke = 1/(bending compliance) = 1e-3 N m, kd = 0; particle radius 0 (no particle contacts)",
+    "jolt": "one soft body (XPBD) of csb's particles (inverse mass as csb's, 0 = pinned), an Edge per distance "
+            "pair with csb's rest length and compliance (0: hard) and a DihedralBend per bending quadruple "
+            "with csb's compliance (1e3 1/(N m)), rest angles from the flat rest state; no faces, volume, LRA "
+            "or skinning constraints (checked after Optimize, every constraint unchanged); mNumIterations = "
+            "substeps (each Jolt iteration is one sub-step projecting every constraint once with alpha/h²), "
+            "so 10 x 1 only; linear damping 0, gravity -9.81 m/s², no sleeping, vertex radius 0; "
+            "PhysicsSystem::Update(1/60 s, 1 collision step), the body alone in the system, with T - 1 "
+            "job-system workers plus the calling thread",
 }
 
 
@@ -297,11 +313,135 @@ class NewtonSide:
         return None  # Warp's CPU kernels run on one thread
 
 
-SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide}
+JOLT_ENV = "CSB_JOLT_CLOTH"           # the path of a built jolt_cloth
+JOLT_THREADS_ENV = "CSB_JOLT_THREADS"  # the side's thread count, set by the driver per run
+JOLT_BUILD_HINT = "build it with: python scripts/jolt_cloth.py --jolt <Jolt tree> --build <dir>"
+
+
+def jolt_binary(path: str | None = None) -> tuple[str | None, str]:
+    """The jolt_cloth to run (`path`, else $CSB_JOLT_CLOTH) and, when there is none, why not."""
+    given = path or os.environ.get(JOLT_ENV)
+    if not given:
+        return None, f"no jolt_cloth given (--jolt PATH or {JOLT_ENV}); {JOLT_BUILD_HINT}"
+    if not (os.path.isfile(given) and os.access(given, os.X_OK)):
+        return None, f"jolt_cloth {given!r} is not an executable file; {JOLT_BUILD_HINT}"
+    return os.path.abspath(given), ""
+
+
+def jolt_case_reason(substeps: int, iterations: int) -> str | None:
+    """Why Jolt cannot run a case (None: it can)."""
+    if iterations != 1:
+        return (f"Jolt has no {substeps} x {iterations} case: each Jolt iteration is a whole XPBD sub-step, "
+                f"so it cannot project {iterations} times within one")
+    return None
+
+
+def write_jolt_cloth(a: dict[str, Any], path: str | os.PathLike) -> None:
+    """csb's arrays as jolt_cloth reads them (little endian; the format is at the top of
+    src/bench/jolt/jolt_cloth.cpp)."""
+    n, e, b = len(a["positions"]), len(a["rest_length"]), len(a["bending"])
+    with open(path, "wb") as f:
+        f.write(b"CSBCLTH1")
+        np.array([n, e, b], "<i8").tofile(f)
+        np.asarray(a["positions"], "<f8").tofile(f)
+        np.asarray(a["inv_mass"], "<f8").tofile(f)
+        np.asarray(a["distance"], "<i8").tofile(f)
+        np.asarray(a["rest_length"], "<f8").tofile(f)
+        np.array([a["stretch_compliance"]], "<f8").tofile(f)
+        np.asarray(a["bending"], "<i8").tofile(f)
+        np.array([a["bending_compliance"]], "<f8").tofile(f)
+
+
+class JoltSide:
+    """Jolt's soft body, in a jolt_cloth process in its serve mode (one line in, one line out)."""
+
+    name = "jolt"
+
+    def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int,
+                 binary: str | None = None, threads: int | None = None):
+        why = jolt_case_reason(substeps, iterations)
+        if why:  # never 10 sub-steps in place of 1 x 10
+            raise ValueError(why)
+        exe, why = jolt_binary(binary)
+        if exe is None:
+            raise FileNotFoundError(why)
+        threads = threads or int(os.environ.get(JOLT_THREADS_ENV, "1"))
+        self._dir = tempfile.TemporaryDirectory(prefix="csb-jolt-")
+        cloth = os.path.join(self._dir.name, "cloth.bin")
+        self._x = os.path.join(self._dir.name, "x.bin")
+        write_jolt_cloth(arrays, cloth)
+        # stderr is this process's: jolt_cloth's own message reaches the driver's report
+        self.proc = subprocess.Popen(
+            [exe, cloth, "--serve", "--mode", "system", "--threads", str(threads), "--substeps", str(substeps),
+             "--dt", repr(FRAME_DT)], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        info = self._ask("info")
+        self.info = info
+        n_constraints = info["edge_constraints"] + info["bend_constraints"] + info["other_constraints"]
+        self.counts = dict(particles=info["particles"], distance=info["edge_constraints"],
+                           bending=info["bend_constraints"], constraints=n_constraints,
+                           projections_per_frame=info["substeps_per_frame"] * info["iterations_per_substep"]
+                           * n_constraints)
+        self.verified = dict(substeps=info["substeps_per_frame"], iterations=info["iterations_per_substep"],
+                             dt=info["dt"], threads=info["threads"], simd=info["simd"],
+                             constraints_identical=info["constraints_identical"],
+                             other_constraints=info["other_constraints"], linear_damping=info["linear_damping"],
+                             gravity_y=info["gravity_y"])
+        self.versions = dict(jolt=f"{info['jolt_version']} ({info['simd']})")
+        if not info["constraints_identical"] or info["other_constraints"]:
+            raise RuntimeError(f"jolt_cloth did not build csb's constraints unchanged: {info}")
+
+    def _ask(self, line: str) -> dict[str, Any]:
+        try:
+            self.proc.stdin.write(line + "\n")
+            self.proc.stdin.flush()
+        except BrokenPipeError:
+            pass  # it has ended: said below
+        answer = self.proc.stdout.readline()
+        if not answer:
+            raise RuntimeError(f"jolt_cloth ended (exit {self.proc.wait()}) on {line.split()[0]!r}")
+        out = json.loads(answer)
+        if "error" in out:
+            raise RuntimeError(f"jolt_cloth: {out['error']} ({line!r})")
+        return out
+
+    def reset(self) -> None:
+        self._ask("reset")
+
+    def frames(self, k: int) -> None:
+        self._ask(f"frames {k}")
+
+    def positions(self) -> np.ndarray:
+        self._ask(f"positions {self._x}")
+        return np.fromfile(self._x, "<f8").reshape(-1, 3)
+
+    def threads_used(self) -> int | None:
+        return None  # the run's thread count, in its label
+
+    def close(self) -> None:
+        if self.proc.poll() is None:
+            try:
+                self._ask("quit")
+                self.proc.wait(timeout=10)  # it answers, then tears Jolt down
+            except (RuntimeError, OSError, ValueError, subprocess.TimeoutExpired):
+                pass
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for f in (self.proc.stdin, self.proc.stdout):
+            try:
+                f.close()
+            except OSError:
+                pass
+        self._dir.cleanup()
+
+
+SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide, "jolt": JoltSide}
 PEER_MODULES = {"pypbd": "pypbd", "newton": "newton"}
 
 
 def peer_available(side: str) -> bool:
+    if side == "jolt":  # a program, not a module
+        return jolt_binary()[0] is not None
     mod = PEER_MODULES.get(side)
     if mod is None:
         return True
@@ -426,6 +566,8 @@ def _side_versions(side_name: str) -> dict[str, str]:
         import pypbd  # noqa: F401
 
         return dict(pypbd=version("pypbd"))
+    if side_name == "jolt":
+        return {}  # jolt_cloth says its version once it runs (JoltSide.versions)
     from .. import _core
 
     return dict(csb=_core.build_info()["csb"])
@@ -451,6 +593,7 @@ def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, w
     t_first = time.perf_counter()
     side.frames(1)  # the first frame: Newton compiles its kernels here
     first_frame_s = time.perf_counter() - t_first
+    versions.update(getattr(side, "versions", {}))
     say("READY", dict(side=side_name, versions=versions, import_s=import_s, counts=side.counts,
                       verified=side.verified, build_s=build_s, first_frame_s=first_frame_s))
     turns = Turns(side, frames, warmup)
@@ -466,6 +609,8 @@ def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, w
                 side.reset()
                 side.frames(hold_frames)
                 hold = check_cloth(arrays, side.positions(), hold_frames)
+            if hasattr(side, "close"):  # a side with a process of its own (Jolt's) ends it
+                side.close()
             say("DONE", dict(check=check, hold=hold))
             return 0
         else:
@@ -496,6 +641,12 @@ class Run:
     env: dict[str, str] = field(default_factory=dict)
     result: dict[str, Any] | None = None
     error: str | None = None
+    skipped: list[tuple[int, tuple[int, int], str]] = field(default_factory=list)  # (n, case, why)
+
+
+def case_reason(side: str, case: tuple[int, int]) -> str | None:
+    """Why a side has no such (substeps, iterations) case (None: it has)."""
+    return jolt_case_reason(*case) if side == "jolt" else None
 
 
 class WorkerFailed(RuntimeError):
@@ -578,6 +729,10 @@ def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rou
     in alternating turns (:func:`alternate`), checked; results and errors go to the runs."""
     workers: list[Worker] = []
     for run in runs:
+        why = case_reason(run.side, case)
+        if why:
+            run.skipped.append((n, case, why))
+            continue
         print(f"building {run.label} {n}x{n} {case[0]}x{case[1]} ...", file=sys.stderr, flush=True)
         try:
             workers.append(Worker(run, n, case, frames, warmup))
@@ -606,9 +761,18 @@ def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rou
 
 
 def plan_runs(sides: Sequence[str], pypbd_threads: Sequence[int], newton_cold: bool,
-              cache_dir: str | None = None, newton_launches: bool = False) -> tuple[list[Run], list[str]]:
+              cache_dir: str | None = None, newton_launches: bool = False, jolt: str | None = None,
+              jolt_threads: Sequence[int] = (1, 2)) -> tuple[list[Run], list[str]]:
     runs, skipped = [], []
     for side in sides:
+        if side == "jolt":  # a program given by path, not an installed module
+            exe, why = jolt_binary(jolt)
+            if exe is None:
+                skipped.append(f"jolt: {why}; skipped")
+                continue
+            for t in jolt_threads:
+                runs.append(Run(f"jolt {t}T", "jolt", {JOLT_ENV: exe, JOLT_THREADS_ENV: str(t)}))
+            continue
         if not peer_available(side):
             skipped.append(f"{side}: not installed (pip install 'csb[bench]'), skipped")
             continue
@@ -704,10 +868,17 @@ def format_header(runs: Sequence[Run], frames: int, rounds: int, warmup: int, mi
 def format_notes(runs: Sequence[Run]) -> str:
     lines = []
     for r in runs:
+        reasons: dict[str, list[str]] = {}
+        for n, case, why in r.skipped:
+            reasons.setdefault(why, []).append(f"{n}x{n} {case[0]}x{case[1]}")
+        for why, rows in reasons.items():
+            lines.append(f"{r.label}: skipped {', '.join(rows)}: {why}")
         if r.error:
             lines.append(f"{r.label}: FAILED to run: {r.error}")
             continue
         res = r.result
+        if res is None:
+            continue
         if r.side == "newton":
             firsts = [row["first_frame_s"] for row in res["rows"]]  # one process per row: [0] is the first use
             fresh = r.env.get("WARP_CACHE_PATH") and r.env.get("CSB_NEWTON_GRAPH") != "0"
@@ -731,11 +902,12 @@ def format_notes(runs: Sequence[Run]) -> str:
 
 
 def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES, frames: int = 5, rounds: int = 7,
-         warmup: int = 2, min_time: float = MIN_TIME, sides: Sequence[str] = ("csb", "pypbd", "newton"), pypbd_threads: Sequence[int] = (1, 2),
-         newton_cold: bool = True, hold_frames: int = 0, newton_launches: bool = True,
-         passes: int = PASSES) -> list[Run]:
+         warmup: int = 2, min_time: float = MIN_TIME, sides: Sequence[str] = ("csb", "pypbd", "newton", "jolt"),
+         pypbd_threads: Sequence[int] = (1, 2), newton_cold: bool = True, hold_frames: int = 0,
+         newton_launches: bool = True, passes: int = PASSES, jolt: str | None = None,
+         jolt_threads: Sequence[int] = (1, 2)) -> list[Run]:
     with tempfile.TemporaryDirectory(prefix="csb-warp-cache-") as cache:
-        runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches)
+        runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches, jolt, jolt_threads)
         for s in skipped:
             print(s)
         for n in sizes:

@@ -33,6 +33,17 @@
 //
 // Output: one JSON line on stdout.
 //
+// --serve: build the body once, then answer commands on stdin, one line in, one JSON line out
+// (flushed), for csb.bench.peers' JoltSide, which times the frames itself so that every side of
+// `csb bench --peers` is timed the same way:
+//   info            the counts, settings, version and SIMD level (the fields of the output above
+//                   that are not timings)
+//   reset           back to the rest positions, velocities zero
+//   frames K        step K frames; answers when they are done
+//   positions PATH  write the world positions to PATH (float64 [N][3])
+//   quit            answer and end (end of input ends it too)
+// An unknown or malformed command is answered with {"error": "..."}; the body is unchanged.
+//
 // Cloth file (binary, little endian, written by scripts/jolt_cloth.py):
 //   char[8] "CSBCLTH1"; int64 N, E, B;
 //   float64 positions[N][3] (m); float64 inv_mass[N] (1/kg);
@@ -155,6 +166,7 @@ struct Options {
   int frames = 5, warmup = 5, rounds = 7, max_rounds = 2000, hold = 0;
   double min_time = 1.0; // s of timed frames
   const char *positions = nullptr, *hold_positions = nullptr;
+  bool serve = false;
 };
 
 Options parse(int argc, char **argv) {
@@ -177,13 +189,15 @@ Options parse(int argc, char **argv) {
     else if (a == "--positions") o.positions = value();
     else if (a == "--hold") o.hold = std::atoi(value());
     else if (a == "--hold-positions") o.hold_positions = value();
+    else if (a == "--serve") o.serve = true;
     else if (a[0] != '-' && !o.cloth) o.cloth = argv[i];
     else fail("unknown argument " + a);
   }
   if (!o.cloth)
     fail("usage: jolt_cloth CLOTH_FILE [--mode system|custom] [--threads T] [--substeps S] [--dt S]\n"
          "       [--frames F] [--warmup W] [--rounds R] [--min-time SEC] [--max-rounds M]\n"
-         "       [--positions OUT] [--hold H] [--hold-positions OUT]");
+         "       [--positions OUT] [--hold H] [--hold-positions OUT]\n"
+         "       jolt_cloth CLOTH_FILE --serve [--mode system|custom] [--threads T] [--substeps S] [--dt S]");
   if (o.mode != "system" && o.mode != "custom") fail("--mode is system or custom");
   if (o.mode == "custom" && o.threads != 1) fail("--mode custom is single-threaded (CustomUpdate runs on the calling thread)");
   if (o.threads < 1 || o.substeps < 1 || o.frames < 1 || o.rounds < 1) fail("threads, substeps, frames, rounds must be >= 1");
@@ -351,49 +365,13 @@ int main(int argc, char **argv) {
     };
     auto write = [&](const char *path, const std::vector<double> &x) {
       std::FILE *f = std::fopen(path, "wb");
-      if (!f || std::fwrite(x.data(), sizeof(double), x.size(), f) != x.size()) fail(std::string("cannot write ") + path);
-      std::fclose(f);
+      bool ok = f && std::fwrite(x.data(), sizeof(double), x.size(), f) == x.size();
+      if (f) ok = std::fclose(f) == 0 && ok;
+      return ok;
     };
 
-    // Timing, as csb.bench.peers times a turn: warm-up frames, then rounds that each restart
-    // from rest and time the same first `frames` frames; at least `rounds` rounds and
-    // `min_time` seconds of timed frames, at most `max_rounds` rounds.
-    using clock = std::chrono::steady_clock;
-    reset();
-    frames(opt.warmup);
-    std::vector<double> ms;
-    double timed = 0;
-    // CPU seconds (all threads, user + system) over the timed rounds: cpu / wall near T when the
-    // T threads all ran, near 1 when the workers found no free core (a shared machine)
-    auto cpu_seconds = []() {
-      rusage u;
-      getrusage(RUSAGE_SELF, &u);
-      return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
-    };
-    const double cpu0 = cpu_seconds();
-    while (int(ms.size()) < opt.max_rounds && (int(ms.size()) < opt.rounds || timed < opt.min_time)) {
-      reset();
-      auto t0 = clock::now();
-      frames(opt.frames);
-      double s = std::chrono::duration<double>(clock::now() - t0).count();
-      timed += s;
-      ms.push_back(s * 1e3 / opt.frames);
-    }
-    const double cpu_per_wall = (cpu_seconds() - cpu0) / timed;
-    char after[256], held[256] = "null";
-    std::vector<double> x = world_positions(); // `frames` frames from rest
-    sanity(x, after, sizeof(after));
-    if (opt.positions) write(opt.positions, x);
-    if (opt.hold > 0) { // longer: does the cloth hang, or diverge?
-      reset();
-      frames(opt.hold);
-      std::vector<double> xh = world_positions();
-      sanity(xh, held, sizeof(held));
-      if (opt.hold_positions) write(opt.hold_positions, xh);
-    }
-
-    // Counts read back from Jolt's objects (the body's settings, after Optimize)
-    const SoftBodySharedSettings *s = mp->GetSettings();
+    // What the body is, read back from Jolt's objects (the body's settings, after Optimize): the
+    // fields of every output but the timings, without the closing brace
 #if defined(JPH_USE_AVX512)
     const char *simd = "avx512";
 #elif defined(JPH_USE_AVX2)
@@ -401,23 +379,118 @@ int main(int argc, char **argv) {
 #else
     const char *simd = "sse/other";
 #endif
-    std::printf(
-        "{\"engine\": \"jolt\", \"jolt_version\": \"%d.%d.%d\", \"simd\": \"%s\", \"mode\": \"%s\", \"threads\": %d, "
-        "\"particles\": %zu, \"edge_constraints\": %zu, \"bend_constraints\": %zu, \"other_constraints\": %zu, "
-        "\"constraints_identical\": %s, \"bend_initial_angle_max\": %.3g, "
-        "\"iterations\": %u, \"substeps_per_frame\": %u, \"iterations_per_substep\": 1, \"dt\": %.9g, \"substep_dt\": %.9g, "
-        "\"linear_damping\": %g, \"gravity_y\": %g, "
-        "\"frames\": %d, \"warmup\": %d, \"rounds\": %zu, \"ms_per_frame\": %.6g, \"ms_min\": %.6g, \"ms_max\": %.6g, \"cpu_per_wall\": %.3g, "
-        "\"after_frames\": %s, \"hold_frames\": %d, \"after_hold\": %s}\n",
-        JPH_VERSION_MAJOR, JPH_VERSION_MINOR, JPH_VERSION_PATCH, simd, opt.mode.c_str(),
-        opt.mode == "system" ? job_system.GetMaxConcurrency() : 1, mp->GetVertices().size(),
-        s->mEdgeConstraints.size(), s->mDihedralBendConstraints.size(),
-        s->mVolumeConstraints.size() + s->mSkinnedConstraints.size() + s->mLRAConstraints.size() +
-            s->mRodStretchShearConstraints.size() + s->mRodBendTwistConstraints.size(),
-        identical ? "true" : "false", double(max_initial_angle), mp->GetNumIterations(), mp->GetNumIterations(),
-        opt.dt, opt.dt / mp->GetNumIterations(), double(body->GetMotionProperties()->GetLinearDamping()),
-        double(system.GetGravity().GetY()), opt.frames, opt.warmup, ms.size(), median(ms),
-        *std::min_element(ms.begin(), ms.end()), *std::max_element(ms.begin(), ms.end()), cpu_per_wall, after, opt.hold, held);
+    auto info = [&]() {
+      const SoftBodySharedSettings *s = mp->GetSettings();
+      char buf[2048];
+      std::snprintf(
+          buf, sizeof(buf),
+          "{\"engine\": \"jolt\", \"jolt_version\": \"%d.%d.%d\", \"simd\": \"%s\", \"mode\": \"%s\", \"threads\": %d, "
+          "\"particles\": %zu, \"edge_constraints\": %zu, \"bend_constraints\": %zu, \"other_constraints\": %zu, "
+          "\"constraints_identical\": %s, \"bend_initial_angle_max\": %.3g, "
+          "\"iterations\": %u, \"substeps_per_frame\": %u, \"iterations_per_substep\": 1, \"dt\": %.9g, \"substep_dt\": %.9g, "
+          "\"linear_damping\": %g, \"gravity_y\": %g",
+          JPH_VERSION_MAJOR, JPH_VERSION_MINOR, JPH_VERSION_PATCH, simd, opt.mode.c_str(),
+          opt.mode == "system" ? job_system.GetMaxConcurrency() : 1, mp->GetVertices().size(),
+          s->mEdgeConstraints.size(), s->mDihedralBendConstraints.size(),
+          s->mVolumeConstraints.size() + s->mSkinnedConstraints.size() + s->mLRAConstraints.size() +
+              s->mRodStretchShearConstraints.size() + s->mRodBendTwistConstraints.size(),
+          identical ? "true" : "false", double(max_initial_angle), mp->GetNumIterations(), mp->GetNumIterations(),
+          opt.dt, opt.dt / mp->GetNumIterations(), double(body->GetMotionProperties()->GetLinearDamping()),
+          double(system.GetGravity().GetY()));
+      return std::string(buf);
+    };
+
+    if (opt.serve) {
+      // One line in, one line out. A cloth file path or a positions path may be long: lines of
+      // up to 64 KiB.
+      std::vector<char> line(1 << 16);
+      auto answer = [](const std::string &json) {
+        std::fputs(json.c_str(), stdout);
+        std::fputc('\n', stdout);
+        std::fflush(stdout);
+      };
+      reset();
+      while (std::fgets(line.data(), int(line.size()), stdin)) {
+        std::string cmd(line.data());
+        while (!cmd.empty() && (cmd.back() == '\n' || cmd.back() == '\r')) cmd.pop_back();
+        const size_t space = cmd.find(' ');
+        const std::string word = cmd.substr(0, space), arg = space == std::string::npos ? "" : cmd.substr(space + 1);
+        if (word == "info") {
+          answer(info() + "}");
+        } else if (word == "reset") {
+          reset();
+          answer("{\"reset\": true}");
+        } else if (word == "frames") {
+          char *rest = nullptr;
+          long k = std::strtol(arg.c_str(), &rest, 10);
+          if (arg.empty() || *rest != '\0' || k < 0) {
+            answer("{\"error\": \"frames takes a count >= 0\"}");
+            continue;
+          }
+          frames(int(k));
+          answer("{\"frames\": " + std::to_string(k) + "}");
+        } else if (word == "positions") {
+          if (arg.empty()) {
+            answer("{\"error\": \"positions takes a file path\"}");
+            continue;
+          }
+          if (!write(arg.c_str(), world_positions())) {
+            answer("{\"error\": \"cannot write the positions file\"}");
+            continue;
+          }
+          answer("{\"positions\": " + std::to_string(cloth.n()) + "}");
+        } else if (word == "quit") {
+          answer("{\"quit\": true}");
+          break;
+        } else {
+          answer("{\"error\": \"unknown command (info, reset, frames K, positions PATH, quit)\"}");
+        }
+      }
+    } else {
+      // Timing, as csb.bench.peers times a turn: warm-up frames, then rounds that each restart
+      // from rest and time the same first `frames` frames; at least `rounds` rounds and
+      // `min_time` seconds of timed frames, at most `max_rounds` rounds.
+      using clock = std::chrono::steady_clock;
+      reset();
+      frames(opt.warmup);
+      std::vector<double> ms;
+      double timed = 0;
+      // CPU seconds (all threads, user + system) over the timed rounds: cpu / wall near T when the
+      // T threads all ran, near 1 when the workers found no free core (a shared machine)
+      auto cpu_seconds = []() {
+        rusage u;
+        getrusage(RUSAGE_SELF, &u);
+        return double(u.ru_utime.tv_sec + u.ru_stime.tv_sec) + 1e-6 * double(u.ru_utime.tv_usec + u.ru_stime.tv_usec);
+      };
+      const double cpu0 = cpu_seconds();
+      while (int(ms.size()) < opt.max_rounds && (int(ms.size()) < opt.rounds || timed < opt.min_time)) {
+        reset();
+        auto t0 = clock::now();
+        frames(opt.frames);
+        double s = std::chrono::duration<double>(clock::now() - t0).count();
+        timed += s;
+        ms.push_back(s * 1e3 / opt.frames);
+      }
+      const double cpu_per_wall = (cpu_seconds() - cpu0) / timed;
+      char after[256], held[256] = "null";
+      std::vector<double> x = world_positions(); // `frames` frames from rest
+      sanity(x, after, sizeof(after));
+      if (opt.positions && !write(opt.positions, x)) fail(std::string("cannot write ") + opt.positions);
+      if (opt.hold > 0) { // longer: does the cloth hang, or diverge?
+        reset();
+        frames(opt.hold);
+        std::vector<double> xh = world_positions();
+        sanity(xh, held, sizeof(held));
+        if (opt.hold_positions && !write(opt.hold_positions, xh))
+          fail(std::string("cannot write ") + opt.hold_positions);
+      }
+
+      std::printf(
+          "%s, \"frames\": %d, \"warmup\": %d, \"rounds\": %zu, \"ms_per_frame\": %.6g, \"ms_min\": %.6g, \"ms_max\": %.6g, "
+          "\"cpu_per_wall\": %.3g, \"after_frames\": %s, \"hold_frames\": %d, \"after_hold\": %s}\n",
+          info().c_str(), opt.frames, opt.warmup, ms.size(), median(ms), *std::min_element(ms.begin(), ms.end()),
+          *std::max_element(ms.begin(), ms.end()), cpu_per_wall, after, opt.hold, held);
+    }
 
     if (opt.mode == "system") bi.RemoveBody(id);
     bi.DestroyBody(id);
