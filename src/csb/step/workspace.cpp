@@ -137,8 +137,9 @@ std::size_t PbdStepper::workspace_bytes() const {
     s += capacity_bytes(*v);
   for (const auto& l : lambda_.family) s += capacity_bytes(l);
   for (const FamilyTerms& t : family_terms_) s += capacity_bytes(t.k) + capacity_bytes(t.alpha) + capacity_bytes(t.gamma);
-  s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.bending) +
-       capacity_bytes(coloured_order_.volume) + capacity_bytes(coloured_order_.attachment);
+  s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.distance_paired) +
+       capacity_bytes(coloured_order_.bending) + capacity_bytes(coloured_order_.volume) +
+       capacity_bytes(coloured_order_.attachment);
   s += self_.bytes();  // self-collision's groups, candidate pairs, contacts and boxes
   // Deforming mesh colliders: each one's vertices (last, next, sub-step, step end) and swept grid.
   for (const ColliderMotion& m : collider_motion_) {
