@@ -101,18 +101,21 @@ CSB_INLINE void distance_gather(const ColouredDistance& b, Index c0, Index k0, I
   }
 }
 
-// The corrections -c_i s d and +c_j s d of constraints c0 + [k0, m), one at a time.
+// The corrections of constraints c0 + [k0, m), one at a time: PBD's -c_i s d and +c_j s d (s the
+// violation over |d|), XPBD's +w_i Δλ n and -w_j Δλ n (s = Δλ, (vx, vy, vz) = n, c = w).
+template <bool Xpbd>
 CSB_INLINE void distance_scatter(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* s,
-                                 const Real* dx, const Real* dy, const Real* dz, Real* o) {
+                                 const Real* vx, const Real* vy, const Real* vz, Real* o) {
   for (Index k = k0; k < m; ++k) {
     const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
     const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
-    o[i] -= si * dx[k];
-    o[i + 1] -= si * dy[k];
-    o[i + 2] -= si * dz[k];
-    o[j] += sj * dx[k];
-    o[j + 1] += sj * dy[k];
-    o[j + 2] += sj * dz[k];
+    if constexpr (Xpbd) {
+      o[i] += si * vx[k], o[i + 1] += si * vy[k], o[i + 2] += si * vz[k];
+      o[j] -= sj * vx[k], o[j + 1] -= sj * vy[k], o[j + 2] -= sj * vz[k];
+    } else {
+      o[i] -= si * vx[k], o[i + 1] -= si * vy[k], o[i + 2] -= si * vz[k];
+      o[j] += sj * vx[k], o[j + 1] += sj * vy[k], o[j + 2] += sj * vz[k];
+    }
   }
 }
 
@@ -124,11 +127,32 @@ CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Inde
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
     distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
-    distance_scatter(b, c0, 0, m, s, dx, dy, dz, o);
+    distance_scatter<false>(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
 
 #if CSB_HAS_AVX2_ROWS
+// distance_scatter of constraints c0 + [0, m4), m4 a multiple of 4, four at a time in AVX2
+// registers (the same operations, so the same bits).
+template <bool Xpbd>
+CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, Index m4, const Real* s,
+                                           const Real* vx, const Real* vy, const Real* vz, Real* o) {
+  using namespace avx2;
+  const Index* bi = b.i.data() + c0;
+  const Index* bj = b.j.data() + c0;
+  const Real* ci = b.ci.data() + c0;
+  const Real* cj = b.cj.data() + c0;
+  for (Index k = 0; k < m4; k += 4) {
+    const __m256d sk = _mm256_load_pd(s + k);
+    const __m256d x = _mm256_load_pd(vx + k), y = _mm256_load_pd(vy + k), z = _mm256_load_pd(vz + k);
+    const __m256d si = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), sj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
+    const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
+    const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
+    add_rows<!Xpbd>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
+    add_rows<Xpbd>(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
+  }
+}
+
 // The blocks again with AVX2 lanes, four constraints gathered and scattered at a time in AVX2
 // registers (csb/avx2_rows.hpp), the rest of a block one at a time; taken when the processor has
 // AVX2 (see coloured_bending.cpp).
@@ -152,18 +176,8 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
     }
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     distance_pbd_block_s<false>(b, c0, m, dx, dy, dz, s);
-    const Real* ci = b.ci.data() + c0;
-    const Real* cj = b.cj.data() + c0;
-    for (Index k = 0; k < m4; k += 4) {
-      const __m256d sk = _mm256_load_pd(s + k);
-      const __m256d x = _mm256_load_pd(dx + k), y = _mm256_load_pd(dy + k), z = _mm256_load_pd(dz + k);
-      const __m256d si = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), sj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
-      const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
-      const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
-      add_rows<true>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
-      add_rows(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
-    }
-    distance_scatter(b, c0, m4, m, s, dx, dy, dz, o);
+    distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
 #endif
@@ -248,21 +262,6 @@ CSB_INLINE void distance_motion_gather(const ColouredDistance& b, Index c0, Inde
   }
 }
 
-// XPBD's corrections +w_i Δλ n and -w_j Δλ n of constraints c0 + [k0, m), one at a time.
-CSB_INLINE void distance_xpbd_scatter(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* s,
-                                      const Real* nx, const Real* ny, const Real* nz, Real* o) {
-  for (Index k = k0; k < m; ++k) {
-    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
-    const Real di = b.ci[c0 + k] * s[k], dj = b.cj[c0 + k] * s[k];
-    o[i] += di * nx[k];
-    o[i + 1] += di * ny[k];
-    o[i + 2] += di * nz[k];
-    o[j] -= dj * nx[k];
-    o[j + 1] -= dj * ny[k];
-    o[j + 2] -= dj * nz[k];
-  }
-}
-
 template <bool Damped>
 CSB_INLINE void distance_xpbd_blocks(ColouredDistance& b, Index begin, Index end, const Real* r, Real* o,
                                      const Real* x) {
@@ -274,7 +273,7 @@ CSB_INLINE void distance_xpbd_blocks(ColouredDistance& b, Index begin, Index end
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, 0, m, r, x, ux, uy, uz);
     distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
-    distance_xpbd_scatter(b, c0, 0, m, s, dx, dy, dz, o);
+    distance_scatter<true>(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
 
@@ -316,18 +315,8 @@ __attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistance&
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
     distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
-    const Real* ci = b.ci.data() + c0;
-    const Real* cj = b.cj.data() + c0;
-    for (Index k = 0; k < m4; k += 4) {
-      const __m256d sk = _mm256_load_pd(s + k);
-      const __m256d nx = _mm256_load_pd(dx + k), ny = _mm256_load_pd(dy + k), nz = _mm256_load_pd(dz + k);
-      const __m256d di = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), dj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
-      const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
-      const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
-      add_rows(o, at_i, _mm256_mul_pd(di, nx), _mm256_mul_pd(di, ny), _mm256_mul_pd(di, nz));
-      add_rows<true>(o, at_j, _mm256_mul_pd(dj, nx), _mm256_mul_pd(dj, ny), _mm256_mul_pd(dj, nz));
-    }
-    distance_xpbd_scatter(b, c0, m4, m, s, dx, dy, dz, o);
+    distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
 #endif
