@@ -101,6 +101,17 @@ def test_a_model_with_a_python_family_gives_the_same_bits_on_any_thread_setting(
     assert out[0] == out[1] == out[2]
 
 
+def shape_matched_body(rest: np.ndarray, stiffness: float) -> csb.Model:
+    """Particles of 0.01 kg at `rest`, in one group, held by one ShapeMatching constraint of the
+    given stiffness, and nothing else."""
+    b = csb.ModelBuilder()
+    body = b.add_group("body")
+    ids = [b.add_particle(p, 0.01, body) for p in rest]
+    b.add_family(csb.ShapeMatching(rest, np.full(len(rest), 0.01)))
+    b.add_constraint("shape_matching", ids, stiffness=stiffness)
+    return b.build()
+
+
 def lattice(n: int = 3, spacing: float = 0.1) -> np.ndarray:
     g = np.arange(n) * spacing
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
@@ -112,12 +123,7 @@ def test_shape_matching_keeps_a_spinning_body_rigid_and_restores_a_dented_one():
     each particle onto its goal: a rigid motion), while its centre of mass falls as gravity says;
     with k = 0.2 a dent pressed into it comes back out."""
     rest = lattice()
-    b = csb.ModelBuilder()
-    body = b.add_group("body")
-    ids = [b.add_particle(p, 0.01, body) for p in rest]
-    b.add_family(csb.ShapeMatching(rest, np.full(len(rest), 0.01)))
-    b.add_constraint("shape_matching", ids, stiffness=1.0)
-    model = b.build()
+    model = shape_matched_body(rest, stiffness=1.0)
     state = model.initial_state()
     centre = rest.mean(axis=0)
     state.v = np.cross([0.0, 0.0, 20.0], rest - centre) + [1.0, 2.0, 0.0]
@@ -129,12 +135,7 @@ def test_shape_matching_keeps_a_spinning_body_rigid_and_restores_a_dented_one():
     fall = centre + [1.0, 2.0, 0.0] - [0.0, 0.5 * 9.81, 0.0]  # after 1 s: v t + g t²/2 (symplectic: up to h g t)
     assert np.linalg.norm(x.mean(axis=0) - fall) < 9.81 / 120 + 1e-9
     # A dent: the centre particle pushed 3 cm in, released with k = 0.2, comes back within 0.1 mm.
-    b = csb.ModelBuilder()
-    body = b.add_group("body")
-    ids = [b.add_particle(p, 0.01, body) for p in rest]
-    b.add_family(csb.ShapeMatching(rest, np.full(len(rest), 0.01)))
-    b.add_constraint("shape_matching", ids, stiffness=0.2)
-    model = b.build()
+    model = shape_matched_body(rest, stiffness=0.2)
     state = model.initial_state()
     x = np.asarray(state.x)
     x[13] += [0.0, -0.03, 0.0]
