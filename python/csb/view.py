@@ -88,10 +88,6 @@ def viewer_module() -> ModuleType:
     return module
 
 
-def _require_viewer() -> None:
-    viewer_module()
-
-
 def _simulation(scene: SceneLike) -> Simulation:
     if isinstance(scene, Simulation):
         return scene
@@ -125,7 +121,7 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
     substeps or the solver's) and are off for a user's own; grabbing works with a PbdStepper only.
     `options` go to :class:`csb._viewer.Viewer` (overlay, wireframe, particles, paused, frame_time,
     grab_compliance, samples, vsync, title, ...). A scene with tearing tears in the viewer too."""
-    _require_viewer()
+    Viewer = viewer_module().Viewer  # csb.Error saying what is missing, before any work
     if stepper is not None and not isinstance(stepper, _core.Integrator):
         raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
     if isinstance(scene, _core.Model):
@@ -140,8 +136,8 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
         options.setdefault("tear_max_per_step", tearing.max_per_step)
     options.setdefault("title", f"csb - {sim.scene.name}")
     if stepper is None and isinstance(sim.stepper, _core.PbdStepper):  # a fresh one, of the scene's settings
-        v = viewer_module().Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
-                         **options)
+        v = Viewer(sim.model, sim.state, sim.stepper.settings, width=width, height=height, offscreen=offscreen,
+                   **options)
     else:
         given = stepper if stepper is not None else sim.stepper
         registered = {name for m in _core.methods() for name in (m.name, *m.aliases)}
@@ -153,8 +149,8 @@ def open_viewer(scene: SceneLike, *, offscreen: bool = False, width: int = 1280,
             own = getattr(given, "settings", None)
             options.setdefault("substeps", getattr(own, "substeps", solver.substeps))
             options.setdefault("iterations", getattr(own, "iterations", solver.iterations))
-        v = viewer_module().Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
-                         gravity=sim.gravity, **options)
+        v = Viewer(sim.model, sim.state, given, width=width, height=height, offscreen=offscreen,
+                   gravity=sim.gravity, **options)
     before_step = _scene_motion(sim)
     if before_step is not None:
         v.set_before_step(before_step)
