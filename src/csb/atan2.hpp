@@ -13,7 +13,9 @@
 // rational approximation atan(u) = u + u z P(z)/Q(z), z = u², whose peak relative error on
 // |u| <= 0.66 is 2.6e-18, far below the rounding of the operations themselves. The octant is
 // undone with selects: π/2 - r if |y| > |x|, π - r if x is negative (or -0), and the sign of y.
-// π/4, π/2 and π are added as a double plus its rounding error, as Cephes does.
+// π/4, π/2 and π are added as a double plus its rounding error, as Cephes does. In float (the
+// single-precision solver) the same formula runs on the constants rounded to float: a few units
+// in float's last place.
 //
 // Accuracy against std::atan2 (tests/test_kernels.py, dense sweeps over all quadrants, ±0,
 // near ±π, tiny and huge ratios): a few units in the last place (max |error| ~4e-16 rad), so the
@@ -33,30 +35,31 @@ namespace csb {
 #define CSB_ATAN2_INLINE inline
 #endif
 
-CSB_ATAN2_INLINE Real atan2_rational(Real y, Real x) {
-  constexpr Real P0 = -8.750608600031904122785e-1, P1 = -1.615753718733365076637e1,
+template <class S>
+CSB_ATAN2_INLINE S atan2_rational(S y, S x) {
+  constexpr S P0 = -8.750608600031904122785e-1, P1 = -1.615753718733365076637e1,
                  P2 = -7.500855792314704667340e1, P3 = -1.228866684490136173410e2,
                  P4 = -6.485021904942025371773e1;
-  constexpr Real Q0 = 2.485846490142306297962e1, Q1 = 1.650270098316988542046e2, Q2 = 4.328810604912902668951e2,
+  constexpr S Q0 = 2.485846490142306297962e1, Q1 = 1.650270098316988542046e2, Q2 = 4.328810604912902668951e2,
                  Q3 = 4.853903996359136964868e2, Q4 = 1.945506571482613964425e2;
-  constexpr Real pi = 3.14159265358979323846, pi_lo = 1.2246467991473531772e-16;  // π = pi + pi_lo
-  constexpr Real pi_2 = 1.57079632679489661923, pi_2_lo = 6.123233995736765886130e-17;
-  constexpr Real pi_4 = 7.85398163397448309616e-1, pi_4_lo = 3.061616997868382943065e-17;
-  const Real ax = std::fabs(x), ay = std::fabs(y);
+  constexpr S pi = 3.14159265358979323846, pi_lo = 1.2246467991473531772e-16;  // π = pi + pi_lo
+  constexpr S pi_2 = 1.57079632679489661923, pi_2_lo = 6.123233995736765886130e-17;
+  constexpr S pi_4 = 7.85398163397448309616e-1, pi_4_lo = 3.061616997868382943065e-17;
+  const S ax = std::fabs(x), ay = std::fabs(y);
   const bool swap = ay > ax;
-  const Real m = swap ? ay : ax, n = swap ? ax : ay;
-  const bool mid = n > Real(0.66) * m;
-  const Real num = mid ? n - m : n;
-  const Real den0 = mid ? n + m : m;
-  const Real den = den0 == 0 ? Real(1) : den0;  // x = y = 0: u = 0 (NaN still propagates)
-  const Real u = num / den;
-  const Real z = u * u;
-  const Real p = (((P0 * z + P1) * z + P2) * z + P3) * z + P4;
-  const Real q = ((((z + Q0) * z + Q1) * z + Q2) * z + Q3) * z + Q4;
-  Real r = u + u * (z * p / q);
+  const S m = swap ? ay : ax, n = swap ? ax : ay;
+  const bool mid = n > S(0.66) * m;
+  const S num = mid ? n - m : n;
+  const S den0 = mid ? n + m : m;
+  const S den = den0 == 0 ? S(1) : den0;  // x = y = 0: u = 0 (NaN still propagates)
+  const S u = num / den;
+  const S z = u * u;
+  const S p = (((P0 * z + P1) * z + P2) * z + P3) * z + P4;
+  const S q = ((((z + Q0) * z + Q1) * z + Q2) * z + Q3) * z + Q4;
+  S r = u + u * (z * p / q);
   r = mid ? pi_4 + (r + pi_4_lo) : r;
   r = swap ? (pi_2 - r) + pi_2_lo : r;
-  r = std::copysign(Real(1), x) < 0 ? (pi - r) + pi_lo : r;
+  r = std::copysign(S(1), x) < 0 ? (pi - r) + pi_lo : r;
   return std::copysign(r, y);
 }
 

@@ -52,6 +52,12 @@ inline Real wrap_angle(Real x) {
   x = x > kPi ? x - 2 * kPi : x;
   return x <= -kPi ? x + 2 * kPi : x;
 }
+// The same in single precision, about π rounded to float (the single-precision solver).
+inline float wrap_angle(float x) {
+  constexpr float pi = static_cast<float>(kPi);
+  x = x > pi ? x - 2 * pi : x;
+  return x <= -pi ? x + 2 * pi : x;
+}
 
 namespace detail {
 template <bool Angle>

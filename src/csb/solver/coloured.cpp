@@ -121,12 +121,14 @@ void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk
 }
 
 // One coloured sweep over distance, bending, volume and attachment constraints.
+// d, bend: the distance and bending batches in the solver's scalar S (cb's own, or the
+// single-precision step's, which has no volumes or attachments); cb: their colourings.
 // start(g): called at the start of group g's task (a part's interior or an interface).
 // relax: XPBD with averaged Jacobi (else null), see PbdStepper::set_relaxation.
-template <Method M, bool Jacobi, class Start>
-void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool approx, const Real* r, Real* o,
-                    const Real* x, const Real* relax, Start&& start) {
-  ColouredDistance& d = cb.distance;
+template <Method M, bool Jacobi, class S, class Start>
+void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, ColouredDistanceT<S>& d,
+                    ColouredFourT<S>& bend, bool approx, const S* r, S* o, const S* x, const Real* relax,
+                    Start&& start) {
   const auto distance = [&](Index begin, Index end, bool independent) {
     if constexpr (M == Method::Xpbd && Jacobi) {
       if (relax) {
@@ -142,29 +144,18 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
       }
     } else if (approx) {
       if (independent) {
-#pragma omp simd
-        for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
+        distance_pbd_range<true>(d, begin, end, r, o);
       } else {
         for (Index c = begin; c < end; ++c) distance_pbd<true>(d, c, r, o);
       }
     } else {
       if (independent) {
-#if defined(CSB_DISTANCE_AVX2)
-        if (kernels_use_avx2())
-          distance_pbd_blocks_avx2(d, begin, end, r, o);
-        else
-          distance_pbd_blocks<false>(d, begin, end, r, o);
-#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-        distance_pbd_blocks_avx2(d, begin, end, r, o);
-#else
-        distance_pbd_blocks<false>(d, begin, end, r, o);
-#endif
+        distance_pbd_range<false>(d, begin, end, r, o);
       } else {
         for (Index c = begin; c < end; ++c) distance_pbd<false>(d, c, r, o);
       }
     }
   };
-  ColouredFour& bend = cb.bending;
   const auto bending = [&](Index begin, Index end, bool independent) {
     if constexpr (M == Method::Xpbd && Jacobi) {
       if (relax) {
@@ -176,11 +167,13 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, bool 
   };
   ColouredFour& vol = cb.volume;
   const auto volume = [&](Index begin, Index end, bool) {
-    for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x, relax);
+    if constexpr (std::is_same_v<S, Real>)
+      for (Index c = begin; c < end; ++c) volume_one<M, Jacobi>(vol, c, r, o, x, relax);
   };
   ColouredAttachments& att = cb.attachments;
   const auto attachment = [&](Index begin, Index end, bool) {
-    for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x, relax);
+    if constexpr (std::is_same_v<S, Real>)
+      for (Index c = begin; c < end; ++c) attachment_one<M, Jacobi>(att, c, r, o, x, relax);
   };
   const auto group = [&](Index g) {
     start(g);
@@ -309,7 +302,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
             }
           });
         }
-        sweep_coloured<M, Jacobi>(share, model, coloured_, approx, r, o, x, relax, start);
+        sweep_coloured<M, Jacobi>(share, model, coloured_, coloured_.distance, coloured_.bending, approx, r, o, x, relax,
+                                  start);
         if (tail) {
           share.single([&] {
             // Balloons: one constraint over many particles each, serial (see sweep_batches).

@@ -23,24 +23,30 @@
 
 namespace csb {
 
-struct ColouredDistance {
+// S: the scalar the solver runs in, double (Real) or, with Precision::Single, float: the
+// single-precision batches are the double ones rounded once (narrowed), see PbdStepper's
+// single-precision step.
+template <class S>
+struct ColouredDistanceT {
   std::vector<Index> i, j;
-  std::vector<Real> rest;            // m
+  std::vector<S> rest;               // m
   std::vector<std::int8_t> sense;
-  std::vector<Real> ci, cj;          // PBD, Jakobsen: k w_i/(w_i + w_j), k w_j/(w_i + w_j); XPBD: w_i, w_j
-  std::vector<Real> alpha, gamma, inv_den;  // XPBD: α̃, γ, 1/((1 + γ)(w_i + w_j) + α̃) (0: not projected)
-  std::vector<Real> lambda;          // XPBD
+  std::vector<S> ci, cj;             // PBD, Jakobsen: k w_i/(w_i + w_j), k w_j/(w_i + w_j); XPBD: w_i, w_j
+  std::vector<S> alpha, gamma, inv_den;  // XPBD: α̃, γ, 1/((1 + γ)(w_i + w_j) + α̃) (0: not projected)
+  std::vector<S> lambda;             // XPBD
   bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
 };
+using ColouredDistance = ColouredDistanceT<Real>;
 
 // Bending (a, b, c, d) or tet volume (p0, p1, p2, p3).
-struct ColouredFour {
+template <class S>
+struct ColouredFourT {
   std::vector<std::array<Index, 4>> q;
-  std::vector<Real> rest;            // rad or m³
-  std::vector<std::array<Real, 4>> w;
-  std::vector<Real> k;               // PBD, Jakobsen
-  std::vector<Real> alpha, gamma;    // XPBD
-  std::vector<Real> lambda;
+  std::vector<S> rest;               // rad or m³
+  std::vector<std::array<S, 4>> w;
+  std::vector<S> k;                  // PBD, Jakobsen
+  std::vector<S> alpha, gamma;       // XPBD
+  std::vector<S> lambda;
   bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
   // Bending with Gauss-Seidel (PBD and Jakobsen with the exact square root, and XPBD): the
   // distance constraint on each element's edge (a, b), when the model has one, projected by the
@@ -48,9 +54,10 @@ struct ColouredFour {
   // otherwise. Its rest length (m), and the shares of the correction of a and of b: PBD's
   // k w / Σw, XPBD's w (0 and 0 where the element has no distance constraint). XPBD also keeps
   // the edge's α̃, γ, 1/((1 + γ) Σw + α̃) (0: none) and multiplier, at the element's position.
-  std::vector<Real> pair_rest, pair_ca, pair_cb;
-  std::vector<Real> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
+  std::vector<S> pair_rest, pair_ca, pair_cb;
+  std::vector<S> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
 };
+using ColouredFour = ColouredFourT<Real>;
 
 struct ColouredAttachments {
   std::vector<Index> i;

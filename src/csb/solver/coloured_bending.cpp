@@ -25,10 +25,22 @@ namespace csb {
 
 namespace {
 
-template <bool Xpbd, bool Damped>
-CSB_ATAN2_INLINE void blocks(ColouredFour& b, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+template <bool Xpbd, bool Damped, class S>
+CSB_ATAN2_INLINE void blocks(ColouredFourT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock)
     bending_block<Xpbd, Damped>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
+}
+
+// The portable blocks (gathers and scatters one constraint at a time) of the method and damping.
+template <class S>
+CSB_ATAN2_INLINE void blocks_portable(ColouredFourT<S>& b, bool xpbd, Index begin, Index end, const S* r, S* o,
+                                      const S* x) {
+  if (xpbd && b.damped)
+    blocks<true, true>(b, begin, end, r, o, x);
+  else if (xpbd)
+    blocks<true, false>(b, begin, end, r, o, x);
+  else
+    blocks<false, false>(b, begin, end, r, o, x);
 }
 
 #if CSB_HAS_AVX2_ROWS
@@ -125,14 +137,26 @@ void blocks_base(ColouredFour& b, bool xpbd, Index begin, Index end, const Real*
 #if CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
   blocks_avx2(b, xpbd, begin, end, r, o, x);
 #else
-  if (xpbd && b.damped)
-    blocks<true, true>(b, begin, end, r, o, x);
-  else if (xpbd)
-    blocks<true, false>(b, begin, end, r, o, x);
-  else
-    blocks<false, false>(b, begin, end, r, o, x);
+  blocks_portable(b, xpbd, begin, end, r, o, x);
 #endif
 }
+
+// Single precision: the portable blocks in the lanes of each instruction set, twice as many
+// floats as doubles (SSE2 four, AVX2 and AVX-512 eight).
+void blocks_single(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+                   const float* x) {
+  blocks_portable(b, xpbd, begin, end, r, o, x);
+}
+#if CSB_BENDING_AVX2
+__attribute__((target("avx2"))) void blocks_single_avx2(ColouredFourT<float>& b, bool xpbd, Index begin, Index end,
+                                                         const float* r, float* o, const float* x) {
+  blocks_portable(b, xpbd, begin, end, r, o, x);
+}
+__attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_single_avx512(
+    ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o, const float* x) {
+  blocks_portable(b, xpbd, begin, end, r, o, x);
+}
+#endif
 
 #if CSB_BENDING_AVX2
 enum Isa : int { kSse2, kAvx2, kAvx512 };
@@ -163,6 +187,23 @@ void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Re
   }
 #endif
   blocks_base(b, xpbd, begin, end, r, o, x);
+}
+
+void bending_blocks(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+                    const float* x) {
+#if CSB_BENDING_AVX2
+  switch (use_isa.load(std::memory_order_relaxed)) {
+    case kAvx512:
+      blocks_single_avx512(b, xpbd, begin, end, r, o, x);
+      return;
+    case kAvx2:
+      blocks_single_avx2(b, xpbd, begin, end, r, o, x);
+      return;
+    default:
+      break;
+  }
+#endif
+  blocks_single(b, xpbd, begin, end, r, o, x);
 }
 
 bool kernels_use_avx2() {

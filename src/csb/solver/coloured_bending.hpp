@@ -42,17 +42,17 @@ namespace csb {
 // the relative motion u = (p_i - x_i) - (p_j - x_j)) the unit n = d/|d| (0 for |d| = 0), |d| and
 // Δλ = (-(|d| - rest) - α̃ λ - γ n·u) * inv_den, before any sign clamp. Without damping γ n·u is
 // +0, whose subtraction changes no value, and is left out.
-template <bool Damped>
-CSB_ATAN2_INLINE Real xpbd_distance_step(Real dx, Real dy, Real dz, Real ux, Real uy, Real uz, Real rest, Real alpha,
-                                         Real gamma, Real inv_den, Real lambda, Real& nx, Real& ny, Real& nz,
-                                         Real& len) {
+template <bool Damped, class T>
+CSB_ATAN2_INLINE T xpbd_distance_step(T dx, T dy, T dz, T ux, T uy, T uz, T rest, T alpha,
+                                         T gamma, T inv_den, T lambda, T& nx, T& ny, T& nz,
+                                         T& len) {
   len = std::sqrt(dx * dx + dy * dy + dz * dz);
-  const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
+  const T inv_len = T(len > 0 ? 1 : 0) / (len > 0 ? len : T(1));
   nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
-  const Real cl = len - rest;
+  const T cl = len - rest;
   if constexpr (Damped) {
-    const Real along = nx * ux + ny * uy + nz * uz;
-    const Real moved = gamma == 0 ? Real(0) : along;
+    const T along = nx * ux + ny * uy + nz * uz;
+    const T moved = gamma == 0 ? T(0) : along;
     return (-cl - alpha * lambda - gamma * moved) * inv_den;
   } else {
     return (-cl - alpha * lambda) * inv_den;
@@ -72,19 +72,20 @@ constexpr Index kBendingBlock = 48;
 // start, for damping (the motion p - x is taken after the edge's projection); Theta: the angle;
 // S: the multiplier step, Δp_s = S w_s ∇_s C. Damped: XPBD on a batch with damping
 // (ColouredFour::damped); without, the damping term is zero and X is neither gathered nor read.
-template <bool Xpbd, bool Damped = Xpbd>
+// T: the scalar, double or (the single-precision step) float.
+template <bool Xpbd, bool Damped = Xpbd, class T = Real>
 struct BendingBlock {
   static_assert(Xpbd || !Damped);
   static constexpr Index B = kBendingBlock;
-  alignas(64) Real P[12][B], G[12][B], W[4][B];
-  alignas(64) Real X[Damped ? 12 : 1][B];
-  alignas(64) Real Theta[B], Cos[B], Wgrad[B], S[B];
+  alignas(64) T P[12][B], G[12][B], W[4][B];
+  alignas(64) T X[Damped ? 12 : 1][B];
+  alignas(64) T Theta[B], Cos[B], Wgrad[B], S[B];
 };
 
 // 1. Gather constraints c0 + [k0, m) into t, one at a time.
-template <bool Xpbd, bool Damped>
-CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped>& t, const ColouredFour& b, Index c0, Index k0, Index m,
-                                     const Real* r, const Real* x) {
+template <bool Xpbd, bool Damped, class T>
+CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped, T>& t, const ColouredFourT<T>& b, Index c0, Index k0, Index m,
+                                     const T* r, const T* x) {
   for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     const auto& w = b.w[c0 + k];
@@ -108,8 +109,8 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped>& t, const Colour
 // and the polynomials (~100 cycles of latency), and only a short loop body lets the processor
 // overlap that chain across iterations (in a micro-benchmark one fused loop ran at 1.25x the old
 // scalar kernel, the split one at 1.7x).
-template <bool Xpbd, bool Damped>
-CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFour& b, Index c0, Index m) {
+template <bool Xpbd, bool Damped, class T>
+CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, ColouredFourT<T>& b, Index c0, Index m) {
   auto& P = t.P;
   auto& G = t.G;
   const auto& W = t.W;
@@ -120,28 +121,28 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
       // d = a - b, n = d/|d|, Δλ = (-(|d| - rest) - α̃ λ - γ n·((a - x_a) - (b - x_b))) / ((1 + γ)
       // Σw + α̃), Δa = +ca Δλ n, Δb = -cb Δλ n; ca = cb = 0 and no multiplier step for an element
       // without one), into the block's positions of a and b.
-      const Real* rest = b.pair_rest.data() + c0;
-      const Real* ca = b.pair_ca.data() + c0;
-      const Real* cb = b.pair_cb.data() + c0;
-      const Real* alpha = b.pair_alpha.data() + c0;
-      const Real* gamma = b.pair_gamma.data() + c0;
-      const Real* inv_den = b.pair_inv_den.data() + c0;
-      Real* lambda = b.pair_lambda.data() + c0;
+      const T* rest = b.pair_rest.data() + c0;
+      const T* ca = b.pair_ca.data() + c0;
+      const T* cb = b.pair_cb.data() + c0;
+      const T* alpha = b.pair_alpha.data() + c0;
+      const T* gamma = b.pair_gamma.data() + c0;
+      const T* inv_den = b.pair_inv_den.data() + c0;
+      T* lambda = b.pair_lambda.data() + c0;
 #pragma omp simd
       for (Index k = 0; k < m; ++k) {
-        Real ux = 0, uy = 0, uz = 0;
+        T ux = 0, uy = 0, uz = 0;
         if constexpr (Damped) {
           ux = (P[0][k] - X[0][k]) - (P[3][k] - X[3][k]);
           uy = (P[1][k] - X[1][k]) - (P[4][k] - X[4][k]);
           uz = (P[2][k] - X[2][k]) - (P[5][k] - X[5][k]);
         }
-        const Real l = lambda[k];
-        Real nx, ny, nz, len;
-        Real dl = xpbd_distance_step<Damped>(P[0][k] - P[3][k], P[1][k] - P[4][k], P[2][k] - P[5][k], ux, uy, uz,
+        const T l = lambda[k];
+        T nx, ny, nz, len;
+        T dl = xpbd_distance_step<Damped>(P[0][k] - P[3][k], P[1][k] - P[4][k], P[2][k] - P[5][k], ux, uy, uz,
                                              rest[k], alpha[k], gamma[k], inv_den[k], l, nx, ny, nz, len);
-        dl = len > 0 ? dl : Real(0);
+        dl = len > 0 ? dl : T(0);
         lambda[k] = l + dl;
-        const Real da = ca[k] * dl, db = cb[k] * dl;
+        const T da = ca[k] * dl, db = cb[k] * dl;
         P[0][k] += da * nx, P[1][k] += da * ny, P[2][k] += da * nz;
         P[3][k] -= db * nx, P[4][k] -= db * ny, P[5][k] -= db * nz;
       }
@@ -150,15 +151,15 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
     // The distance constraints on the elements' edges (a, b) first (PBD, as distance_pbd:
     // d = a - b, s = (|d| - rest)/|d|, Δa = -ca s d, Δb = +cb s d; ca = cb = 0 for an element
     // without one), into the block's positions of a and b.
-    const Real* rest = b.pair_rest.data() + c0;
-    const Real* ca = b.pair_ca.data() + c0;
-    const Real* cb = b.pair_cb.data() + c0;
+    const T* rest = b.pair_rest.data() + c0;
+    const T* ca = b.pair_ca.data() + c0;
+    const T* cb = b.pair_cb.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      const Real dx = P[0][k] - P[3][k], dy = P[1][k] - P[4][k], dz = P[2][k] - P[5][k];
-      const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
-      const Real s = (len > 0 ? len - rest[k] : Real(0)) / (len > 0 ? len : Real(1));
-      const Real sa = ca[k] * s, sb = cb[k] * s;
+      const T dx = P[0][k] - P[3][k], dy = P[1][k] - P[4][k], dz = P[2][k] - P[5][k];
+      const T len = std::sqrt(dx * dx + dy * dy + dz * dz);
+      const T s = (len > 0 ? len - rest[k] : T(0)) / (len > 0 ? len : T(1));
+      const T sa = ca[k] * s, sb = cb[k] * s;
       P[0][k] -= sa * dx, P[1][k] -= sa * dy, P[2][k] -= sa * dz;
       P[3][k] += sb * dx, P[4][k] += sb * dy, P[5][k] += sb * dz;
     }
@@ -166,35 +167,35 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
   // Geometry: the angle's two arguments, the gradient (over the positions) and Σ w |∇C|².
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const Real ax = P[0][k], ay = P[1][k], az = P[2][k];
-    const Real bx = P[3][k], by = P[4][k], bz = P[5][k];
-    const Real cx = P[6][k], cy = P[7][k], cz = P[8][k];
-    const Real dx = P[9][k], dy = P[10][k], dz = P[11][k];
-    const Real ex = bx - ax, ey = by - ay, ez = bz - az;
-    const Real cax = cx - ax, cay = cy - ay, caz = cz - az, cbx = cx - bx, cby = cy - by, cbz = cz - bz;
-    const Real dax = dx - ax, day = dy - ay, daz = dz - az, dbx = dx - bx, dby = dy - by, dbz = dz - bz;
+    const T ax = P[0][k], ay = P[1][k], az = P[2][k];
+    const T bx = P[3][k], by = P[4][k], bz = P[5][k];
+    const T cx = P[6][k], cy = P[7][k], cz = P[8][k];
+    const T dx = P[9][k], dy = P[10][k], dz = P[11][k];
+    const T ex = bx - ax, ey = by - ay, ez = bz - az;
+    const T cax = cx - ax, cay = cy - ay, caz = cz - az, cbx = cx - bx, cby = cy - by, cbz = cz - bz;
+    const T dax = dx - ax, day = dy - ay, daz = dz - az, dbx = dx - bx, dby = dy - by, dbz = dz - bz;
     // N1 = (c - a) x (c - b), N2 = (d - b) x (d - a)
-    const Real n1x = cay * cbz - caz * cby, n1y = caz * cbx - cax * cbz, n1z = cax * cby - cay * cbx;
-    const Real n2x = dby * daz - dbz * day, n2y = dbz * dax - dbx * daz, n2z = dbx * day - dby * dax;
-    const Real e2 = ex * ex + ey * ey + ez * ez;
-    const Real n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
+    const T n1x = cay * cbz - caz * cby, n1y = caz * cbx - cax * cbz, n1z = cax * cby - cay * cbx;
+    const T n2x = dby * daz - dbz * day, n2y = dbz * dax - dbx * daz, n2z = dbx * day - dby * dax;
+    const T e2 = ex * ex + ey * ey + ez * ez;
+    const T n1 = n1x * n1x + n1y * n1y + n1z * n1z, n2 = n2x * n2x + n2y * n2y + n2z * n2z;
     const bool ok = e2 > 0 && n1 > 0 && n2 > 0;
-    const Real elen = std::sqrt(e2);
+    const T elen = std::sqrt(e2);
     t.Theta[k] = (n1y * n2z - n1z * n2y) * ex + (n1z * n2x - n1x * n2z) * ey + (n1x * n2y - n1y * n2x) * ez;
     t.Cos[k] = (n1x * n2x + n1y * n2y + n1z * n2z) * elen;
-    const Real one = ok ? Real(1) : Real(0);
-    const Real i1 = one / (ok ? n1 : Real(1)), i2 = one / (ok ? n2 : Real(1)), ie = one / (ok ? elen : Real(1));
-    const Real g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
-    const Real tca = (cax * ex + cay * ey + caz * ez) * ie, tda = (dax * ex + day * ey + daz * ez) * ie;
-    const Real el = ok ? elen : Real(0);
-    const Real gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
-    const Real gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
-    const Real gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
+    const T one = ok ? T(1) : T(0);
+    const T i1 = one / (ok ? n1 : T(1)), i2 = one / (ok ? n2 : T(1)), ie = one / (ok ? elen : T(1));
+    const T g1x = n1x * i1, g1y = n1y * i1, g1z = n1z * i1, g2x = n2x * i2, g2y = n2y * i2, g2z = n2z * i2;
+    const T tca = (cax * ex + cay * ey + caz * ez) * ie, tda = (dax * ex + day * ey + daz * ez) * ie;
+    const T el = ok ? elen : T(0);
+    const T gbx = tca * g1x + tda * g2x, gby = tca * g1y + tda * g2y, gbz = tca * g1z + tda * g2z;
+    const T gcx = -el * g1x, gcy = -el * g1y, gcz = -el * g1z;
+    const T gdx = -el * g2x, gdy = -el * g2y, gdz = -el * g2z;
     // θ is invariant under translation, so the gradients sum to zero: ∇_a θ = -(∇_b + ∇_c + ∇_d)
     // (Bridson's -((c - b)·e N1/|N1|² + (d - b)·e N2/|N2|²)/|e| in closed form), and
     // |∇_c θ|² = |e|² |N1|²/|N1|⁴ = |e|²/|N1|², |∇_d θ|² = |e|²/|N2|² (0 where degenerate:
     // i1 = i2 = 0).
-    const Real gax = -(gbx + gcx + gdx), gay = -(gby + gcy + gdy), gaz = -(gbz + gcz + gdz);
+    const T gax = -(gbx + gcx + gdx), gay = -(gby + gcy + gdy), gaz = -(gbz + gcz + gdz);
     t.Wgrad[k] = W[0][k] * (gax * gax + gay * gay + gaz * gaz) + W[1][k] * (gbx * gbx + gby * gby + gbz * gbz) +
                  (W[2][k] * i1 + W[3][k] * i2) * e2;
     G[0][k] = gax, G[1][k] = gay, G[2][k] = gaz, G[3][k] = gbx, G[4][k] = gby, G[5][k] = gbz;
@@ -204,55 +205,55 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped>& t, ColouredFou
   // and the multiplier: Δp_i = S w_i ∇_i C.
 #pragma omp simd
   for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
-  const Real* rest = b.rest.data() + c0;
+  const T* rest = b.rest.data() + c0;
   if constexpr (Xpbd) {
-    const Real* alpha = b.alpha.data() + c0;
-    const Real* gamma = b.gamma.data() + c0;
-    Real* lambda = b.lambda.data() + c0;
+    const T* alpha = b.alpha.data() + c0;
+    const T* gamma = b.gamma.data() + c0;
+    T* lambda = b.lambda.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
-      const Real wgrad = t.Wgrad[k];
+      const T violation = wrap_angle(t.Theta[k] - rest[k]);
+      const T wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
-      const Real l = lambda[k];
+      const T l = lambda[k];
       // Without damping (every γ +0) (1 + γ) w|∇C|² is w|∇C|² and γ moved is +0, whose
       // subtraction changes no value: the damping terms are left out, with the same bits.
-      Real num = -violation - alpha[k] * l, den = wgrad + alpha[k];
+      T num = -violation - alpha[k] * l, den = wgrad + alpha[k];
       if constexpr (Damped) {
-        const Real g = gamma[k];
+        const T g = gamma[k];
         // the motion since the sub-step's start, p - x, along the gradient
-        Real along = G[0][k] * (P[0][k] - X[0][k]);
+        T along = G[0][k] * (P[0][k] - X[0][k]);
         for (int e = 1; e < 12; ++e) along = along + G[e][k] * (P[e][k] - X[e][k]);
-        const Real moved = g == 0 ? Real(0) : along;
+        const T moved = g == 0 ? T(0) : along;
         num = num - g * moved;
         den = (1 + g) * wgrad + alpha[k];
       }
-      const Real dl = num / (move ? den : Real(1));
-      t.S[k] = move ? dl : Real(0);
+      const T dl = num / (move ? den : T(1));
+      t.S[k] = move ? dl : T(0);
       lambda[k] = l + t.S[k];
     }
   } else {
-    const Real* kk = b.k.data() + c0;
+    const T* kk = b.k.data() + c0;
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
-      const Real violation = wrap_angle(t.Theta[k] - rest[k]);
-      const Real wgrad = t.Wgrad[k];
+      const T violation = wrap_angle(t.Theta[k] - rest[k]);
+      const T wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
-      const Real stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow
-      t.S[k] = (move ? -stiffness * violation : Real(0)) / (move ? wgrad : Real(1));
+      const T stiffness = kk[k];  // loaded unconditionally: a conditional load is control flow
+      t.S[k] = (move ? -stiffness * violation : T(0)) / (move ? wgrad : T(1));
     }
   }
 }
 
 // 3. Scatter constraints c0 + [k0, m), one at a time. In place (Gauss-Seidel, o = r): the new
 // positions written, P + S w_s ∇_s C; else (Jacobi) the correction added to o.
-template <bool Xpbd, bool Damped>
-CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped>& t, const ColouredFour& b, Index c0, Index k0, Index m,
-                                      bool in_place, Real* o) {
+template <bool Xpbd, bool Damped, class T>
+CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped, T>& t, const ColouredFourT<T>& b, Index c0, Index k0, Index m,
+                                      bool in_place, T* o) {
   for (Index k = k0; k < m; ++k) {
     const auto& q = b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Real ws = t.S[k] * t.W[s][k];
+      const T ws = t.S[k] * t.W[s][k];
       const Index i = 3 * q[s];
       for (int e = 0; e < 3; ++e)
         o[i + e] = (in_place ? t.P[3 * s + e][k] : o[i + e]) + ws * t.G[3 * s + e][k];
@@ -261,9 +262,9 @@ CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped>& t, const
 }
 
 // Constraints c0 + [0, m) as one block, gathered and scattered one constraint at a time.
-template <bool Xpbd, bool Damped = Xpbd>
-CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
-  BendingBlock<Xpbd, Damped> t;
+template <bool Xpbd, bool Damped = Xpbd, class T>
+CSB_ATAN2_INLINE void bending_block(ColouredFourT<T>& b, Index c0, Index m, const T* r, T* o, const T* x) {
+  BendingBlock<Xpbd, Damped, T> t;
   bending_gather(t, b, c0, 0, m, r, x);
   bending_compute(t, b, c0, m);
   bending_scatter(t, b, c0, 0, m, o == r, o);
@@ -274,12 +275,14 @@ CSB_ATAN2_INLINE void bending_block(ColouredFour& b, Index c0, Index m, const Re
 // has taken (same bits: IEEE operations give the same results in any lane width, and no copy
 // contracts to FMA).
 void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x);
+void bending_blocks(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+                    const float* x);
 
 // Constraints [begin, end) of one colour. independent: they share no particle (blocks);
 // otherwise one at a time, in order.
-template <bool Xpbd>
-inline void project_bending_range(ColouredFour& b, Index begin, Index end, bool independent, const Real* r, Real* o,
-                                  const Real* x) {
+template <bool Xpbd, class T>
+inline void project_bending_range(ColouredFourT<T>& b, Index begin, Index end, bool independent, const T* r, T* o,
+                                  const T* x) {
   if (independent) {
     bending_blocks(b, Xpbd, begin, end, r, o, x);
   } else {

@@ -12,6 +12,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 #include <utility>
 
 #if defined(__GNUC__)
@@ -27,27 +28,27 @@ using namespace stepper_detail;
 // PBD (Müller 2007 §3.3) and Jakobsen: Δp_i = -c_i s d, Δp_j = +c_j s d, d = p_i - p_j, with
 // s = C/|d| (C the violation, see constraints/distance.hpp) or, with Jakobsen's square-root
 // approximation, s = (d·d - r²)/(d·d + r²); c = k w/(w_i + w_j) precomputed.
-template <bool Approx>
-CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, Real* o) {
+template <bool Approx, class S>
+CSB_INLINE void distance_pbd(const ColouredDistanceT<S>& b, Index c, const S* r, S* o) {
   const Index i = 3 * b.i[c], j = 3 * b.j[c];
-  const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
-  const Real dd = dx * dx + dy * dy + dz * dz;
-  const Real rest = b.rest[c];
-  const Real sense = b.sense[c];
-  Real s;
+  const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
+  const S dd = dx * dx + dy * dy + dz * dz;
+  const S rest = b.rest[c];
+  const S sense = b.sense[c];
+  S s;
   if constexpr (Approx) {
-    const Real r2 = rest * rest;
-    const Real cj = (dd - r2) / (2 * rest);
-    const Real violation = cj - sense * std::max(sense * cj, Real(0));
-    const Real den = dd + r2;  // selects on values, then an unconditional division: no branch
-    s = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+    const S r2 = rest * rest;
+    const S cj = (dd - r2) / (2 * rest);
+    const S violation = cj - sense * std::max(sense * cj, S(0));
+    const S den = dd + r2;  // selects on values, then an unconditional division: no branch
+    s = (violation != 0 ? dd - r2 : S(0)) / (den > 0 ? den : S(1));
   } else {
-    const Real len = std::sqrt(dd);
-    const Real cl = len - rest;
-    const Real violation = cl - sense * std::max(sense * cl, Real(0));
-    s = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+    const S len = std::sqrt(dd);
+    const S cl = len - rest;
+    const S violation = cl - sense * std::max(sense * cl, S(0));
+    s = (len > 0 ? violation : S(0)) / (len > 0 ? len : S(1));
   }
-  const Real si = b.ci[c] * s, sj = b.cj[c] * s;
+  const S si = b.ci[c] * s, sj = b.cj[c] * s;
   o[i] -= si * dx;
   o[i + 1] -= si * dy;
   o[i + 2] -= si * dz;
@@ -66,33 +67,34 @@ CSB_INLINE void distance_pbd(const ColouredDistance& b, Index c, const Real* r, 
 constexpr Index kDistanceBlock = 32;
 
 // s of constraints c0 + [0, m) from their d = p_i - p_j.
-template <bool Approx>
-CSB_INLINE void distance_pbd_block_s(const ColouredDistance& b, Index c0, Index m, const Real* dx, const Real* dy,
-                                     const Real* dz, Real* s) {
-  const Real* rest = b.rest.data() + c0;
+template <bool Approx, class S>
+CSB_INLINE void distance_pbd_block_s(const ColouredDistanceT<S>& b, Index c0, Index m, const S* dx, const S* dy,
+                                     const S* dz, S* s) {
+  const S* rest = b.rest.data() + c0;
   const std::int8_t* sense = b.sense.data() + c0;
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const Real dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
-    const Real sn = sense[k];
+    const S dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
+    const S sn = sense[k];
     if constexpr (Approx) {
-      const Real r2 = rest[k] * rest[k];
-      const Real cj = (dd - r2) / (2 * rest[k]);
-      const Real violation = cj - sn * std::max(sn * cj, Real(0));
-      const Real den = dd + r2;
-      s[k] = (violation != 0 ? dd - r2 : Real(0)) / (den > 0 ? den : Real(1));
+      const S r2 = rest[k] * rest[k];
+      const S cj = (dd - r2) / (2 * rest[k]);
+      const S violation = cj - sn * std::max(sn * cj, S(0));
+      const S den = dd + r2;
+      s[k] = (violation != 0 ? dd - r2 : S(0)) / (den > 0 ? den : S(1));
     } else {
-      const Real len = std::sqrt(dd);
-      const Real cl = len - rest[k];
-      const Real violation = cl - sn * std::max(sn * cl, Real(0));
-      s[k] = (len > 0 ? violation : Real(0)) / (len > 0 ? len : Real(1));
+      const S len = std::sqrt(dd);
+      const S cl = len - rest[k];
+      const S violation = cl - sn * std::max(sn * cl, S(0));
+      s[k] = (len > 0 ? violation : S(0)) / (len > 0 ? len : S(1));
     }
   }
 }
 
 // d = p_i - p_j of constraints c0 + [k0, m), one at a time.
-CSB_INLINE void distance_gather(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* r, Real* dx,
-                                Real* dy, Real* dz) {
+template <class S>
+CSB_INLINE void distance_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r, S* dx,
+                                S* dy, S* dz) {
   for (Index k = k0; k < m; ++k) {
     const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
     dx[k] = r[i] - r[j];
@@ -103,12 +105,12 @@ CSB_INLINE void distance_gather(const ColouredDistance& b, Index c0, Index k0, I
 
 // The corrections of constraints c0 + [k0, m), one at a time: PBD's -c_i s d and +c_j s d (s the
 // violation over |d|), XPBD's +w_i Δλ n and -w_j Δλ n (s = Δλ, (vx, vy, vz) = n, c = w).
-template <bool Xpbd>
-CSB_INLINE void distance_scatter(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* s,
-                                 const Real* vx, const Real* vy, const Real* vz, Real* o) {
+template <bool Xpbd, class S>
+CSB_INLINE void distance_scatter(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* s,
+                                 const S* vx, const S* vy, const S* vz, S* o) {
   for (Index k = k0; k < m; ++k) {
     const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
-    const Real si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
+    const S si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
     if constexpr (Xpbd) {
       o[i] += si * vx[k], o[i + 1] += si * vy[k], o[i + 2] += si * vz[k];
       o[j] -= sj * vx[k], o[j + 1] -= sj * vy[k], o[j + 2] -= sj * vz[k];
@@ -119,10 +121,10 @@ CSB_INLINE void distance_scatter(const ColouredDistance& b, Index c0, Index k0, 
   }
 }
 
-template <bool Approx>
-CSB_INLINE void distance_pbd_blocks(const ColouredDistance& b, Index begin, Index end, const Real* r, Real* o) {
+template <bool Approx, class S>
+CSB_INLINE void distance_pbd_blocks(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o) {
   constexpr Index B = kDistanceBlock;
-  alignas(64) Real dx[B], dy[B], dz[B], s[B];
+  alignas(64) S dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
@@ -188,29 +190,29 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
 // XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
 // Relaxed (averaged Jacobi): Δλ, after its sign clamp, scaled by the constraint's relaxation
 // min(relax_i, relax_j) (PbdStepper::set_relaxation).
-template <bool Relaxed = false>
-CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real* o, const Real* x,
+template <bool Relaxed = false, class S>
+CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o, const S* x,
                               const Real* relax = nullptr) {
   const Index i = 3 * b.i[c], j = 3 * b.j[c];
-  const Real dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
-  const Real len = std::sqrt(dx * dx + dy * dy + dz * dz);
-  const Real inv_len = Real(len > 0 ? 1 : 0) / (len > 0 ? len : Real(1));
-  const Real nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
-  const Real cl = len - b.rest[c];
-  const Real g = b.gamma[c];
-  const Real along = nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
+  const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
+  const S len = std::sqrt(dx * dx + dy * dy + dz * dz);
+  const S inv_len = S(len > 0 ? 1 : 0) / (len > 0 ? len : S(1));
+  const S nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
+  const S cl = len - b.rest[c];
+  const S g = b.gamma[c];
+  const S along = nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
                      nz * ((r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]));
-  const Real moved = g == 0 ? Real(0) : along;
-  const Real lambda = b.lambda[c];
-  Real dl = (-cl - b.alpha[c] * lambda - g * moved) * b.inv_den[c];
-  const Real sense = b.sense[c];
-  const Real next = lambda + dl;
-  const Real clamped = sense > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
+  const S moved = g == 0 ? S(0) : along;
+  const S lambda = b.lambda[c];
+  S dl = (-cl - b.alpha[c] * lambda - g * moved) * b.inv_den[c];
+  const S sense = b.sense[c];
+  const S next = lambda + dl;
+  const S clamped = sense > 0 ? std::max(next, S(0)) : std::min(next, S(0));
   dl = sense == 0 ? dl : clamped - lambda;
-  dl = len > 0 ? dl : Real(0);
+  dl = len > 0 ? dl : S(0);
   if constexpr (Relaxed) dl *= std::min(relax[b.i[c]], relax[b.j[c]]);
   b.lambda[c] = lambda + dl;
-  const Real di = b.ci[c] * dl, dj = b.cj[c] * dl;
+  const S di = b.ci[c] * dl, dj = b.cj[c] * dl;
   o[i] += di * nx;
   o[i + 1] += di * ny;
   o[i + 2] += di * nz;
@@ -224,27 +226,27 @@ CSB_INLINE void distance_xpbd(ColouredDistance& b, Index c, const Real* r, Real*
 // bits. Damped: the batch has damping (ColouredDistance::damped), and the gather also takes the
 // motion since the sub-step's start, u = (p_i - x_i) - (p_j - x_j); without it every γ is +0,
 // γ moved is +0, and its subtraction changes no value.
-template <bool Damped>
-CSB_INLINE void distance_xpbd_block_s(ColouredDistance& b, Index c0, Index m, Real* dx, Real* dy, Real* dz,
-                                      const Real* ux, const Real* uy, const Real* uz, Real* s) {
-  const Real* rest = b.rest.data() + c0;
+template <bool Damped, class S>
+CSB_INLINE void distance_xpbd_block_s(ColouredDistanceT<S>& b, Index c0, Index m, S* dx, S* dy, S* dz,
+                                      const S* ux, const S* uy, const S* uz, S* s) {
+  const S* rest = b.rest.data() + c0;
   const std::int8_t* sense = b.sense.data() + c0;
-  const Real* alpha = b.alpha.data() + c0;
-  const Real* gamma = b.gamma.data() + c0;
-  const Real* inv_den = b.inv_den.data() + c0;
-  Real* lambda = b.lambda.data() + c0;
+  const S* alpha = b.alpha.data() + c0;
+  const S* gamma = b.gamma.data() + c0;
+  const S* inv_den = b.inv_den.data() + c0;
+  S* lambda = b.lambda.data() + c0;
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const Real l = lambda[k];
-    Real nx, ny, nz, len;
-    Real dl = xpbd_distance_step<Damped>(dx[k], dy[k], dz[k], Damped ? ux[k] : Real(0), Damped ? uy[k] : Real(0),
-                                         Damped ? uz[k] : Real(0), rest[k], alpha[k], gamma[k], inv_den[k], l, nx,
+    const S l = lambda[k];
+    S nx, ny, nz, len;
+    S dl = xpbd_distance_step<Damped>(dx[k], dy[k], dz[k], Damped ? ux[k] : S(0), Damped ? uy[k] : S(0),
+                                         Damped ? uz[k] : S(0), rest[k], alpha[k], gamma[k], inv_den[k], l, nx,
                                          ny, nz, len);
-    const Real sn = sense[k];
-    const Real next = l + dl;
-    const Real clamped = sn > 0 ? std::max(next, Real(0)) : std::min(next, Real(0));
+    const S sn = sense[k];
+    const S next = l + dl;
+    const S clamped = sn > 0 ? std::max(next, S(0)) : std::min(next, S(0));
     dl = sn == 0 ? dl : clamped - l;
-    dl = len > 0 ? dl : Real(0);
+    dl = len > 0 ? dl : S(0);
     lambda[k] = l + dl;
     s[k] = dl;
     dx[k] = nx, dy[k] = ny, dz[k] = nz;
@@ -252,8 +254,9 @@ CSB_INLINE void distance_xpbd_block_s(ColouredDistance& b, Index c0, Index m, Re
 }
 
 // u = (p_i - x_i) - (p_j - x_j) of constraints c0 + [k0, m), one at a time.
-CSB_INLINE void distance_motion_gather(const ColouredDistance& b, Index c0, Index k0, Index m, const Real* r,
-                                       const Real* x, Real* ux, Real* uy, Real* uz) {
+template <class S>
+CSB_INLINE void distance_motion_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r,
+                                       const S* x, S* ux, S* uy, S* uz) {
   for (Index k = k0; k < m; ++k) {
     const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
     ux[k] = (r[i] - x[i]) - (r[j] - x[j]);
@@ -262,12 +265,12 @@ CSB_INLINE void distance_motion_gather(const ColouredDistance& b, Index c0, Inde
   }
 }
 
-template <bool Damped>
-CSB_INLINE void distance_xpbd_blocks(ColouredDistance& b, Index begin, Index end, const Real* r, Real* o,
-                                     const Real* x) {
+template <bool Damped, class S>
+CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
+                                     const S* x) {
   constexpr Index B = kDistanceBlock;
-  alignas(64) Real dx[B], dy[B], dz[B], s[B];
-  alignas(64) Real ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  alignas(64) S dx[B], dy[B], dz[B], s[B];
+  alignas(64) S ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
@@ -321,20 +324,67 @@ __attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistance&
 }
 #endif
 
-// XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2
-// gathers where the processor has them.
-inline void distance_xpbd_range(ColouredDistance& b, Index begin, Index end, const Real* r, Real* o, const Real* x) {
 #if defined(CSB_DISTANCE_AVX2)
-  if (kernels_use_avx2()) {
-    b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
-             : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
-    return;
-  }
-#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-  b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
-           : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
-  return;
+// Single precision: the portable blocks compiled again for AVX2, their arithmetic in eight float
+// lanes (four with SSE2); positions gathered and scattered one constraint at a time.
+template <bool Approx>
+__attribute__((target("avx2"))) void distance_pbd_blocks_single_avx2(const ColouredDistanceT<float>& b, Index begin,
+                                                                      Index end, const float* r, float* o) {
+  distance_pbd_blocks<Approx>(b, begin, end, r, o);
+}
+template <bool Damped>
+__attribute__((target("avx2"))) void distance_xpbd_blocks_single_avx2(ColouredDistanceT<float>& b, Index begin,
+                                                                       Index end, const float* r, float* o,
+                                                                       const float* x) {
+  distance_xpbd_blocks<Damped>(b, begin, end, r, o, x);
+}
 #endif
+
+// PBD and Jakobsen over the independent constraints [begin, end) of one colour. Double: the
+// blocks, with AVX2 gathers where the processor has them (Jakobsen's square-root approximation
+// one constraint per SIMD lane); float: the portable blocks, in AVX2 lanes where it has them.
+template <bool Approx, class S>
+inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o) {
+  if constexpr (std::is_same_v<S, float>) {
+#if defined(CSB_DISTANCE_AVX2)
+    if (kernels_use_avx2()) return distance_pbd_blocks_single_avx2<Approx>(b, begin, end, r, o);
+#endif
+    distance_pbd_blocks<Approx>(b, begin, end, r, o);
+  } else if constexpr (Approx) {
+#pragma omp simd
+    for (Index c = begin; c < end; ++c) distance_pbd<true>(b, c, r, o);
+  } else {
+#if defined(CSB_DISTANCE_AVX2)
+    if (kernels_use_avx2()) return distance_pbd_blocks_avx2(b, begin, end, r, o);
+    distance_pbd_blocks<false>(b, begin, end, r, o);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+    distance_pbd_blocks_avx2(b, begin, end, r, o);
+#else
+    distance_pbd_blocks<false>(b, begin, end, r, o);
+#endif
+  }
+}
+
+// XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2
+// gathers where the processor has them (double), or in AVX2 lanes (float).
+template <class S>
+inline void distance_xpbd_range(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
+  if constexpr (std::is_same_v<S, float>) {
+#if defined(CSB_DISTANCE_AVX2)
+    if (kernels_use_avx2())
+      return b.damped ? distance_xpbd_blocks_single_avx2<true>(b, begin, end, r, o, x)
+                      : distance_xpbd_blocks_single_avx2<false>(b, begin, end, r, o, x);
+#endif
+  } else {
+#if defined(CSB_DISTANCE_AVX2)
+    if (kernels_use_avx2())
+      return b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
+                      : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+    return b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
+                    : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+#endif
+  }
   b.damped ? distance_xpbd_blocks<true>(b, begin, end, r, o, x) : distance_xpbd_blocks<false>(b, begin, end, r, o, x);
 }
 
