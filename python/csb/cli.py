@@ -15,12 +15,13 @@ _FORMATS = ("usd", "gltf", "obj", "ply", "xdmf", "vtu", "csv", "plot")
 
 
 def _overridden(scene, args: argparse.Namespace):
-    """The scene with the command line's --method, --dt, --substeps, --iterations, --duration and
-    --fps in place of its own; the stepper is made once so that an impossible combination is an
+    """The scene with the command line's --method, --dt, --substeps, --iterations, --precision,
+    --duration and --fps in place of its own; the stepper is made once so that an impossible combination is an
     error now, naming the setting."""
     import dataclasses
 
-    solver = {k: getattr(args, k) for k in ("method", "dt", "substeps", "iterations") if getattr(args, k) is not None}
+    solver = {k: getattr(args, k) for k in ("method", "dt", "substeps", "iterations", "precision")
+              if getattr(args, k, None) is not None}
     if solver:
         scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, **solver))
         scene.solver.stepper()
@@ -67,7 +68,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from .bench import main
 
     main(sizes=args.sizes or [64, 128], iterations=args.iterations, substeps=args.substeps, steps=args.steps, rounds=args.rounds,
-         parts=args.parts, front_end_sizes=args.front_end_sizes)
+         parts=args.parts, front_end_sizes=args.front_end_sizes, self_collision_sizes=args.self_collision_sizes)
     return 0
 
 
@@ -216,6 +217,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--dt", type=_positive, help="time step, s (default: the scene's)")
     p.add_argument("--substeps", type=_at_least(1), help="sub-steps per time step (default: the scene's)")
     p.add_argument("--iterations", type=_at_least(1), help="iterations per sub-step (default: the scene's)")
+    p.add_argument("--precision", choices=("float64", "float32"),
+                   help="the solver's scalar (default: the scene's); float32 runs distance and bending constraints "
+                        "with pins, without contacts or grabs")
     p.add_argument("--fps", type=_positive, help="frames written per simulated second (default: the scene's)")
     p.add_argument("--format", nargs="+", choices=_FORMATS,
                    help="write these outputs instead of the scene's [output] choice: usd (<name>.usd, the meshes "
@@ -226,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("bench", help="time the PBD step, its front ends, virtual dispatch, the viewer's frames, "
                                      "colouring, threads, scaling, memory and the reference; --peers: against pypbd, "
-                                     "newton and jolt (prints tables)")
+                                     "newton, jolt and mujoco (prints tables)")
     p.add_argument("--sizes", type=_at_least(2), nargs="+", default=None,
                    help="particles per side (default: 64 128; with --peers 32 64 128 256)")
     p.add_argument("--iterations", type=_at_least(1), default=10)
@@ -241,15 +245,23 @@ def main(argv: list[str] | None = None) -> int:
                         "projections per second by type "
                         "against a plain loop, 1 against 2 threads, the same with a busy core, cost per particle "
                         "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size, every method "
-                        "at equal iterations and at equal error, self-collision's cost on a 1,600-particle cape")
+                        "at equal iterations and at equal error, self-collision's cost on a 1,600-particle cape "
+                        "and against the cape's size")
     p.add_argument("--front-end-sizes", type=_at_least(2), nargs="+", default=[32, 128, 512],
                    help="cloth sizes (particles per side) for the front-end table (default: 32 128 512)")
+    p.add_argument("--self-collision-sizes", type=_at_least(2), nargs="+", default=[20, 28, 40, 56, 80],
+                   help="cape sizes (particles per side) for the self-collision sweep that follows the self-collision "
+                        "table (default: 20 28 40 56 80; 113 adds about 20 s a round, 160 half an hour or more)")
     p.add_argument("--peers", action="store_true",
                    help="instead: the same cloth in csb, pypbd, newton (CPU) and Jolt, 10 substeps x 1 iteration "
-                        "and 1 x 10 (Jolt: 10 x 1 only); a peer that is not installed is skipped (pip install "
-                        "'csb[bench]'; Jolt: --jolt)")
+                        "and 1 x 10 (Jolt: 10 x 1 only), and, when named in --sides, MuJoCo's flex springs (a "
+                        "different method, at its own stable sub-steps, in the 10 x 1 rows); a peer that is not "
+                        "installed is skipped (pip install 'csb[bench]'; Jolt: --jolt)")
     p.add_argument("--sides", nargs="+", default=["csb", "pypbd", "newton", "jolt"],
-                   choices=["csb", "pypbd", "newton", "jolt"], help="with --peers: which sides to run")
+                   choices=["csb", "pypbd", "newton", "jolt", "mujoco"],
+                   help="with --peers: which sides to run (default: all but mujoco, MuJoCo's flex springs, a "
+                        "different method that runs only when named: hundreds of sub-steps a frame, seconds a "
+                        "frame from 128²)")
     p.add_argument("--pypbd-threads", type=_at_least(1), nargs="+", default=[1, 2],
                    help="with --peers: OMP_NUM_THREADS values to run pypbd with (default: 1 2)")
     p.add_argument("--jolt", metavar="PATH", default=None,

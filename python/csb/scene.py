@@ -72,6 +72,7 @@ class SolverSpec:
     ordering: str = "coloured"      # or "sequential" (the batches as built, one thread)
     threads: int = 0                # threads per colour; 0: the free cores (the result does not depend on it)
     max_speed: float = 0.0          # m/s, the divergence guard; 0: automatic (the model's size per sub-step, ...), inf: off
+    precision: str = "float64"      # the solver's scalar; "float32": distance and bending with pins, no contacts or grabs
     # Any other method's own settings ([solver.settings]; csb.method_info(method).settings lists them).
     settings: tuple[tuple[str, Any], ...] = ()
 
@@ -93,7 +94,7 @@ class SolverSpec:
                 gravity=self.gravity, damping=self.damping, stiffness_correction=self.stiffness_correction,
                 front_end=self.front_end, solver=self.solver, xpbd_damping=self.xpbd_damping,
                 verlet_drag=self.verlet_drag, sqrt_approximation=self.sqrt_approximation, ordering=self.ordering,
-                threads=self.threads, max_speed=self.max_speed,
+                threads=self.threads, max_speed=self.max_speed, precision=self.precision,
             )
         defaults = SolverSpec()
         for key in _PBD_KEYS:
@@ -106,7 +107,7 @@ class SolverSpec:
 
 
 _PBD_KEYS = ("damping", "stiffness_correction", "front_end", "solver", "xpbd_damping", "verlet_drag",
-             "sqrt_approximation", "ordering", "threads", "max_speed")
+             "sqrt_approximation", "ordering", "threads", "max_speed", "precision")
 
 
 @dataclass(frozen=True)
@@ -979,6 +980,7 @@ def load_scene(path: str | os.PathLike[str]) -> Scene:
         threads=so.integer("threads", 0, minimum=0, maximum=_core.MAX_THREADS),
         max_speed=so.number("max_speed", 0.0, check=lambda x: x >= 0, allow_inf=True,
                             expect="a speed >= 0 m/s (0: automatic divergence guard, inf: off)"),
+        precision=so.string("precision", "float64", choices=("float64", "float32")),
         settings=_method_settings(so),
     )
     so.finish()

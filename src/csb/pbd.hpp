@@ -43,6 +43,7 @@ enum class Method { Pbd, Xpbd, Jakobsen };
 enum class FrontEnd { Euler, Verlet };
 enum class Solver { GaussSeidel, Jacobi, JacobiSummed };
 enum class Ordering { Coloured, Sequential };
+enum class Precision { Double, Single };
 
 struct PbdSettings {
   Method method = Method::Pbd;
@@ -98,6 +99,15 @@ struct PbdSettings {
   // contacts can follow); a runaway, which grows geometrically, trips it within a few steps,
   // long before positions reach 1e14 m or NaN. Infinity turns the guard off.
   Real max_speed = 0;
+  // The scalar the solver runs in. Double (default): the state and every constraint in double
+  // precision. Single: during a step, the particles' positions, velocities (Verlet: previous
+  // positions) and predictions and the distance and bending constraints' data in float, twice
+  // the SIMD lanes and half the bytes; the state is rounded to float at the step's start and
+  // widened back at its end (deterministic within each precision). Single runs the coloured
+  // Gauss-Seidel sweep of a step without contacts, grabs or Müller damping, on models of distance
+  // and bending constraints and pins; other models and settings are refused with what stands in
+  // the way.
+  Precision precision = Precision::Double;
 };
 
 // Throws InvalidArgument naming the first impossible setting.
@@ -340,6 +350,12 @@ class PbdStepper : public Integrator {
                         const Real* x_start, const Real* relax);
   template <Method M, bool Jacobi>
   void project_coloured(const Model& model, const Positions& x_start, Fused* fused);
+  // Precision::Single: what in the model or the stepper's state stands in its way (throws
+  // InvalidArgument), and one step of all sub-steps in float (solver/coloured.cpp).
+  void check_single(const Model& model) const;
+  void step_single(const Model& model, State& state, Real h);
+  template <Method M>
+  void step_single(const Model& model, State& state, Real h);
   void build_coloured(const Model& model, const Real* w);
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
@@ -381,6 +397,14 @@ class PbdStepper : public Integrator {
   mutable Multipliers lambda_;
   mutable bool lambda_stale_ = false;
   ColouredBatches coloured_;             // the batches in colour order (coloured ordering)
+  // Precision::Single: the distance and bending batches rounded to float (coloured_'s own are
+  // then released), and during a step the particles' positions x, velocities v (Verlet: previous
+  // positions), predictions p and per-sub-step accelerations (h g; Verlet h² g) in float.
+  struct {
+    ColouredDistanceT<float> distance;
+    ColouredFourT<float> bending;
+    std::vector<float> x, v, p, accel;
+  } single_;
   struct {
     std::vector<Index> distance, bending, volume, attachment;
     std::vector<Index> distance_paired;  // the distance constraint projected with each bending element, or -1

@@ -28,6 +28,9 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         return s.ordering == Ordering::Coloured ? "coloured" : "sequential";
       })
       .def_readonly("threads", &PbdSettings::threads, "threads that share a sweep (parts and interfaces as tasks); 0: automatic")
+      .def_property_readonly("precision", [](const PbdSettings& s) {
+        return s.precision == Precision::Single ? "float32" : "float64";
+      }, "the solver's scalar: 'float64' or 'float32'")
       .def("__repr__", [](const PbdSettings& s) {
         std::ostringstream o;
         o << "PbdSettings(method='" << method_info(s.method).name << "'"
@@ -39,7 +42,8 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
           << "', xpbd_damping=" << s.xpbd_damping << ", verlet_drag=" << s.verlet_drag
           << ", sqrt_approximation=" << (s.sqrt_approximation ? "True" : "False") << ", ordering='"
           << (s.ordering == Ordering::Coloured ? "coloured" : "sequential") << "', threads=" << s.threads
-          << ", max_speed=" << s.max_speed << ")";
+          << ", max_speed=" << s.max_speed << ", precision='"
+          << (s.precision == Precision::Single ? "float32" : "float64") << "')";
         return o.str();
       });
 
@@ -48,7 +52,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
       .def(py::init([](const std::string& method, double dt, IntArg substeps, IntArg iterations, py::handle gravity,
                        double damping, bool stiffness_correction, const std::string& front_end,
                        const std::string& solver, double xpbd_damping, double verlet_drag, bool sqrt_approximation,
-                       const std::string& ordering, IntArg threads, double max_speed) {
+                       const std::string& ordering, IntArg threads, double max_speed, const std::string& precision) {
              PbdSettings s;
              s.method = pbd_variant(method);
              s.dt = dt;
@@ -73,6 +77,9 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
              else throw InvalidArgument("ordering must be 'coloured' or 'sequential', got '" + ordering + "'");
              s.threads = in_range<int>(threads, "threads", 0, kMaxThreads);
              s.max_speed = max_speed;
+             if (precision == "float64") s.precision = Precision::Double;
+             else if (precision == "float32") s.precision = Precision::Single;
+             else throw InvalidArgument("precision must be 'float64' or 'float32', got '" + precision + "'");
              return PbdStepper(s);
            }),
            py::kw_only(), py::arg("method") = "pbd", py::arg("dt") = 1.0 / 60.0, py::arg("substeps") = 1,
@@ -80,7 +87,7 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
            py::arg("damping") = 0.0, py::arg("stiffness_correction") = true, py::arg("front_end") = "auto",
            py::arg("solver") = "gauss-seidel", py::arg("xpbd_damping") = 0.0, py::arg("verlet_drag") = 0.0,
            py::arg("sqrt_approximation") = false, py::arg("ordering") = "coloured", py::arg("threads") = 0,
-           py::arg("max_speed") = 0.0,
+           py::arg("max_speed") = 0.0, py::arg("precision") = "float64",
            "method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: "
            "sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: "
            "Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's "
@@ -92,7 +99,9 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
            "thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the "
            "result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable "
            "particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) "
-           "with D the model's size and v0 the fastest start speed; inf: off).")
+           "with D the model's size and v0 the fastest start speed; inf: off). precision: the solver's scalar, "
+           "'float64' or 'float32' (the state rounded to float during a step: twice the SIMD lanes, half the bytes; "
+           "coloured Gauss-Seidel, distance and bending constraints and pins, without contacts or grabs).")
       .def_property_readonly("settings", &PbdStepper::settings)
       .def_property_readonly("threads_used", &PbdStepper::threads_used, "threads the last step used")
       .def_property_readonly("workspace_bytes", &PbdStepper::workspace_bytes,

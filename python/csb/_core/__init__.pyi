@@ -460,6 +460,11 @@ class PbdSettings:
     def ordering(self) -> str:
         ...
     @property
+    def precision(self) -> str:
+        """
+        the solver's scalar: 'float64' or 'float32'
+        """
+    @property
     def solver(self) -> str:
         ...
     @property
@@ -490,9 +495,9 @@ class PbdStepper(Integrator):
     """
     Position-based stepper: Müller et al. 2007 PBD, Macklin et al. 2016 XPBD, or Jakobsen 2001 Verlet with relaxation.
     """
-    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: int = 0, max_speed: typing.SupportsFloat | typing.SupportsIndex = 0.0) -> None:
+    def __init__(self, *, method: str = 'pbd', dt: typing.SupportsFloat | typing.SupportsIndex = 0.016666666666666666, substeps: int = 1, iterations: int = 10, gravity: typing.Any = [0.0, -9.81, 0.0], damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, stiffness_correction: bool = True, front_end: str = 'auto', solver: str = 'gauss-seidel', xpbd_damping: typing.SupportsFloat | typing.SupportsIndex = 0.0, verlet_drag: typing.SupportsFloat | typing.SupportsIndex = 0.0, sqrt_approximation: bool = False, ordering: str = 'coloured', threads: int = 0, max_speed: typing.SupportsFloat | typing.SupportsIndex = 0.0, precision: str = 'float64') -> None:
         """
-        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off).
+        method: 'pbd' (stiffness k), 'xpbd' (compliance α) or 'jakobsen'. dt: time step, s (> 0). substeps: sub-steps per step, in [1, 10^6]. iterations: constraint sweeps per sub-step, in [1, 10^6]. gravity: m/s². damping: Müller §3.5 k_damping in [0, 1] per sub-step (Euler front end). stiffness_correction: PBD's k' = 1 - (1 - k)^(1/iterations). front_end: 'euler' (velocity), 'verlet' (previous position) or 'auto' (Verlet for Jakobsen). solver: 'gauss-seidel', 'jacobi' (averaged) or 'jacobi-summed'. xpbd_damping: β, N s/m (XPBD). verlet_drag: Jakobsen's d in [0, 1). sqrt_approximation: Jakobsen's stick relaxation without square roots. ordering: 'coloured' (the model's parts and interfaces as the threads' tasks, each batch of a task colour by colour in SIMD lanes) or 'sequential' (as built, one thread). threads: threads that share a sweep, in [0, 1024] (0: the free cores, at most the model's parts; the result does not depend on it). max_speed: the divergence guard, m/s: a step after which a movable particle is faster raises SimulationError naming it (0: automatic, D/h + 2 (v0 + |g| t + sqrt(2 |g| D)) with D the model's size and v0 the fastest start speed; inf: off). precision: the solver's scalar, 'float64' or 'float32' (the state rounded to float during a step: twice the SIMD lanes, half the bytes; coloured Gauss-Seidel, distance and bending constraints and pins, without contacts or grabs).
         """
     def attach(self, model: Model, state: State, collider: int, particles: collections.abc.Iterable) -> None:
         """

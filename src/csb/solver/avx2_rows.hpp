@@ -12,6 +12,8 @@
 // Only data moves here; every sum is the same IEEE operation on the same operands as in the
 // scalar loops, so the results keep their bits.
 //
+// Single precision has the same functions on four floats in 128-bit registers, a particle one
+// load or store (the kernels' arithmetic still runs eight lanes in 256-bit ones).
 // These functions are compiled for AVX2 (target attribute) and inlined into the kernels' AVX2
 // copies, which run only when the processor has AVX2 (coloured_bending.cpp).
 #pragma once
@@ -99,6 +101,57 @@ CSB_AVX2_INLINE void store_rows(Real* o, const Index at[4], __m256d x, __m256d y
   _mm_storeh_pd(o + at[1] + 2, z01);
   _mm_store_sd(o + at[2] + 2, z23);
   _mm_storeh_pd(o + at[3] + 2, z23);
+}
+
+// Single precision, four particles in 128-bit registers. Positions are x, y, z and a pad of 0
+// per particle (kStride<float> = 4, solver/coloured.hpp): a particle is one 128-bit load, and one
+// 128-bit store writes it back with its pad still 0.
+CSB_AVX2_INLINE __m128 load_xyz(const float* p) { return _mm_loadu_ps(p); }
+
+// Rows x, y, z of four [x, y, z, ·] vectors (lane l from v_l).
+CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z) {
+  const __m128 t0 = _mm_unpacklo_ps(v0, v1);  // x0 x1 y0 y1
+  const __m128 t1 = _mm_unpacklo_ps(v2, v3);  // x2 x3 y2 y3
+  const __m128 t2 = _mm_unpackhi_ps(v0, v1);  // z0 z1 ·  ·
+  const __m128 t3 = _mm_unpackhi_ps(v2, v3);  // z2 z3 ·  ·
+  x = _mm_movelh_ps(t0, t1);
+  y = _mm_movehl_ps(t1, t0);
+  z = _mm_movelh_ps(t2, t3);
+}
+
+// The four [x, y, z, 0] vectors of rows x, y, z.
+CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 v[4]) {
+  v[0] = x, v[1] = y, v[2] = z, v[3] = _mm_setzero_ps();
+  _MM_TRANSPOSE4_PS(v[0], v[1], v[2], v[3]);
+}
+
+// Rows of four consecutive [a, b, c, d] quadruples at q (16 floats): a, b, c, d of each.
+CSB_AVX2_INLINE void rows4(const float* q, __m128& a, __m128& b, __m128& c, __m128& d) {
+  a = _mm_loadu_ps(q), b = _mm_loadu_ps(q + 4), c = _mm_loadu_ps(q + 8), d = _mm_loadu_ps(q + 12);
+  _MM_TRANSPOSE4_PS(a, b, c, d);
+}
+
+template <bool Subtract>
+CSB_AVX2_INLINE __m128 update(__m128 o, __m128 d) {
+  if constexpr (Subtract)
+    return _mm_sub_ps(o, d);
+  else
+    return _mm_add_ps(o, d);
+}
+
+// Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
+template <bool Subtract = false>
+CSB_AVX2_INLINE void add_rows(float* o, const Index at[4], __m128 dx, __m128 dy, __m128 dz) {
+  __m128 d[4];
+  particles(dx, dy, dz, d);
+  for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], update<Subtract>(_mm_loadu_ps(o + at[l]), d[l]));
+}
+
+// Lane l of the rows (x, y, z) written to the particle at o + at[l], its pad 0.
+CSB_AVX2_INLINE void store_rows(float* o, const Index at[4], __m128 x, __m128 y, __m128 z) {
+  __m128 v[4];
+  particles(x, y, z, v);
+  for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], v[l]);
 }
 
 }  // namespace csb::avx2

@@ -234,6 +234,12 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
   for (const Colouring* c : batches)
     cb.rest_empty = cb.rest_empty && (c->num_groups() <= rest || c->colour_offsets[c->group_colours[rest + 1]] ==
                                                                       c->colour_offsets[c->group_colours[rest]]);
+  if (settings_.precision == Precision::Single) {  // the float batches; the double ones are not projected
+    single_.distance = narrowed<float>(cb.distance);
+    single_.bending = narrowed<float>(cb.bending);
+    cb.distance = {};
+    cb.bending = {};
+  }
   cb.model_id = model.id;
 }
 

@@ -6,6 +6,7 @@
 #include "csb/solver/team.hpp"
 #include "csb/constraints/volume.hpp"
 #include <cstring>
+#include <sstream>
 
 namespace csb {
 
@@ -362,6 +363,157 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
       }
     }
   });
+}
+
+
+// ------------------------------------------------------------------------- single precision
+//
+// Precision::Single: one step of every sub-step in one fork of the team, in float. The state is
+// rounded to float (positions, velocities or Verlet's previous positions, h g per particle; each
+// particle's x, y, z and a pad of 0, kStride<float> apart),
+// then per sub-step the prediction, `iterations` coloured Gauss-Seidel sweeps of the float
+// batches (the kernels of the double sweep, instantiated for float: twice the SIMD lanes, half
+// the bytes) and the update. When every constraint lies in a part or an interface (no rest
+// group), part g's task of a sub-step's first sweep updates and predicts its own particles and
+// each group's task zeroes its XPBD multipliers, as in the double fused step (two barriers a
+// sub-step); otherwise the update and prediction are split by particle between the threads. At
+// the end every new position is checked finite before the state takes them, widened to double.
+// The same operations in the same order whatever the thread count: the same bits.
+template <Method M>
+void PbdStepper::step_single(const Model& model, State& state, Real h) {
+  const Index n = model.num_particles();
+  const bool verlet = settings_.front_end == FrontEnd::Verlet;
+  const int substeps = settings_.substeps, iterations = settings_.iterations, threads = threads_used_;
+  const bool approx = settings_.sqrt_approximation;
+  const float hf = static_cast<float>(h), keep = static_cast<float>(1 - settings_.verlet_drag);
+  float* x = single_.x.data();
+  float* v = single_.v.data();
+  float* p = single_.p.data();
+  float* a = single_.accel.data();
+  bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
+  const Index parts = model.num_parts;
+  const bool in_tasks = coloured_.rest_empty;
+  // XPBD's multipliers set to zero: share t of `shares` of every float batch's, or group g's.
+  const auto zero_multipliers = [&](int t, int shares) {
+    if constexpr (M == Method::Xpbd)
+      for (std::vector<float>* l : {&single_.distance.lambda, &single_.bending.lambda, &single_.bending.pair_lambda}) {
+        const std::int64_t m = static_cast<std::int64_t>(l->size());
+        std::fill(l->begin() + m * t / shares, l->begin() + m * (t + 1) / shares, 0.0f);
+      }
+  };
+  const auto zero_group_multipliers = [&](Index g) {
+    const auto zero = [g](const Colouring& c, std::vector<float>& l) {
+      if (l.empty() || static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
+      std::fill(l.begin() + c.colour_offsets[c.group_colours[g]], l.begin() + c.colour_offsets[c.group_colours[g + 1]],
+                0.0f);
+    };
+    zero(coloured_.distance_colours, single_.distance.lambda);
+    zero(model.bending.colours, single_.bending.lambda);
+    zero(model.bending.colours, single_.bending.pair_lambda);
+  };
+  // p from x and v (Euler: v += a first) for coordinates [k0, k1).
+  const auto predict = [&](Index k0, Index k1) {
+    for (Index k = k0; k < k1; ++k) {
+      if (verlet) {
+        p[k] = x[k] + keep * (x[k] - v[k]) + a[k];
+      } else {
+        v[k] = v[k] + a[k];
+        p[k] = x[k] + hf * v[k];
+      }
+    }
+  };
+  // (12)-(15) for coordinates [k0, k1): v = (p - x)/h (Verlet: the previous positions), x = p.
+  const auto update = [&](Index k0, Index k1) {
+    for (Index k = k0; k < k1; ++k) {
+      const float pk = p[k], xk = x[k];
+      v[k] = verlet ? xk : (pk - xk) / hf;
+      x[k] = pk;
+    }
+  };
+  team_.get().run(threads, spin_, [&](int t) {
+    Share share{team_.get(), t};
+    const int shares = share.team.size();
+    share.split(n, [&](Index begin, Index end) {
+      const Real* xd = state.x.data();
+      const Real* vd = verlet ? x_prev_.data() : state.v.data();
+      const Real* w = model.inv_mass.data();
+      const Real step = verlet ? h * h : h;
+      for (Index i = begin; i < end; ++i)
+        for (int e = 0; e < 3; ++e) {
+          const Index k = kStride<float> * i + e;
+          x[k] = static_cast<float>(xd[3 * i + e]);
+          v[k] = static_cast<float>(vd[3 * i + e]);
+          a[k] = static_cast<float>(w[i] > 0 ? step * settings_.gravity[e] : 0);
+        }
+      predict(kStride<float> * begin, kStride<float> * end);
+      if (!in_tasks) zero_multipliers(t, shares);
+    });
+    for (int sub = 0; sub < substeps; ++sub) {
+      for (int it = 0; it < iterations; ++it) {
+        // In tasks: the group's multipliers zeroed, and (after the first sub-step) the part's
+        // particles updated and predicted, before its first sweep's constraints.
+        const auto start = [&](Index g) {
+          if (!in_tasks || it > 0) return;
+          if constexpr (M == Method::Xpbd) zero_group_multipliers(g);
+          if (sub > 0 && g < parts)
+            for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
+              const auto [begin, end] = coloured_.part_runs[k];
+              update(kStride<float> * begin, kStride<float> * end);
+              predict(kStride<float> * begin, kStride<float> * end);
+            }
+        };
+        sweep_coloured<M, false>(share, model, coloured_, single_.distance, single_.bending, approx, p, p, x, nullptr,
+                                 start);
+      }
+      const bool last = sub + 1 == substeps;
+      if (in_tasks && !last) continue;
+      // (12)-(15), then (last sub-step) the finiteness check or the next sub-step's prediction.
+      share.split(n, [&](Index begin, Index end) {
+        update(kStride<float> * begin, kStride<float> * end);
+        if (last) {
+          for (Index i = begin; i < end && bad_[t] < 0; ++i) {
+            const float* xi = x + kStride<float> * i;
+            if (!std::isfinite(xi[0]) || !std::isfinite(xi[1]) || !std::isfinite(xi[2])) bad_[t] = i;
+          }
+        } else {
+          predict(kStride<float> * begin, kStride<float> * end);
+          zero_multipliers(t, shares);
+        }
+      });
+    }
+    for (const Index b : bad_)
+      if (b >= 0) return;  // every thread sees the same bad_ after the last barrier
+    share.split(n, [&](Index begin, Index end) {
+      Real* xd = state.x.data();
+      Real* vd = verlet ? x_prev_.data() : state.v.data();
+      for (Index i = begin; i < end; ++i)
+        for (int e = 0; e < 3; ++e) xd[3 * i + e] = x[kStride<float> * i + e], vd[3 * i + e] = v[kStride<float> * i + e];
+    });
+  });
+  Index bad = -1;
+  for (const Index b : bad_)
+    if (b >= 0) bad = bad < 0 ? b : std::min(bad, b);
+  if (bad >= 0) {
+    if (verlet) state.v = (state.x - x_prev_) / h;
+    std::ostringstream msg;
+    const float* xb = x + kStride<float> * bad;
+    msg << "step " << state.step << " (t = " << state.t << " s, single precision): particle " << bad
+        << " got a non-finite position (" << xb[0] << ", " << xb[1] << ", " << xb[2]
+        << "); the state is left at the start of this step";
+    throw SimulationError(msg.str());
+  }
+  if constexpr (M == Method::Xpbd) lambda_stale_ = true;
+}
+
+void PbdStepper::step_single(const Model& model, State& state, Real h) {
+  switch (settings_.method) {
+    case Method::Pbd:
+      return step_single<Method::Pbd>(model, state, h);
+    case Method::Xpbd:
+      return step_single<Method::Xpbd>(model, state, h);
+    case Method::Jakobsen:
+      return step_single<Method::Jakobsen>(model, state, h);
+  }
 }
 
 

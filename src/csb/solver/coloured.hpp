@@ -19,9 +19,16 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <type_traits>
 #include <vector>
 
 namespace csb {
+
+// Where particle i's coordinates start in the solver's positions: double x, y, z per particle,
+// 3 apart (the state's own layout); float x, y, z and a pad, 4 apart: one 128-bit load or store a
+// particle (the single-precision step keeps the pads at 0).
+template <class S>
+constexpr Index kStride = std::is_same_v<S, float> ? 4 : 3;
 
 // S: the scalar the solver runs in, double (Real) or, with Precision::Single, float: the
 // single-precision batches are the double ones rounded once (narrowed), see PbdStepper's
@@ -64,6 +71,25 @@ struct ColouredAttachments {
   std::vector<std::array<Real, 3>> target;  // m
   std::vector<Real> w, k, alpha, gamma, lambda;
 };
+
+// A batch in another scalar: every coefficient rounded once (the single-precision step's batches
+// from the double ones).
+template <class To, class From>
+ColouredDistanceT<To> narrowed(const ColouredDistanceT<From>& d) {
+  const auto cast = [](const std::vector<From>& v) { return std::vector<To>(v.begin(), v.end()); };
+  return {d.i, d.j, cast(d.rest), d.sense, cast(d.ci), cast(d.cj), cast(d.alpha), cast(d.gamma), cast(d.inv_den),
+          cast(d.lambda), d.damped};
+}
+template <class To, class From>
+ColouredFourT<To> narrowed(const ColouredFourT<From>& f) {
+  const auto cast = [](const std::vector<From>& v) { return std::vector<To>(v.begin(), v.end()); };
+  std::vector<std::array<To, 4>> w(f.w.size());
+  for (std::size_t c = 0; c < w.size(); ++c)
+    for (int s = 0; s < 4; ++s) w[c][s] = static_cast<To>(f.w[c][s]);
+  return {f.q, cast(f.rest), std::move(w), cast(f.k), cast(f.alpha), cast(f.gamma), cast(f.lambda), f.damped,
+          cast(f.pair_rest), cast(f.pair_ca), cast(f.pair_cb), cast(f.pair_alpha), cast(f.pair_gamma),
+          cast(f.pair_inv_den), cast(f.pair_lambda)};
+}
 
 // Whether some damping coefficient γ is not +0 (ColouredDistance::damped, ColouredFour::damped).
 inline bool any_damping(const std::vector<Real>& gamma) {

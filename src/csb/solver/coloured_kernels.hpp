@@ -30,7 +30,7 @@ using namespace stepper_detail;
 // approximation, s = (d·d - r²)/(d·d + r²); c = k w/(w_i + w_j) precomputed.
 template <bool Approx, class S>
 CSB_INLINE void distance_pbd(const ColouredDistanceT<S>& b, Index c, const S* r, S* o) {
-  const Index i = 3 * b.i[c], j = 3 * b.j[c];
+  const Index i = kStride<S> * b.i[c], j = kStride<S> * b.j[c];
   const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const S dd = dx * dx + dy * dy + dz * dz;
   const S rest = b.rest[c];
@@ -96,7 +96,7 @@ template <class S>
 CSB_INLINE void distance_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r, S* dx,
                                 S* dy, S* dz) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
     dx[k] = r[i] - r[j];
     dy[k] = r[i + 1] - r[j + 1];
     dz[k] = r[i + 2] - r[j + 2];
@@ -109,7 +109,7 @@ template <bool Xpbd, class S>
 CSB_INLINE void distance_scatter(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* s,
                                  const S* vx, const S* vy, const S* vz, S* o) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
     const S si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
     if constexpr (Xpbd) {
       o[i] += si * vx[k], o[i + 1] += si * vy[k], o[i + 2] += si * vz[k];
@@ -193,7 +193,7 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
 template <bool Relaxed = false, class S>
 CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o, const S* x,
                               const Real* relax = nullptr) {
-  const Index i = 3 * b.i[c], j = 3 * b.j[c];
+  const Index i = kStride<S> * b.i[c], j = kStride<S> * b.j[c];
   const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const S len = std::sqrt(dx * dx + dy * dy + dz * dz);
   const S inv_len = S(len > 0 ? 1 : 0) / (len > 0 ? len : S(1));
@@ -258,7 +258,7 @@ template <class S>
 CSB_INLINE void distance_motion_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r,
                                        const S* x, S* ux, S* uy, S* uz) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = 3 * b.i[c0 + k], j = 3 * b.j[c0 + k];
+    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
     ux[k] = (r[i] - x[i]) - (r[j] - x[j]);
     uy[k] = (r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1]);
     uz[k] = (r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]);
@@ -324,19 +324,96 @@ __attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistance&
 }
 #endif
 
+#if CSB_HAS_AVX2_ROWS
+// Single precision: the blocks with AVX2 gathers and scatters of four constraints at a time in
+// 128-bit registers (csb/avx2_rows.hpp), their arithmetic in eight float lanes.
+template <bool Xpbd>
+CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, Index c0, Index m4, const float* s,
+                                           const float* vx, const float* vy, const float* vz, float* o) {
+  using namespace avx2;
+  const Index* bi = b.i.data() + c0;
+  const Index* bj = b.j.data() + c0;
+  for (Index k = 0; k < m4; k += 4) {
+    const __m128 sk = _mm_load_ps(s + k);
+    const __m128 x = _mm_load_ps(vx + k), y = _mm_load_ps(vy + k), z = _mm_load_ps(vz + k);
+    const __m128 si = _mm_mul_ps(_mm_loadu_ps(b.ci.data() + c0 + k), sk);
+    const __m128 sj = _mm_mul_ps(_mm_loadu_ps(b.cj.data() + c0 + k), sk);
+    const Index at_i[4] = {4 * bi[k], 4 * bi[k + 1], 4 * bi[k + 2], 4 * bi[k + 3]};
+    const Index at_j[4] = {4 * bj[k], 4 * bj[k + 1], 4 * bj[k + 2], 4 * bj[k + 3]};
+    add_rows<!Xpbd>(o, at_i, _mm_mul_ps(si, x), _mm_mul_ps(si, y), _mm_mul_ps(si, z));
+    add_rows<Xpbd>(o, at_j, _mm_mul_ps(sj, x), _mm_mul_ps(sj, y), _mm_mul_ps(sj, z));
+  }
+}
+
+// d = p_i - p_j (and, Damped, u = (p_i - x_i) - (p_j - x_j)) of constraints c0 + [0, m4) as rows.
+template <bool Damped>
+CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Index c0, Index m4, const float* r,
+                                          const float* x, float* dx, float* dy, float* dz, float* ux, float* uy,
+                                          float* uz) {
+  using namespace avx2;
+  const Index* bi = b.i.data() + c0;
+  const Index* bj = b.j.data() + c0;
+  for (Index k = 0; k < m4; k += 4) {
+    __m128 d[4], u[4];
+    for (int l = 0; l < 4; ++l) {
+      const __m128 pi = load_xyz(r + 4 * bi[k + l]), pj = load_xyz(r + 4 * bj[k + l]);
+      d[l] = _mm_sub_ps(pi, pj);
+      if constexpr (Damped)
+        u[l] = _mm_sub_ps(_mm_sub_ps(pi, load_xyz(x + 4 * bi[k + l])), _mm_sub_ps(pj, load_xyz(x + 4 * bj[k + l])));
+    }
+    __m128 rx, ry, rz;
+    rows(d[0], d[1], d[2], d[3], rx, ry, rz);
+    _mm_store_ps(dx + k, rx), _mm_store_ps(dy + k, ry), _mm_store_ps(dz + k, rz);
+    if constexpr (Damped) {
+      rows(u[0], u[1], u[2], u[3], rx, ry, rz);
+      _mm_store_ps(ux + k, rx), _mm_store_ps(uy + k, ry), _mm_store_ps(uz + k, rz);
+    }
+  }
+}
+
+template <bool Approx>
+CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<float>& b, Index begin, Index end,
+                                              const float* r, float* o) {
+  constexpr Index B = kDistanceBlock;
+  alignas(64) float dx[B], dy[B], dz[B], s[B];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0), m4 = m - m % 4;
+    distance_gather_rows<false>(b, c0, m4, r, nullptr, dx, dy, dz, nullptr, nullptr, nullptr);
+    distance_gather(b, c0, m4, m, r, dx, dy, dz);
+    distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
+    distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
+  }
+}
+
+template <bool Damped>
+CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<float>& b, Index begin, Index end, const float* r,
+                                               float* o, const float* x) {
+  constexpr Index B = kDistanceBlock;
+  alignas(64) float dx[B], dy[B], dz[B], s[B];
+  alignas(64) float ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  for (Index c0 = begin; c0 < end; c0 += B) {
+    const Index m = std::min(B, end - c0), m4 = m - m % 4;
+    distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
+    distance_gather(b, c0, m4, m, r, dx, dy, dz);
+    if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
+    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
+  }
+}
+#endif
 #if defined(CSB_DISTANCE_AVX2)
-// Single precision: the portable blocks compiled again for AVX2, their arithmetic in eight float
-// lanes (four with SSE2); positions gathered and scattered one constraint at a time.
 template <bool Approx>
 __attribute__((target("avx2"))) void distance_pbd_blocks_single_avx2(const ColouredDistanceT<float>& b, Index begin,
                                                                       Index end, const float* r, float* o) {
-  distance_pbd_blocks<Approx>(b, begin, end, r, o);
+  distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
 }
 template <bool Damped>
 __attribute__((target("avx2"))) void distance_xpbd_blocks_single_avx2(ColouredDistanceT<float>& b, Index begin,
                                                                        Index end, const float* r, float* o,
                                                                        const float* x) {
-  distance_xpbd_blocks<Damped>(b, begin, end, r, o, x);
+  distance_xpbd_blocks_rows<Damped>(b, begin, end, r, o, x);
 }
 #endif
 
@@ -348,6 +425,8 @@ inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index
   if constexpr (std::is_same_v<S, float>) {
 #if defined(CSB_DISTANCE_AVX2)
     if (kernels_use_avx2()) return distance_pbd_blocks_single_avx2<Approx>(b, begin, end, r, o);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+    return distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
 #endif
     distance_pbd_blocks<Approx>(b, begin, end, r, o);
   } else if constexpr (Approx) {
@@ -374,6 +453,9 @@ inline void distance_xpbd_range(ColouredDistanceT<S>& b, Index begin, Index end,
     if (kernels_use_avx2())
       return b.damped ? distance_xpbd_blocks_single_avx2<true>(b, begin, end, r, o, x)
                       : distance_xpbd_blocks_single_avx2<false>(b, begin, end, r, o, x);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+    return b.damped ? distance_xpbd_blocks_rows<true>(b, begin, end, r, o, x)
+                    : distance_xpbd_blocks_rows<false>(b, begin, end, r, o, x);
 #endif
   } else {
 #if defined(CSB_DISTANCE_AVX2)

@@ -181,6 +181,30 @@ void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
   throw SimulationError(msg.str());
 }
 
+// Precision::Single covers the coloured Gauss-Seidel sweep of distance and bending constraints
+// with pins, in a step without contacts, grabs or moving colliders: what else the model or the
+// stepper holds is named.
+void PbdStepper::check_single(const Model& model) const {
+  std::vector<std::string> what;
+  const auto count = [&](Index k, const char* name) {
+    if (k > 0) what.push_back(std::to_string(k) + " " + name);
+  };
+  count(model.volume.size(), "volume constraints");
+  count(model.attachments.size(), "attachments");
+  count(model.balloons.size(), "balloons");
+  Index family = 0;
+  for (const auto& f : model.families) family += f->size();
+  count(family, "constraints of families (tethers, ...)");
+  count(static_cast<Index>(model.colliders.size()), "colliders");
+  if (!self_.empty()) what.push_back("self-collision");
+  count(static_cast<Index>(grabs_.size()), "grabs");
+  if (what.empty()) return;
+  std::string list;
+  for (std::size_t k = 0; k < what.size(); ++k) list += (k ? ", " : "") + what[k];
+  throw InvalidArgument("precision 'float32' runs distance and bending constraints and pins without contacts or "
+                        "grabs; this model and stepper have " + list + ": use precision 'float64'");
+}
+
 // The request before any work: the state matches the model, steps >= 0 and within a year's work
 // (memory_budget.hpp), every position and velocity finite.
 void PbdStepper::check_request(const Model& model, const State& state, std::int64_t steps) const {

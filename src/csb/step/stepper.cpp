@@ -32,6 +32,14 @@ void validate(const PbdSettings& s) {
     throw InvalidArgument("sqrt_approximation is part of Jakobsen's method only");
   if (s.threads < 0)
     throw InvalidArgument("threads must be >= 0 (0: automatic, from the free cores), got " + std::to_string(s.threads));
+  if (s.precision == Precision::Single) {
+    if (s.ordering != Ordering::Coloured || s.solver != Solver::GaussSeidel)
+      throw InvalidArgument("precision 'float32' runs the coloured Gauss-Seidel sweep only (ordering 'coloured', "
+                            "solver 'gauss-seidel')");
+    if (s.damping > 0)
+      throw InvalidArgument("precision 'float32' does not run Müller's damping (damping > 0); use xpbd_damping, "
+                            "verlet_drag or precision 'float64'");
+  }
   if (!(s.max_speed >= 0))
     throw InvalidArgument("max_speed must be a speed >= 0 m/s (0: automatic, inf: no divergence guard), got " +
                           str(s.max_speed));
@@ -82,10 +90,14 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
   const UseGuard::Scope in_use(use_, "PbdStepper.step");
   check_request(model, state, steps);
   prepare(model);
+  const bool single = settings_.precision == Precision::Single;
+  if (single) check_single(model);
   const bool fused = begin_steps(model, state);
   const Real h = substep_size();
   for (std::int64_t s = 0; s < steps; ++s) {
-    if (fused)
+    if (single)
+      step_single(model, state, h);
+    else if (fused)
       substeps_fused(model, state, h, interrupt);
     else
       substeps(model, state, h, 0, settings_.substeps, interrupt);

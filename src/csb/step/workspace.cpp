@@ -55,6 +55,8 @@ void PbdStepper::prepare(const Model& model) {
   }
   const Index n = model.num_particles();
   p_.resize(3, n);
+  for (std::vector<float>* b : {&single_.x, &single_.v, &single_.p, &single_.accel})
+    b->assign(settings_.precision == Precision::Single ? kStride<float> * static_cast<std::size_t>(n) : 0, 0.0f);
   if (settings_.front_end == FrontEnd::Verlet) x_prev_.resize(3, n);
   Index largest_balloon = 0;
   for (Index b = 0; b < model.balloons.size(); ++b) largest_balloon = std::max(largest_balloon, model.balloons.num_particles(b));
@@ -101,20 +103,26 @@ void PbdStepper::zero_coloured_multipliers(int share, int shares) {
 const Multipliers& PbdStepper::multipliers() const {
   if (lambda_stale_) {
     // The coloured batches keep their multipliers in colour order; put them in the model's.
-    const auto scatter = [](std::vector<Real>& out, std::size_t size, const std::vector<Real>& in,
-                            const std::vector<Index>& order) {
+    // (Precision::Single: the distance and bending batches' are floats, widened.)
+    const auto scatter = [](std::vector<Real>& out, std::size_t size, const auto& in, const std::vector<Index>& order) {
       out.resize(size);
       for (std::size_t c = 0; c < in.size(); ++c)
         if (order[c] >= 0) out[order[c]] = in[c];
     };
     // The distance constraints projected on their own, and those projected with a bending
     // element (at the element's position; -1 where it has none).
-    const std::vector<Index>& paired = coloured_order_.distance_paired;
-    const std::size_t distances = coloured_.distance.lambda.size() +
-        static_cast<std::size_t>(std::count_if(paired.begin(), paired.end(), [](Index o) { return o >= 0; }));
-    scatter(lambda_.distance, distances, coloured_.distance.lambda, coloured_order_.distance);
-    if (!paired.empty()) scatter(lambda_.distance, distances, coloured_.bending.pair_lambda, paired);
-    scatter(lambda_.bending, coloured_.bending.lambda.size(), coloured_.bending.lambda, coloured_order_.bending);
+    const auto distance_bending = [&](const auto& distance, const auto& bending) {
+      const std::vector<Index>& paired = coloured_order_.distance_paired;
+      const std::size_t distances = distance.lambda.size() +
+          static_cast<std::size_t>(std::count_if(paired.begin(), paired.end(), [](Index o) { return o >= 0; }));
+      scatter(lambda_.distance, distances, distance.lambda, coloured_order_.distance);
+      if (!paired.empty()) scatter(lambda_.distance, distances, bending.pair_lambda, paired);
+      scatter(lambda_.bending, bending.lambda.size(), bending.lambda, coloured_order_.bending);
+    };
+    if (settings_.precision == Precision::Single)
+      distance_bending(single_.distance, single_.bending);
+    else
+      distance_bending(coloured_.distance, coloured_.bending);
     scatter(lambda_.volume, coloured_.volume.lambda.size(), coloured_.volume.lambda, coloured_order_.volume);
     scatter(lambda_.attachment, coloured_.attachments.lambda.size(), coloured_.attachments.lambda,
             coloured_order_.attachment);
@@ -140,6 +148,15 @@ std::size_t PbdStepper::workspace_bytes() const {
   s += capacity_bytes(coloured_order_.distance) + capacity_bytes(coloured_order_.distance_paired) +
        capacity_bytes(coloured_order_.bending) + capacity_bytes(coloured_order_.volume) +
        capacity_bytes(coloured_order_.attachment);
+  const auto& sd = single_.distance;
+  const auto& sb = single_.bending;
+  for (const auto* v : {&single_.x, &single_.v, &single_.p, &single_.accel, &sd.rest, &sd.ci, &sd.cj, &sd.alpha,
+                        &sd.gamma, &sd.inv_den, &sd.lambda, &sb.rest, &sb.k, &sb.alpha, &sb.gamma, &sb.lambda,
+                        &sb.pair_rest, &sb.pair_ca, &sb.pair_cb, &sb.pair_alpha, &sb.pair_gamma, &sb.pair_inv_den,
+                        &sb.pair_lambda})
+    s += capacity_bytes(*v);
+  s += capacity_bytes(sd.i) + capacity_bytes(sd.j) + capacity_bytes(sd.sense) + capacity_bytes(sb.q) +
+       capacity_bytes(sb.w);
   s += self_.bytes();  // self-collision's groups, candidate pairs, contacts and boxes
   // Deforming mesh colliders: each one's vertices (last, next, sub-step, step end) and swept grid.
   for (const ColliderMotion& m : collider_motion_) {
