@@ -6,6 +6,8 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 import csb
 from csb.bench import bench_cloth, cloth_simulation, dispatch, format_front_ends, format_table, front_ends
 
@@ -65,3 +67,54 @@ def test_cost_helpers_time_frames_and_projections_and_report_consistent_memory()
     assert m["model_bytes"] == sim.model.memory["total"] and m["workspace_bytes"] == stepper.workspace_bytes
     assert m["bytes_per_particle"] * m["particles"] == m["model_bytes"] + m["workspace_bytes"]
     assert "B/particle" in format_memory([dict(n=16, method="pbd", **m)])
+
+
+def test_self_collision_sweep_reports_every_size_and_a_slope():
+    """The self-collision sweep at two tiny capes, one round: a row per size with finite, positive
+    times and ratios, counts that add up, and the fitted slopes (figures, never asserted)."""
+    import math
+
+    from csb.bench import cape_thickness, format_self_collision_scaling, self_collision_scaling
+
+    result = self_collision_scaling((6, 9), rounds=1, frames=6, first=2)
+    rows = result["rows"]
+    assert [r["n"] for r in rows] == [6, 9] and [r["particles"] for r in rows] == [36, 81]
+    for r in rows:
+        assert r["thickness"] == cape_thickness(r["n"]) == 0.006
+        for key in ("ms_none", "ms_self", "ratio", "median_ms_none", "median_ms_self", "median_ratio",
+                    "searches_per_step"):
+            assert math.isfinite(r[key]) and r[key] > 0, key
+        assert r["spread_none"][0] <= r["ms_none"] <= r["spread_none"][1]
+        assert r["spread_self"][0] <= r["ms_self"] <= r["spread_self"][1]
+        assert math.isfinite(r["extra_ns_per_particle"]) and math.isfinite(r["median_extra_ns_per_particle"])
+        assert r["timed_frames"] == 4 and 0 <= r["frames_with_pairs"] <= 4
+        for key in ("pairs_per_particle", "max_pairs_per_particle", "tests_per_step", "continuous", "failsafe"):
+            assert math.isfinite(r[key]) and r[key] >= 0, key
+        assert r["max_pairs_per_particle"] >= r["pairs_per_particle"]
+    assert math.isfinite(result["slope_none"])
+    table = format_self_collision_scaling(result)
+    assert "6x6" in table and "9x9" in table and "slope" in table
+    # finer capes than the 6 mm layer allows get half their triangles' smallest rest altitude
+    assert cape_thickness(40) == 0.006 and math.isclose(cape_thickness(160), 0.5 / (159 * math.sqrt(2)))
+
+
+def test_precision_tables_time_both_precisions_of_each_method():
+    """The float64 against float32 tables: every side timed, finite positive figures, speed-ups
+    that are the ratios of the medians (no timing is asserted)."""
+    from csb.bench import (format_precision_rates, format_precision_table, precision_rates,
+                           precision_table)
+
+    rows = precision_table(sizes=(8,), rounds=1, threads=1)
+    assert [(r["substeps"], r["iterations"]) for r in rows] == [(10, 1), (1, 10)]
+    for r in rows:
+        for method in ("pbd", "xpbd"):
+            f64, f32 = r[method + "_float64"], r[method + "_float32"]
+            assert 0 < f64 < 1e3 and 0 < f32 < 1e3
+            assert r[method + "_speedup"] == pytest.approx(f64 / f32)
+    assert "XPBD 64/32" in format_precision_table(rows)
+    kernels = precision_rates(n=8, sweeps=2, rounds=1)
+    assert [(r["kind"], r["method"]) for r in kernels] == [("distance", "pbd"), ("distance", "xpbd"),
+                                                           ("bending", "pbd"), ("bending", "xpbd")]
+    for r in kernels:
+        assert 0 < r["float64"] and 0 < r["float32"] and r["speedup"] == pytest.approx(r["float64"] / r["float32"])
+    assert "64/32" in format_precision_rates(kernels)

@@ -63,7 +63,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         peers.main(sizes=args.sizes or peers.SIZES, frames=args.peer_frames, rounds=args.rounds,
                          min_time=peers.MIN_TIME if args.peer_min_time is None else args.peer_min_time,
                          sides=args.sides, pypbd_threads=args.pypbd_threads, newton_cold=not args.newton_cache,
-                         hold_frames=args.hold_frames, jolt=args.jolt, jolt_threads=args.jolt_threads)
+                         hold_frames=args.hold_frames, jolt=args.jolt, jolt_threads=args.jolt_threads,
+                         csb_variants=[(m, p) for m in args.csb_methods for p in args.csb_precisions])
         return 0
     from .bench import main
 
@@ -237,11 +238,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--substeps", type=_at_least(1), default=1)
     p.add_argument("--steps", type=_at_least(1), default=10, help="steps per timed round")
     p.add_argument("--rounds", type=_at_least(1), default=7, help="timed rounds; the median is reported")
-    parts = ["step", "front-ends", "dispatch", "viewer", "fps", "xpbd", "types", "threads", "busy", "particles",
+    parts = ["step", "front-ends", "dispatch", "viewer", "fps", "xpbd", "precision", "types", "threads", "busy", "particles",
              "memory", "big", "klu", "methods", "self-collision"]
     p.add_argument("--parts", nargs="+", default=parts, choices=parts,
                    help="which tables to print (default: all): the step, front ends, virtual dispatch, the viewer's "
                         "frame time; fps of 128x128 and 256x256 cloths, XPBD against PBD at equal work, "
+                        "float64 against float32 (whole frames and the distance and bending kernels), "
                         "projections per second by type "
                         "against a plain loop, 1 against 2 threads, the same with a busy core, cost per particle "
                         "1k-1M, memory, a 1024x1024 cloth, the reference's KLU cost against size, every method "
@@ -267,6 +269,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jolt", metavar="PATH", default=None,
                    help="with --peers: a built jolt_cloth (default: $CSB_JOLT_CLOTH; build it with "
                         "scripts/jolt_cloth.py --jolt <Jolt tree> --build <dir>); none: Jolt is skipped")
+    p.add_argument("--csb-methods", nargs="+", default=["pbd"], choices=["pbd", "xpbd", "jakobsen"],
+                   help="with --peers: csb's methods, each a side of its own (default pbd, the ratios' base)")
+    p.add_argument("--csb-precisions", nargs="+", default=["float64"], choices=["float64", "float32"],
+                   help="with --peers: csb's precisions, each method in each (default float64)")
     p.add_argument("--jolt-threads", type=_at_least(1), nargs="+", default=[1, 2],
                    help="with --peers: thread counts to run Jolt with (default: 1 2)")
     p.add_argument("--peer-frames", type=_at_least(1), default=5,

@@ -169,8 +169,9 @@ def format_dispatch(rows: Sequence[dict]) -> str:
 
 def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int = 1, steps: int = 10,
          rounds: int = 7, parts: Sequence[str] | None = None,
-         front_end_sizes: Sequence[int] = (32, 128, 512)) -> dict:
-    """Prints the tables named in `parts` (default: all of them)."""
+         front_end_sizes: Sequence[int] = (32, 128, 512), self_collision_sizes: Sequence[int] | None = None) -> dict:
+    """Prints the tables named in `parts` (default: all of them); `self_collision_sizes`: the
+    cape sizes of the self-collision sweep (default `SELF_COLLISION_SIZES`)."""
     if parts is None:
         parts = ("step", "front-ends", "dispatch", "viewer") + COST_PARTS
     info = _core.build_info()
@@ -205,7 +206,7 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
             print(f"\nViewer frame time: not measured, the viewer was not built ({viewer_missing()})")
     cost_parts = [p for p in parts if p in COST_PARTS]
     if cost_parts:
-        out.update(cost_tables(cost_parts, rounds=rounds))
+        out.update(cost_tables(cost_parts, rounds=rounds, self_collision_sizes=self_collision_sizes))
     return out
 
 
@@ -214,17 +215,18 @@ def main(sizes: Sequence[int] = (64, 128), iterations: int = 10, substeps: int =
 # call (e.g. a peer comparison) return plain numbers; the format_* ones print tables.
 
 # What the coloured sweep and the reference cost: ms per frame and frames per second of 128x128 and
-# 256x256 cloths, projections per second by constraint type, one against two threads (also beside a
-# busy core), cost per particle from 1k to 1M particles, memory, a 1024x1024 cloth, the reference's KLU cost.
-COST_PARTS = ("fps", "xpbd", "types", "threads", "busy", "particles", "memory", "big", "klu", "methods",
+# 256x256 cloths, XPBD against PBD, float64 against float32, projections per second by constraint type,
+# one against two threads (also beside a busy core), cost per particle from 1k to 1M particles, memory, a
+# 1024x1024 cloth, the reference's KLU cost.
+COST_PARTS = ("fps", "xpbd", "precision", "types", "threads", "busy", "particles", "memory", "big", "klu", "methods",
               "self-collision")
 
 
 def make_stepper(sim: Simulation, *, substeps: int, iterations: int, threads: int = 0, ordering: str = "coloured",
-                 method: str | None = None) -> _core.PbdStepper:
-    """The scene's stepper with sub-steps, iterations, threads, ordering (and method) replaced."""
+                 method: str | None = None, precision: str = "float64") -> _core.PbdStepper:
+    """The scene's stepper with sub-steps, iterations, threads, ordering, precision (and method) replaced."""
     solver = dataclasses.replace(sim.scene.solver, substeps=substeps, iterations=iterations, threads=threads,
-                                 ordering=ordering, **({"method": method} if method else {}))
+                                 ordering=ordering, precision=precision, **({"method": method} if method else {}))
     return solver.stepper()
 
 
@@ -276,32 +278,112 @@ def fps_table(sizes: Sequence[int] = (128, 256), *, rounds: int = 5) -> list[dic
     return rows
 
 
-def xpbd_table(sizes: Sequence[int] = (64, 128, 256), *, rounds: int = 7, threads: int = 2) -> list[dict]:
-    """XPBD's cost against PBD's at equal work: the bundled cloth_grid at n x n, dt = 1/60 s, the same
-    constraints, sub-steps and iterations, `threads` threads. The two steppers take turns within
-    each round (the order alternating), on their own cloths, so that a slow spell of the machine
-    falls on both; ms per frame, medians and min-max of the rounds."""
+def _taking_turns(sizes: Sequence[int], sides: dict[str, dict], *, rounds: int, threads: int,
+                  settings: Sequence[tuple[int, int]] = ((10, 1), (1, 10))) -> list[dict]:
+    """ms per frame of the bundled cloth_grid at n x n, dt = 1/60 s, for each side (a label and the
+    stepper's method and precision) at each (sub-steps, iterations), `threads` threads. The sides
+    take turns within each round (the order alternating), on their own cloths, so that a slow spell
+    of the machine falls on all; medians and min-max of the rounds."""
     rows = []
     for n in sizes:
         frames = max(2, 20 * 128 * 128 // (n * n))
-        for substeps, iterations in ((10, 1), (1, 10)):
-            sides = {}
-            for method in ("pbd", "xpbd"):
+        for substeps, iterations in settings:
+            runs = {}
+            for label, side in sides.items():
                 sim = cloth_simulation(n, iterations=iterations, substeps=substeps)
-                stepper = make_stepper(sim, substeps=substeps, iterations=iterations, threads=threads, method=method)
+                stepper = make_stepper(sim, substeps=substeps, iterations=iterations, threads=threads, **side)
                 stepper.step(sim.model, sim.state, 2)
-                sides[method] = (stepper, sim.model, sim.state, [])
+                runs[label] = (stepper, sim.model, sim.state, [])
+            order = list(runs)
             for r in range(rounds):
-                for method in (("pbd", "xpbd") if r % 2 == 0 else ("xpbd", "pbd")):
-                    stepper, model, state, times = sides[method]
+                for label in (order if r % 2 == 0 else order[::-1]):
+                    stepper, model, state, times = runs[label]
                     times += time_steps(stepper, model, state, steps=frames, rounds=1, warmup=1)
-            row = dict(n=n, substeps=substeps, iterations=iterations, threads_used=sides["xpbd"][0].threads_used)
-            for method, (_, _, _, times) in sides.items():
-                row[method] = statistics.median(times)
-                row[method + "_spread"] = (min(times), max(times))
-            row["ratio"] = row["xpbd"] / row["pbd"]
+            row = dict(n=n, substeps=substeps, iterations=iterations, threads_used=runs[order[-1]][0].threads_used)
+            for label, (_, _, _, times) in runs.items():
+                row[label] = statistics.median(times)
+                row[label + "_spread"] = (min(times), max(times))
             rows.append(row)
     return rows
+
+
+def xpbd_table(sizes: Sequence[int] = (64, 128, 256), *, rounds: int = 7, threads: int = 2) -> list[dict]:
+    """XPBD's cost against PBD's at equal work: the same constraints, sub-steps and iterations, the
+    two steppers taking turns (_taking_turns); ms per frame, medians and min-max of the rounds."""
+    rows = _taking_turns(sizes, {"pbd": dict(method="pbd"), "xpbd": dict(method="xpbd")}, rounds=rounds,
+                         threads=threads)
+    for row in rows:
+        row["ratio"] = row["xpbd"] / row["pbd"]
+    return rows
+
+
+PRECISION_SIDES = {f"{m}_{p}": dict(method=m, precision=p) for m in ("pbd", "xpbd") for p in ("float64", "float32")}
+
+
+def precision_table(sizes: Sequence[int] = (64, 128, 256), *, rounds: int = 7, threads: int = 2) -> list[dict]:
+    """Whole frames in double and single precision: PBD and XPBD, each in float64 and float32, on the
+    same cloths at equal work, taking turns (_taking_turns); ms per frame, and per method the
+    speed-up float64 / float32."""
+    rows = _taking_turns(sizes, PRECISION_SIDES, rounds=rounds, threads=threads)
+    for row in rows:
+        for m in ("pbd", "xpbd"):
+            row[m + "_speedup"] = row[m + "_float64"] / row[m + "_float32"]
+    return rows
+
+
+def format_precision_table(rows: Sequence[dict]) -> str:
+    head = (f"{'cloth':>9} {'sub x it':>8} {'threads':>7} " +
+            " ".join(f"{m.upper() + ' ' + p[-2:]:>9} {'(min-max)':>13}" for m in ("pbd", "xpbd") for p in ("float64", "float32")) +
+            f" {'PBD 64/32':>9} {'XPBD 64/32':>10} {'fps PBD/XPBD 32':>15}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        cells = " ".join(f"{r[k]:>9.3f} {'({:.2f}-{:.2f})'.format(*r[k + '_spread']):>13}" for k in PRECISION_SIDES)
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['substeps']:>3} x {r['iterations']:<2} {r['threads_used']:>7} {cells} "
+                     f"{r['pbd_speedup']:>9.2f} {r['xpbd_speedup']:>10.2f} "
+                     f"{'{:.0f} / {:.0f}'.format(1e3 / r['pbd_float32'], 1e3 / r['xpbd_float32']):>15}")
+    return "\n".join(lines)
+
+
+def precision_rates(n: int = 128, *, sweeps: int = 10, rounds: int = 7, threads: int = 1) -> list[dict]:
+    """The distance and bending kernels in double and single precision: ns per projection of each
+    type (a cloth of that type only, one sub-step of `sweeps` coloured Gauss-Seidel sweeps, so that
+    predict and update are a few per cent), PBD and XPBD, float64 and float32 taking turns within
+    each round; medians, min-max and the speed-up float64 / float32."""
+    rows = []
+    for kind in ("distance", "bending"):
+        model = cloth_simulation(n, iterations=sweeps, constraints="stretch" if kind == "distance" else "bending").model
+        for method in ("pbd", "xpbd"):
+            runs = {}
+            for precision in ("float64", "float32"):
+                stepper = _core.PbdStepper(method=method, dt=1 / 60, iterations=sweeps, threads=threads,
+                                           precision=precision)
+                state = model.initial_state()
+                stepper.step(model, state, 2)
+                runs[precision] = (stepper, state, [])
+            for r in range(rounds):
+                for precision in (("float64", "float32") if r % 2 == 0 else ("float32", "float64")):
+                    stepper, state, times = runs[precision]
+                    times += time_steps(stepper, model, state, steps=3, rounds=1, warmup=0)
+            per_step = runs["float64"][0].projections_per_step(model)
+            row = dict(kind=kind, method=method, constraints=model.num_constraints,
+                       threads=runs["float64"][0].threads_used)
+            for precision, (_, _, times) in runs.items():
+                row[precision] = 1e6 * statistics.median(times) / per_step
+                row[precision + "_spread"] = (1e6 * min(times) / per_step, 1e6 * max(times) / per_step)
+            row["speedup"] = row["float64"] / row["float32"]
+            rows.append(row)
+    return rows
+
+
+def format_precision_rates(rows: Sequence[dict]) -> str:
+    head = (f"{'type':>9} {'method':>6} {'threads':>7} {'constraints':>11} {'f64 ns':>7} {'(min-max)':>13} "
+            f"{'f32 ns':>7} {'(min-max)':>13} {'64/32':>6}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['kind']:>9} {r['method']:>6} {r['threads']:>7} {r['constraints']:>11} {r['float64']:>7.2f} "
+                     f"{'({:.2f}-{:.2f})'.format(*r['float64_spread']):>13} {r['float32']:>7.2f} "
+                     f"{'({:.2f}-{:.2f})'.format(*r['float32_spread']):>13} {r['speedup']:>6.2f}")
+    return "\n".join(lines)
 
 
 def format_xpbd_table(rows: Sequence[dict]) -> str:
@@ -589,7 +671,8 @@ def format_klu(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
+def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5,
+                self_collision_sizes: Sequence[int] | None = None) -> dict:
     """Prints the cost tables (`COST_PARTS`) that `parts` names: time per frame, per projection and
     per particle of the coloured sweep, its memory, and the reference's cost; returns their rows."""
     import os
@@ -608,6 +691,16 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
               "the same constraints, sub-steps and iterations, two threads; the two take turns within each round")
         out["xpbd"] = xpbd_table(rounds=rounds)
         print(format_xpbd_table(out["xpbd"]))
+    if "precision" in parts:
+        print("\nDouble against single precision (PbdStepper(precision='float32')): cloth_grid (stretch + shear + "
+              "bending, 2 pinned corners), dt = 1/60 s, PBD and XPBD each in float64 and float32, two threads, the "
+              "four taking turns within each round")
+        out["precision"] = precision_table(rounds=rounds)
+        print(format_precision_table(out["precision"]))
+        print("\nThe distance and bending kernels in each precision: a 128 x 128 cloth of one constraint type, one "
+              "sub-step of 10 coloured Gauss-Seidel sweeps, one thread, float64 and float32 taking turns")
+        out["precision-kernels"] = precision_rates(rounds=rounds)
+        print(format_precision_rates(out["precision-kernels"]))
     if "types" in parts:
         print("\nProjections per second by constraint type (1 sub-step x 10 Gauss-Seidel sweeps, 128x128 cloth, "
               "a 21^3 x 6 tet box, 16k attachments; one thread) against a plain sequential C++ loop over the "
@@ -655,6 +748,15 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5) -> dict:
               "taking turns within each round, over frames 30-90")
         out["self-collision"] = self_collision_table(rounds=rounds)
         print(format_self_collision_table(out["self-collision"]))
+        sizes = SELF_COLLISION_SIZES if self_collision_sizes is None else self_collision_sizes
+        print("\nSelf-collision's cost against the number of particles: the same cape at n x n (1 m, 0.2 kg/m², the "
+              "same material; thickness 6 mm, or half the triangles' smallest rest altitude when that is less), "
+              "10 sub-steps x 1 iteration, one thread, with self-collision and without taking turns within each "
+              "round; ms per step is each run's mean over frames 30-90 (the folds' steps included), the median of "
+              "the rounds; 'median-step ratio' compares the runs' median steps; pairs: candidate pairs kept after "
+              "a step")
+        out["self-collision-sizes"] = self_collision_scaling(sizes, rounds=rounds)
+        print(format_self_collision_scaling(out["self-collision-sizes"]))
     if "klu" in parts:
         print("\nReference integrator (CVODE BDF + KLU, analytic sparse Jacobian) against problem size: compliant "
               "stretch and shear (1e-3 m/N), 0.02 s simulated")
@@ -808,6 +910,31 @@ def cape(n: int = 40, *, self_collision: float | None = 0.006) -> _core.Model:
     return b.build()
 
 
+def _cape_run(n: int, thickness: float | None, *, substeps: int, iterations: int, frames: int,
+              first: int) -> dict:
+    """One run of the n x n cape (XPBD, dt = 1/60 s, one thread) over `frames` steps: the seconds of
+    each step, the candidate pairs kept after each step, the continuous contacts and the
+    fail-safe's particles (self_failsafe) summed over the run, the candidate searches, and the
+    continuous tests run over steps first..frames."""
+    model = cape(n, self_collision=thickness)
+    state = model.initial_state()
+    stepper = _core.PbdStepper(method="xpbd", dt=1 / 60, substeps=substeps, iterations=iterations, threads=1)
+    times, pairs, continuous, failsafe, tests_before = [], [], 0, 0, 0
+    for f in range(frames):
+        if f == first:
+            tests_before = stepper.contacts()["self_tests"] if f else 0
+        t0 = time.perf_counter()
+        stepper.step(model, state)
+        times.append(time.perf_counter() - t0)
+        c = stepper.contacts()
+        continuous += c["self_continuous"]
+        failsafe += c["self_failsafe"]
+        pairs.append(c["self_candidates"])
+    c = stepper.contacts()
+    return dict(particles=model.num_particles, times=times, pairs=pairs, continuous=continuous, failsafe=failsafe,
+                searches=c["self_searches"], tests=c["self_tests"] - tests_before)
+
+
 def self_collision_table(settings: Sequence[tuple[int, int]] = ((2, 5), (10, 1), (1, 10)), *, rounds: int = 5,
                          frames: int = 90, first: int = 30) -> list[dict]:
     """Per (substeps, iterations): ms per step of the cape with and without self-collision over
@@ -820,25 +947,116 @@ def self_collision_table(settings: Sequence[tuple[int, int]] = ((2, 5), (10, 1),
         extra = {}
         for _ in range(rounds):
             for on in (True, False):
-                model = cape(self_collision=0.006 if on else None)
-                state = model.initial_state()
-                stepper = _core.PbdStepper(method="xpbd", dt=1 / 60, substeps=substeps, iterations=iterations, threads=1)
-                times, continuous, failsafe = [], 0, 0
-                for f in range(frames):
-                    t0 = time.perf_counter()
-                    stepper.step(model, state)
-                    times.append(time.perf_counter() - t0)
-                    c = stepper.contacts()
-                    continuous += c["self_continuous"]
-                    failsafe += c["self_failsafe"]
-                runs[on].append(1e3 * statistics.median(times[first:]))
+                run = _cape_run(40, 0.006 if on else None, substeps=substeps, iterations=iterations, frames=frames,
+                                first=first)
+                runs[on].append(1e3 * statistics.median(run["times"][first:]))
                 if on:
-                    extra = dict(searches_per_step=stepper.contacts()["self_searches"] / frames,
-                                 continuous=continuous, failsafe=failsafe)
+                    extra = dict(searches_per_step=run["searches"] / frames, continuous=run["continuous"],
+                                 failsafe=run["failsafe"])
         on, off = statistics.median(runs[True]), statistics.median(runs[False])
         rows.append(dict(substeps=substeps, iterations=iterations, ms_self=on, spread_self=(min(runs[True]), max(runs[True])),
                          ms_none=off, spread_none=(min(runs[False]), max(runs[False])), ratio=on / off, **extra))
     return rows
+
+
+# The cape sizes (particles per side) of the self-collision sweep; 113 and 160 are optional
+# (--self-collision-sizes): their runs take minutes.
+SELF_COLLISION_SIZES = (20, 28, 40, 56, 80)
+
+
+def cape_thickness(n: int) -> float:
+    """The self-collision thickness of the n x n cape in the size sweep: the table's 6 mm, or half
+    the smallest rest altitude of its triangles (edge / sqrt(2), the edge 1 m / (n - 1)) when that
+    is less (n >= 60). A thickness above the altitude puts a particle within the contact distance
+    of its own flat neighbourhood (the stepper warns of it); 6 mm at 160 x 160 (altitude 4.4 mm)
+    diverges within 15 steps, and so does 6 mm at 113 x 113, 0.95 of its altitude."""
+    return min(0.006, 0.5 / ((n - 1) * np.sqrt(2.0)))
+
+
+def _slope(x: Sequence[float], y: Sequence[float]) -> float:
+    """The least-squares slope of log y against log x over the points with y > 0 (nan if fewer than two)."""
+    pts = [(a, b) for a, b in zip(x, y) if a > 0 and b > 0 and np.isfinite(b)]
+    if len({a for a, _ in pts}) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log([a for a, _ in pts]), np.log([b for _, b in pts]), 1)[0])
+
+
+def self_collision_scaling(sizes: Sequence[int] = SELF_COLLISION_SIZES, *, substeps: int = 10, iterations: int = 1,
+                           rounds: int = 5, frames: int = 90, first: int = 30) -> dict:
+    """Self-collision's cost against the number of particles: the cape (1 m, 0.2 kg/m², the
+    same material) at n x n for each n of `sizes`, thickness `cape_thickness(n)`, with and without
+    self-collision, the two taking turns within each round (which goes first alternates between
+    rounds). Per run: ms per step as the mean over frames first..frames (what the run cost; the
+    folds' steps are a few of them and cost the most) and as their median (a typical step). Per
+    size (medians over rounds): both, their ratios, the extra cost per particle per step (ns), the
+    candidate searches per step, the frames of first..frames that kept candidate pairs, the pairs
+    kept after a step per particle (mean and largest), the continuous tests per step and the
+    continuous contacts and the fail-safe's particles over the run. Returns the rows and the
+    least-squares slopes of log cost against log particles: without self-collision, of the extra
+    cost (mean) and of the extra cost of a typical step (median)."""
+    rows = []
+    for n in sizes:
+        h = cape_thickness(n)
+        mean: dict[bool, list[float]] = {True: [], False: []}
+        median: dict[bool, list[float]] = {True: [], False: []}
+        counts: dict = {}
+        for r in range(rounds):
+            for on in ((True, False) if r % 2 == 0 else (False, True)):
+                run = _cape_run(n, h if on else None, substeps=substeps, iterations=iterations, frames=frames,
+                                first=first)
+                timed = run["times"][first:]
+                mean[on].append(1e3 * statistics.fmean(timed))
+                median[on].append(1e3 * statistics.median(timed))
+                if on:
+                    pairs = run["pairs"][first:]
+                    counts = dict(particles=run["particles"], searches_per_step=run["searches"] / frames,
+                                  frames_with_pairs=sum(1 for k in pairs if k > 0), timed_frames=len(pairs),
+                                  pairs_per_particle=statistics.fmean(pairs) / run["particles"],
+                                  max_pairs_per_particle=max(pairs) / run["particles"],
+                                  tests_per_step=run["tests"] / len(pairs), continuous=run["continuous"],
+                                  failsafe=run["failsafe"])
+        on, off = statistics.median(mean[True]), statistics.median(mean[False])
+        on_med, off_med = statistics.median(median[True]), statistics.median(median[False])
+        particles = counts["particles"]
+        rows.append(dict(n=n, thickness=h, ms_none=off, spread_none=(min(mean[False]), max(mean[False])),
+                         ms_self=on, spread_self=(min(mean[True]), max(mean[True])), ratio=on / off,
+                         median_ms_none=off_med, median_ms_self=on_med, median_ratio=on_med / off_med,
+                         extra_ns_per_particle=1e6 * (on - off) / particles,
+                         median_extra_ns_per_particle=1e6 * (on_med - off_med) / particles, **counts))
+    p = [r["particles"] for r in rows]
+    return dict(substeps=substeps, iterations=iterations, rounds=rounds, frames=frames, first=first, rows=rows,
+                slope_none=_slope(p, [r["ms_none"] for r in rows]),
+                slope_extra=_slope(p, [r["ms_self"] - r["ms_none"] for r in rows]),
+                slope_median_extra=_slope(p, [r["median_ms_self"] - r["median_ms_none"] for r in rows]))
+
+
+def format_self_collision_scaling(result: dict) -> str:
+    rows = result["rows"]
+    head = (f"{'cape':>9} {'particles':>9} {'h mm':>5} {'ms/step none':>12} {'(min-max)':>15} {'ms/step self':>12} "
+            f"{'(min-max)':>17} {'ratio':>6} {'extra ns/particle':>17} {'median-step ratio':>17} "
+            f"{'searches/step':>13} {'frames w/ pairs':>15} {'pairs/particle':>14} {'(largest)':>9} "
+            f"{'tests/step':>10} {'continuous':>10} {'fail-safe':>9}")
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['particles']:>9} {1e3 * r['thickness']:>5.2f} {r['ms_none']:>12.2f} "
+                     f"{'(%.2f-%.2f)' % r['spread_none']:>15} {r['ms_self']:>12.2f} "
+                     f"{'(%.2f-%.2f)' % r['spread_self']:>17} {r['ratio']:>6.2f} {r['extra_ns_per_particle']:>17.0f} "
+                     f"{r['median_ratio']:>17.2f} {r['searches_per_step']:>13.2f} "
+                     f"{str(r['frames_with_pairs']) + ' of ' + str(r['timed_frames']):>15} "
+                     f"{r['pairs_per_particle']:>14.2f} {r['max_pairs_per_particle']:>9.1f} {r['tests_per_step']:>10.0f} "
+                     f"{r['continuous']:>10} {r['failsafe']:>9}")
+    extra = [r["extra_ns_per_particle"] for r in rows]
+    positive = [e for e in extra if e > 0]
+    factor = max(positive) / min(positive) if len(positive) == len(extra) and positive else float("nan")
+    slope = result["slope_extra"]
+    linear = 0.85 <= slope <= 1.2 and factor <= 2
+    lines.append(f"cost against particles, least-squares slope of log ms against log particles: without "
+                 f"self-collision {result['slope_none']:.2f}; self-collision's extra cost {slope:.2f} (a typical "
+                 f"step's, the medians': {result['slope_median_extra']:.2f}); extra ns per particle from "
+                 f"{min(extra):.0f} to {max(extra):.0f} ({factor:.1f}x) over the sizes: "
+                 + ("linear (slope within 0.85-1.2, within 2x per particle)" if linear else
+                    "not linear (linear would be a slope within 0.85-1.2 and within 2x per particle)"))
+    return "\n".join(lines)
 
 
 def format_self_collision_table(rows: Sequence[dict]) -> str:

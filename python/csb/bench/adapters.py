@@ -39,8 +39,8 @@ import numpy as np
 
 from .. import _core
 
-__all__ = ["PypbdIntegrator", "MujocoFlexIntegrator", "NewtonIntegrator", "NewtonXpbdIntegrator",
-           "NewtonVbdIntegrator", "NewtonStyle3dIntegrator", "Conformance", "conformance"]
+__all__ = ["PypbdIntegrator", "MujocoFlexIntegrator", "mujoco_flex_model", "mujoco_flex_counts", "NewtonIntegrator",
+           "NewtonXpbdIntegrator", "NewtonVbdIntegrator", "NewtonStyle3dIntegrator", "Conformance", "conformance"]
 
 PYPBD_GRAVITY = (0.0, -9.81, 0.0)
 _MUJOCO_WARNINGS: list[str] = []  # MuJoCo's warnings of this process, in order
@@ -233,6 +233,67 @@ class PypbdIntegrator(_Peer):
         state.v = np.array([pd.getVelocity(i) for i in range(n)])
 
 
+def mujoco_flex_model(positions: np.ndarray, inv_mass: np.ndarray, mass: np.ndarray, distance: np.ndarray,
+                      edge_stiffness: float, bending: np.ndarray, bending_compliance: np.ndarray, *,
+                      timestep: float, gravity: np.ndarray, integrator: str) -> tuple[Any, np.ndarray]:
+    """A particle cloth as MuJoCo's flex (the mapping of :class:`MujocoFlexIntegrator`): each
+    particle a body at its rest position (m) on three slide joints with its own mass (kg; a pin,
+    inverse mass 0, a body with no joint), one 1-D flex whose elements are the `distance` pairs,
+    edges of `edge_stiffness` (N/m) and damping 0, and a 2-D flex per `bending` quadruple (a, b,
+    c, d: the hinge edge a-b, c and d opposite) of stiffness 1/α, α its `bending_compliance`
+    (1/(N m)). Returns the MjModel (sub-step `timestep` s, `gravity` m/s², MuJoCo's `integrator`)
+    and the qpos address of each particle's first slide joint (-1: pinned). Collision detection is
+    off: no flex here collides (contype 0), and MuJoCo's collision pass would still size itself for
+    every pair of flexes, one per hinge (it asked for 504 MB at 64², beyond its default arena).
+    MuJoCo's warnings go to this module's list, not to MUJOCO_LOG.TXT in the working directory."""
+    import mujoco
+
+    x0, w = np.asarray(positions, dtype=float), np.asarray(inv_mass)
+    slide = '<joint type="slide" axis="1 0 0"/><joint type="slide" axis="0 1 0"/><joint type="slide" axis="0 0 1"/>'
+    bodies = []
+    for i, p in enumerate(x0):
+        m_i = float(mass[i]) if w[i] > 0 else 1.0  # a pin's mass is never used (it has no joint)
+        bodies.append(f'<body name="p{i}" pos="{_num(p[0])} {_num(p[1])} {_num(p[2])}"><inertial pos="0 0 0" mass="{_num(m_i)}" '
+                      f'diaginertia="1e-12 1e-12 1e-12"/>{slide if w[i] > 0 else ""}</body>')
+    hinges = []
+    for (a, b, c, d), alpha_b in zip(np.asarray(bending).tolist(), np.asarray(bending_compliance).tolist()):
+        e2 = float(np.sum((x0[b] - x0[a]) ** 2))
+        area = 0.5 * (np.linalg.norm(np.cross(x0[c] - x0[a], x0[c] - x0[b]))
+                      + np.linalg.norm(np.cross(x0[d] - x0[b], x0[d] - x0[a])))
+        young = 12.0 * area / (e2 * alpha_b)  # thickness 1 m, Poisson 0: D |e|²/A = 1/α
+        hinges.append(f'<flex name="hinge{len(hinges)}" dim="2" body="p{a} p{b} p{c} p{d}" '
+                      f'vertex="{" ".join(["0 0 0"] * 4)}" element="2 0 1 3 1 0" radius="1e-4">'
+                      f'<elasticity young="{_num(young)}" poisson="0" thickness="1" elastic2d="bend"/>'
+                      f'<contact contype="0" conaffinity="0" selfcollide="none"/></flex>')
+    g = np.asarray(gravity, dtype=float)
+    xml = f"""<mujoco>
+  <option timestep="{_num(timestep)}" gravity="{_num(g[0])} {_num(g[1])} {_num(g[2])}"
+          integrator="{integrator}"><flag contact="disable"/></option>
+  <worldbody>{''.join(bodies)}</worldbody>
+  <deformable>
+    <flex name="springs" dim="1" body="{' '.join(f'p{i}' for i in range(len(x0)))}"
+      vertex="{' '.join('0 0 0' for _ in range(len(x0)))}" element="{' '.join(f'{a} {b}' for a, b in np.asarray(distance).tolist())}"
+      radius="1e-4">
+      <edge stiffness="{_num(edge_stiffness)}" damping="0"/>
+      <contact contype="0" conaffinity="0" selfcollide="none"/>
+    </flex>{''.join(hinges)}
+  </deformable>
+</mujoco>"""
+    mujoco.set_mju_user_warning(_MUJOCO_WARNINGS.append)
+    m = mujoco.MjModel.from_xml_string(xml)
+    # bodies 1.. are the particles
+    adr = np.array([m.jnt_qposadr[m.body_jntadr[i + 1]] if m.body_jntnum[i + 1] else -1 for i in range(len(x0))])
+    return m, adr
+
+
+def mujoco_flex_counts(m: Any) -> dict[str, int]:
+    """What a :func:`mujoco_flex_model` holds, read back from MuJoCo's model: the springs' flex's
+    vertices and edges, the 2-D (hinge) flexes, and any 3-D flex (none)."""
+    dims = np.asarray(m.flex_dim)
+    return dict(particles=int(m.flex_vertnum[0]), distance=int(m.flex_edgenum[0]),
+                bending=int(np.sum(dims == 2)), other=int(np.sum(dims == 3)))
+
+
 class MujocoFlexIntegrator(_Peer):
     """MuJoCo's flex stepping a csb Model of distance springs and dihedral bending: dt (s) a step
     in `substeps` mj_step calls of dt/substeps. integrator: "Euler" (MuJoCo's semi-implicit Euler,
@@ -307,54 +368,15 @@ class MujocoFlexIntegrator(_Peer):
         if why:
             raise _core.ParameterError("MuJoCo's flex cannot simulate this model: " + "; ".join(why))
         x0 = np.asarray(model.rest_positions, dtype=float)
-        w, mass = np.asarray(model.inv_mass), np.asarray(model.mass)
-        pairs = np.asarray(model.distance["particles"])
-        stiffness = 1.0 / float(np.asarray(model.distance["compliance"])[0])
-        slide = '<joint type="slide" axis="1 0 0"/><joint type="slide" axis="0 1 0"/><joint type="slide" axis="0 0 1"/>'
-        bodies = []
-        for i, p in enumerate(x0):
-            m_i = float(mass[i]) if w[i] > 0 else 1.0  # a pin's mass is never used (it has no joint)
-            bodies.append(f'<body name="p{i}" pos="{_num(p[0])} {_num(p[1])} {_num(p[2])}"><inertial pos="0 0 0" mass="{_num(m_i)}" '
-                          f'diaginertia="1e-12 1e-12 1e-12"/>{slide if w[i] > 0 else ""}</body>')
-        hinges = []
-        q = np.asarray(model.bending["particles"])
-        for (a, b, c, d), alpha_b in zip(q.tolist(), np.asarray(model.bending["compliance"]).tolist()):
-            e2 = float(np.sum((x0[b] - x0[a]) ** 2))
-            area = 0.5 * (np.linalg.norm(np.cross(x0[c] - x0[a], x0[c] - x0[b]))
-                          + np.linalg.norm(np.cross(x0[d] - x0[b], x0[d] - x0[a])))
-            young = 12.0 * area / (e2 * alpha_b)  # thickness 1 m, Poisson 0: D |e|²/A = 1/α
-            hinges.append(f'<flex name="hinge{len(hinges)}" dim="2" body="p{a} p{b} p{c} p{d}" '
-                          f'vertex="{" ".join(["0 0 0"] * 4)}" element="2 0 1 3 1 0" radius="1e-4">'
-                          f'<elasticity young="{_num(young)}" poisson="0" thickness="1" elastic2d="bend"/>'
-                          f'<contact contype="0" conaffinity="0" selfcollide="none"/></flex>')
-        g = self.gravity
-        xml = f"""<mujoco>
-  <option timestep="{_num(self._dt / self.substeps)}" gravity="{_num(g[0])} {_num(g[1])} {_num(g[2])}"
-          integrator="{self.integrator}"/>
-  <worldbody>{''.join(bodies)}</worldbody>
-  <deformable>
-    <flex name="springs" dim="1" body="{' '.join(f'p{i}' for i in range(len(x0)))}"
-      vertex="{' '.join('0 0 0' for _ in range(len(x0)))}" element="{' '.join(f'{a} {b}' for a, b in pairs.tolist())}"
-      radius="1e-4">
-      <edge stiffness="{_num(stiffness)}" damping="0"/>
-      <contact contype="0" conaffinity="0" selfcollide="none"/>
-    </flex>{''.join(hinges)}
-  </deformable>
-</mujoco>"""
+        self._m, self._adr = mujoco_flex_model(
+            x0, np.asarray(model.inv_mass), np.asarray(model.mass), np.asarray(model.distance["particles"]),
+            1.0 / float(np.asarray(model.distance["compliance"])[0]), np.asarray(model.bending["particles"]),
+            np.asarray(model.bending["compliance"]), timestep=self._dt / self.substeps, gravity=self.gravity,
+            integrator=self.integrator)
         self._mj = mujoco
-        mujoco.set_mju_user_warning(_MUJOCO_WARNINGS.append)  # kept, not written to MUJOCO_LOG.TXT in the cwd
-        self._m = mujoco.MjModel.from_xml_string(xml)
         self._d = mujoco.MjData(self._m)
-        # qpos/qvel address of each free particle's first slide joint (bodies 1.. are the particles)
-        self._adr = np.full(len(x0), -1)
-        for i in range(len(x0)):
-            b = i + 1
-            if self._m.body_jntnum[b]:
-                self._adr[i] = self._m.jnt_qposadr[self._m.body_jntadr[b]]
         self._x0 = x0
-        dims = np.asarray(self._m.flex_dim)
-        self.counts = dict(particles=int(self._m.flex_vertnum[0]), distance=int(self._m.flex_edgenum[0]),
-                           bending=int(np.sum(dims == 2)), other=int(np.sum(dims == 3)))
+        self.counts = mujoco_flex_counts(self._m)
         self.pinned = [i for i in range(len(x0)) if self._adr[i] < 0]
         self._model = model
 

@@ -1,5 +1,6 @@
 """csb against its peers: the same square cloth in csb, Bender's PositionBasedDynamics
-(``pypbd``), NVIDIA's Newton XPBD solver on the CPU and Jolt Physics' soft bodies, in one run.
+(``pypbd``), NVIDIA's Newton XPBD solver on the CPU and Jolt Physics' soft bodies, in one run,
+and MuJoCo's flex springs, a different method, beside them.
 
 The cloth is the bundled scene ``cloth_grid`` at N x N particles (1 m x 1 m in the xz plane, two
 pinned corners, density 0.2 kg/m², gravity -9.81 m/s² along y, dt = 1/60 s per frame): a
@@ -25,6 +26,13 @@ environment variable CSB_JOLT_CLOTH. The Python process times it as it times the
 ``frames K`` is one line to the program and one back. A Jolt iteration is a whole XPBD sub-step,
 so Jolt runs the 10 x 1 case only and is skipped, with that reason, at 1 x 10. Jolt runs with 1
 and with 2 threads (PhysicsSystem::Update and its job system), as pypbd runs with both.
+
+MuJoCo's flex (``mujoco``, :class:`MujocoSide`) is a different method: force-based springs
+stepped by MuJoCo's semi-implicit Euler, not PBD. It is the study adapter's mapping of the same
+arrays, csb's hard edges as springs of MUJOCO_EDGE_STIFFNESS, with as many sub-steps a frame as
+its stability needs (hundreds), so its figure is what a stable frame of the same cloth costs
+MuJoCo, not equal work with csb. It runs on one thread, in the rows of one iteration only, and
+says after its timed run whether it stayed stable (finite, largest edge strain below 10 %).
 
 Timing: every turn begins with ``warmup`` untimed frames (the side sat idle while the others
 had their turns); then each round starts again from the cloth at rest and times the same first
@@ -100,6 +108,11 @@ MAPPING = {
             "so 10 x 1 only; linear damping 0, gravity -9.81 m/s², no sleeping, vertex radius 0; "
             "PhysicsSystem::Update(1/60 s, 1 collision step), the body alone in the system, with T - 1 "
             "job-system workers plus the calling thread",
+    "mujoco": "csb.bench.adapters.mujoco_flex_model, the study adapter's mapping (a body on three "
+              "slide joints per particle with csb's mass, a pin a body without joints; csb's distance pairs one 1-D "
+              "flex of springs, damping 0; each bending quadruple a 2-D flex of hinge stiffness 1/α = 1e-3 N m), "
+              "collision detection off, gravity -9.81 m/s², MuJoCo's semi-implicit Euler with the sub-steps a frame "
+              "of its explicit stability limit (h ω̂ = 2.5), one thread",
 }
 
 
@@ -146,17 +159,23 @@ class CsbSide:
     name = "csb"
 
     def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int):
-        from . import cloth_simulation
+        from . import cloth_simulation, make_stepper
 
         self.sim = cloth_simulation(arrays["n"], substeps=substeps, iterations=iterations)
-        self.model, self.stepper = self.sim.model, self.sim.stepper
+        # The scene's method (PBD) in double precision, or the variant the driver asks for.
+        method, precision = os.environ.get(CSB_METHOD_ENV, "pbd"), os.environ.get(CSB_PRECISION_ENV, "float64")
+        self.model = self.sim.model
+        self.stepper = make_stepper(self.sim, substeps=substeps, iterations=iterations, method=method,
+                                    precision=precision)
         self.state = self.model.initial_state()
         m = self.model
         self.counts = dict(particles=m.num_particles, distance=len(m.distance["rest_length"]),
                            bending=len(m.bending["rest_angle"]), constraints=m.num_constraints,
                            projections_per_frame=int(self.stepper.projections_per_step(m)))
         s = self.stepper.settings
-        self.verified = dict(substeps=s.substeps, iterations=s.iterations, dt=s.dt)
+        # (not "method": that key marks a different method's row, see run_row)
+        self.verified = dict(substeps=s.substeps, iterations=s.iterations, dt=s.dt, csb_method=s.method,
+                             precision=s.precision)
 
     def reset(self) -> None:
         self.state = self.model.initial_state()
@@ -435,8 +454,148 @@ class JoltSide:
         self._dir.cleanup()
 
 
-SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide, "jolt": JoltSide}
-PEER_MODULES = {"pypbd": "pypbd", "newton": "newton"}
+# MuJoCo's flex, a different method: force-based springs stepped by MuJoCo's integrator, not PBD.
+# The setting and how it was found are in MujocoSide's docstring.
+MUJOCO_INTEGRATOR = "Euler"
+MUJOCO_EDGE_STIFFNESS = 3000.0  # N/m: the edges' stiffness when csb's distance compliance is 0 (hard)
+MUJOCO_COURANT = 2.5            # h ω̂ of a MuJoCo sub-step (mujoco_substeps)
+MUJOCO_STRAIN_LIMIT = 0.10      # the largest edge strain a stable run stays below
+MUJOCO_METHOD = f"MuJoCo flex (springs, {MUJOCO_INTEGRATOR}), a different method"
+
+
+def mujoco_edge_stiffness(arrays: dict[str, Any]) -> tuple[float, str]:
+    """The flex's edge stiffness (N/m) and why: 1/α of csb's distance compliance α when α > 0,
+    else (α = 0, a hard constraint, as on csb's benchmark cloth) MUJOCO_EDGE_STIFFNESS."""
+    alpha = arrays["stretch_compliance"]
+    if alpha > 0:
+        return 1.0 / alpha, f"1/α of csb's distance compliance α = {alpha:g} m/N"
+    return MUJOCO_EDGE_STIFFNESS, (f"csb's edges are hard (compliance 0) and a spring cannot be; the softest "
+                                   f"stiffness tried whose largest edge strain stays below "
+                                   f"{100 * MUJOCO_STRAIN_LIMIT:g} % over 120 frames at 64²")
+
+
+def mujoco_substeps(arrays: dict[str, Any], stiffness: float) -> int:
+    """MuJoCo sub-steps per 1/60 s frame: the fewest with h ω̂ <= MUJOCO_COURANT, h the sub-step and
+    ω̂² = max_i 2 k deg_i / m_i (rad/s)² over the free particles (deg_i springs of stiffness k on a
+    particle of mass m_i), Gershgorin's bound on the largest eigenvalue of M⁻¹K for springs along
+    the axes and diagonals of a plane, as on csb's flat grid. Semi-implicit Euler is stable for
+    h ω < 2, ω the largest true frequency; the bending hinges (1/α = 1e-3 N m, about 16 N/m a
+    particle at 128²) are left out of ω̂."""
+    springs = np.bincount(arrays["distance"].ravel(), minlength=len(arrays["inv_mass"]))
+    omega = math.sqrt(float(np.max(2.0 * stiffness * springs * arrays["inv_mass"])))
+    return max(1, math.ceil(FRAME_DT * omega / MUJOCO_COURANT))
+
+
+class MujocoSide:
+    """MuJoCo's flex on csb's cloth: a different method, force-based springs stepped by MuJoCo's
+    semi-implicit Euler, not PBD, so its ms per frame is not equal work with csb's.
+
+    The model is :func:`csb.bench.adapters.mujoco_flex_model`, the mapping of the study adapter
+    ``MujocoFlexIntegrator``: each particle a body on three slide joints with csb's mass (a pin: a
+    body without joints), csb's distance pairs one 1-D flex of springs (damping 0), each bending
+    quadruple a 2-D flex of hinge stiffness 1/α = 1e-3 N m; collision detection off (the cloth
+    has no contacts on any side). The counts are read back from MuJoCo's model and must equal
+    csb's: the flex's vertices, its edges (csb's distance pairs) and the 2-D flexes (csb's
+    bending quadruples). MuJoCo steps one model on one thread.
+
+    The setting. csb's edges are hard (compliance 0) and a spring cannot be: the edges get
+    k = MUJOCO_EDGE_STIFFNESS = 3000 N/m, one material at every size (a finite compliance α of
+    csb's would give 1/α instead). It is the softest of those tried whose largest edge strain
+    stays below 10 % over 120 frames (2 s) from rest at 64² (Euler, h ω̂ = 2.5, MuJoCo 4.0.0):
+    k = 300, 1000 and 3000 N/m gave 34 %, 14 % and 5 % at 32², and 3000 N/m 9.4 % at 64² (at a
+    pin, frame 84, the bottom of the first swing; the mean 0.18 % at frame 120). Stiffer springs
+    cost more: the sub-steps grow as √k. At one k the strain at a pin grows with the size (the
+    pins carry the same weight, on shorter edges), so the side reports it at every size.
+
+    The integrator. MuJoCo 4.0 refuses 2-D flex elasticity (the hinges) under "implicit" and
+    "implicitfast" ("no longer integrated implicitly") and flex edge stiffness under "discrete",
+    so the springs with hinges run under "Euler" (semi-implicit, explicit in the springs) or
+    "RK4" (four force evaluations a step, for a sub-step about 1.4 times as long). The sub-steps
+    come from the explicit limit (:func:`mujoco_substeps`), its margin tried on this cloth at
+    k = 3000 N/m, 10 frames from rest: at 32², 96 sub-steps a frame (h ω̂ = 3.23) diverged in the
+    first frame and 104 (2.98) held; at 64², 191 (3.30) diverged and 210 (3.00) held.
+    MUJOCO_COURANT = 2.5 is a factor 1.2 below the longest sub-step that held: 125 sub-steps a
+    frame at 32², 252 at 64² (which held the 120 frames above), 509 at 128², 1021 at 256². RK4
+    held at 72 sub-steps at 32² (h ω̂ = 4.31; 64 diverged) but took 2.3 times Euler's time a
+    frame at 104.
+
+    A frame is MuJoCo's own loop of mj_step calls (``mj_step(m, d, nstep)``). MuJoCo meets a
+    diverging step by resetting its state after a warning: ``frames`` raises instead. After the
+    timed run, :meth:`stability` says whether the cloth is finite and its largest edge strain
+    below MUJOCO_STRAIN_LIMIT. The benchmark's substeps x iterations do not apply: the side runs
+    its own sub-steps, in the rows of one iteration (:func:`case_reason`).
+    """
+
+    name = "mujoco"
+
+    def __init__(self, arrays: dict[str, Any], substeps: int, iterations: int):
+        from .adapters import MujocoFlexIntegrator, _require, mujoco_flex_counts, mujoco_flex_model
+
+        _require("mujoco")
+        import mujoco
+
+        if MujocoFlexIntegrator._mujoco_major() < 4:
+            raise RuntimeError(f"MuJoCo {MujocoFlexIntegrator._mujoco_version()}: the hinge mapping needs MuJoCo 4.0 "
+                               f"or later (earlier versions scale a 2-D flex's bending rigidity by 3/4 (1 - ν))")
+        self.mj = mujoco
+        stiffness, stiffness_why = mujoco_edge_stiffness(arrays)
+        self.substeps = mujoco_substeps(arrays, stiffness)
+        b = arrays["bending"]
+        self.model, adr = mujoco_flex_model(
+            arrays["positions"], arrays["inv_mass"], arrays["mass"], arrays["distance"], stiffness, b,
+            np.full(len(b), arrays["bending_compliance"]), timestep=FRAME_DT / self.substeps,
+            gravity=(0.0, -GRAVITY, 0.0), integrator=MUJOCO_INTEGRATOR)
+        self.data = mujoco.MjData(self.model)
+        self.free = adr >= 0
+        self.qpos = adr[self.free][:, None] + np.arange(3)  # each free particle's x, y, z slide joints
+        self.x0 = arrays["positions"]
+        read = mujoco_flex_counts(self.model)
+        expected = dict(particles=len(self.x0), distance=len(arrays["distance"]), bending=len(b), other=0)
+        if read != expected:
+            raise RuntimeError(f"MuJoCo's flex does not hold csb's cloth: read back {read}, csb's {expected}")
+        m = self.model
+        # springs and hinges are passive forces: no constraint rows, no projections
+        self.counts = dict(particles=read["particles"], distance=read["distance"], bending=read["bending"],
+                           constraints=int(m.neq), projections_per_frame=None)
+        self.verified = dict(method=MUJOCO_METHOD, mujoco_substeps=self.substeps, timestep=float(m.opt.timestep),
+                             dt=float(m.opt.timestep) * self.substeps,
+                             integrator=mujoco.mjtIntegrator(m.opt.integrator).name,
+                             edge_stiffness=float(m.flex_edgestiffness[0]), edge_stiffness_why=stiffness_why,
+                             edge_damping=float(m.flex_edgedamping[0]),
+                             hinge_stiffness=1.0 / arrays["bending_compliance"], gravity_y=float(m.opt.gravity[1]),
+                             contacts=not bool(m.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT), threads=1)
+
+    def reset(self) -> None:
+        self.mj.mj_resetData(self.model, self.data)
+
+    def frames(self, k: int) -> None:
+        d = self.data
+        self.mj.mj_step(self.model, d, nstep=k * self.substeps)
+        if d.warning.number.any():  # MuJoCo reset a diverging state and went on: say so
+            raise RuntimeError(f"MuJoCo's flex diverged at {self.substeps} sub-steps a frame (warnings "
+                               f"{d.warning.number.tolist()}); the cloth was reset to rest, not stepped")
+
+    def positions(self) -> np.ndarray:
+        x = self.x0.copy()
+        x[self.free] += self.data.qpos[self.qpos]
+        return x
+
+    def threads_used(self) -> int | None:
+        return 1  # mj_step runs one model on one thread
+
+    def stability(self, check: dict[str, Any]) -> dict[str, Any]:
+        """After the timed run (`check`, :func:`check_cloth`): stable if finite with its largest edge
+        strain below MUJOCO_STRAIN_LIMIT."""
+        stable = bool(check["finite"] and check["max_strain"] < MUJOCO_STRAIN_LIMIT)
+        return dict(stable=stable, finite=check["finite"], max_strain=check["max_strain"],
+                    strain_limit=MUJOCO_STRAIN_LIMIT)
+
+
+# csb's side steps the scene's method in double precision unless these say otherwise (the
+# driver's csb_variants: e.g. XPBD, single precision).
+CSB_METHOD_ENV, CSB_PRECISION_ENV = "CSB_PEER_METHOD", "CSB_PEER_PRECISION"
+SIDE_CLASSES = {"csb": CsbSide, "pypbd": PypbdSide, "newton": NewtonSide, "jolt": JoltSide, "mujoco": MujocoSide}
+PEER_MODULES = {"pypbd": "pypbd", "newton": "newton", "mujoco": "mujoco"}
 
 
 def peer_available(side: str) -> bool:
@@ -568,6 +727,10 @@ def _side_versions(side_name: str) -> dict[str, str]:
         return dict(pypbd=version("pypbd"))
     if side_name == "jolt":
         return {}  # jolt_cloth says its version once it runs (JoltSide.versions)
+    if side_name == "mujoco":
+        import mujoco
+
+        return dict(mujoco=mujoco.__version__)
     from .. import _core
 
     return dict(csb=_core.build_info()["csb"])
@@ -609,6 +772,10 @@ def serve(side_name: str, n: int, substeps: int, iterations: int, frames: int, w
                 side.reset()
                 side.frames(hold_frames)
                 hold = check_cloth(arrays, side.positions(), hold_frames)
+            if hasattr(side, "stability"):  # a force-based side: is its step stable at its setting?
+                for c in (check, hold):
+                    if c is not None:
+                        c["stability"] = side.stability(c)
             if hasattr(side, "close"):  # a side with a process of its own (Jolt's) ends it
                 side.close()
             say("DONE", dict(check=check, hold=hold))
@@ -646,7 +813,12 @@ class Run:
 
 def case_reason(side: str, case: tuple[int, int]) -> str | None:
     """Why a side has no such (substeps, iterations) case (None: it has)."""
-    return jolt_case_reason(*case) if side == "jolt" else None
+    if side == "jolt":
+        return jolt_case_reason(*case)
+    if side == "mujoco" and case[1] != 1:
+        return (f"{MUJOCO_METHOD}: force-based, no iterations, its own sub-steps (from its stability limit), "
+                f"so it is timed once per cloth, in the rows of 1 iteration")
+    return None
 
 
 class WorkerFailed(RuntimeError):
@@ -755,6 +927,8 @@ def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rou
         r = w.ready
         row = dict(n=n, substeps=case[0], iterations=case[1], counts=r["counts"], verified=r["verified"],
                    build_s=r["build_s"], first_frame_s=r["first_frame_s"], **done, **timing)
+        if "method" in r["verified"]:  # a different method: its own setting, not the row's work
+            row["method"] = r["verified"]["method"]
         if w.run.result is None:
             w.run.result = dict(side=w.run.side, versions=r["versions"], import_s=r["import_s"], rows=[])
         w.run.result["rows"].append(row)
@@ -762,7 +936,10 @@ def run_row(runs: Sequence[Run], n: int, case: tuple[int, int], frames: int, rou
 
 def plan_runs(sides: Sequence[str], pypbd_threads: Sequence[int], newton_cold: bool,
               cache_dir: str | None = None, newton_launches: bool = False, jolt: str | None = None,
-              jolt_threads: Sequence[int] = (1, 2)) -> tuple[list[Run], list[str]]:
+              jolt_threads: Sequence[int] = (1, 2),
+              csb_variants: Sequence[tuple[str, str]] = (("pbd", "float64"),)) -> tuple[list[Run], list[str]]:
+    """The runs of each side. csb_variants: csb's (method, precision) pairs, each a run of its own
+    ("csb" for PBD in float64, the ratios' base, else "csb xpbd float32" and so on)."""
     runs, skipped = [], []
     for side in sides:
         if side == "jolt":  # a program given by path, not an installed module
@@ -786,14 +963,19 @@ def plan_runs(sides: Sequence[str], pypbd_threads: Sequence[int], newton_cold: b
             runs.append(Run("newton", "newton", env))
             if newton_launches:
                 runs.append(Run("newton nograph", "newton", {**env, "CSB_NEWTON_GRAPH": "0"}))
+        elif side == "mujoco":
+            runs.append(Run("mujoco", "mujoco"))
         else:
-            runs.append(Run("csb", "csb", {"OMP_NUM_THREADS": "1"}))
+            for method, precision in csb_variants:
+                label = "csb" if (method, precision) == ("pbd", "float64") else f"csb {method} {precision}"
+                runs.append(Run(label, "csb", {"OMP_NUM_THREADS": "1", CSB_METHOD_ENV: method,
+                                               CSB_PRECISION_ENV: precision}))
     return runs, skipped
 
 
 def format_peer_table(runs: Sequence[Run]) -> str:
     done = [r for r in runs if r.result is not None]
-    csb = next((r for r in done if r.side == "csb"), None)
+    csb = next((r for r in done if r.label == "csb"), next((r for r in done if r.side == "csb"), None))
     csb_ms = {(row["n"], row["substeps"], row["iterations"]): row["ms_per_frame"]
               for row in (csb.result["rows"] if csb else [])}
     head = (f"{'cloth':>9} {'sub x it':>8} {'side':>14} {'particles':>9} {'distance':>8} {'bending':>8} "
@@ -810,12 +992,15 @@ def format_peer_table(runs: Sequence[Run]) -> str:
                 ms = row["ms_per_frame"]
                 ref = csb_ms.get((n, -msub, it))
                 ratio = f"{ms / ref:7.1f}" if ref else f"{'-':>7}"
-                mproj = c["projections_per_frame"] / (ms * 1e-3) / 1e6
+                proj = c["projections_per_frame"]  # None: a force-based side projects nothing
+                mproj = f"{proj / (ms * 1e-3) / 1e6:8.1f}" if proj else f"{'-':>8}"
                 spread = f"({row['ms_min']:.3f}-{row['ms_max']:.3f})"
                 verdict = "ok" if ch["ok"] else "FAILED"
                 note = (f"{verdict}: drop {1e3 * ch['mean_drop']:.0f} mm (free fall {1e3 * ch['free_fall']:.0f}), "
                         f"strain max {100 * ch['max_strain']:.0f}% mean {100 * ch['mean_strain']:.1f}%, "
                         f"pins {ch['pin_moved']:.0e} m" if ch["finite"] else f"{verdict}: not finite")
+                if "method" in row:
+                    note = f"{method_note(row)}; {stability_note(ch['stability'])}; {note}"
                 used = [t for t in row.get("threads") or [] if t is not None]
                 if used:  # csb: the threads of the timed rounds, and in how many rounds each count
                     counts = sorted(((used.count(t), t) for t in set(used)), reverse=True)
@@ -823,9 +1008,23 @@ def format_peer_table(runs: Sequence[Run]) -> str:
                         f"{t} in {k} rounds" for k, t in counts)
                 lines.append(
                     f"{n:>4}x{n:<4} {-msub:>3} x {it:<3} {r.label:>14} {c['particles']:>9} {c['distance']:>8} "
-                    f"{c['bending']:>8} {c['projections_per_frame']:>10} {ms:>9.3f} "
-                    f"{spread:>17} {row['rounds']:>6} {mproj:>8.1f} {ratio} {note}")
+                    f"{c['bending']:>8} {proj or '-':>10} {ms:>9.3f} "
+                    f"{spread:>17} {row['rounds']:>6} {mproj} {ratio} {note}")
     return "\n".join(lines)
+
+
+def method_note(row: dict[str, Any]) -> str:
+    """What a different method's row times: its method and its own setting, not the row's."""
+    v = row["verified"]
+    return f"{v['method']}: {v['mujoco_substeps']} sub-steps/frame, edges {v['edge_stiffness']:g} N/m"
+
+
+def stability_note(stability: dict[str, Any]) -> str:
+    """A force-based side's verdict (MujocoSide.stability), as the table prints it."""
+    if not stability["finite"]:
+        return "NOT stable: not finite"
+    return (f"{'stable' if stability['stable'] else 'NOT stable'}: max strain {100 * stability['max_strain']:.1f} % "
+            f"{'<' if stability['stable'] else '>='} {100 * stability['strain_limit']:g} %")
 
 
 def format_hold_table(runs: Sequence[Run]) -> str:
@@ -840,6 +1039,8 @@ def format_hold_table(runs: Sequence[Run]) -> str:
                      f"(free fall {h['free_fall']:.3g} m), strain max {100 * h['max_strain']:.3g}% "
                      f"mean {100 * h['mean_strain']:.3g}%, pins {h['pin_moved']:.0e} m"
                      if h["finite"] else "FAILED: not finite")
+            if "stability" in h:
+                state = f"{stability_note(h['stability'])}; {state}"
             lines.append(f"{row['n']:>4}x{row['n']:<4} {row['substeps']:>3} x {row['iterations']:<3} {r.label:>14}  {state}")
     if not lines:
         return ""
@@ -888,6 +1089,14 @@ def format_notes(runs: Sequence[Run]) -> str:
                          f"{firsts[0]:.1f} s, of the later processes (kernels from that cache) "
                          f"{min(firsts[1:], default=0):.2f}-{max(firsts[1:], default=0):.2f} s; "
                          f"none of it is in ms/frame")
+        if "method" in res["rows"][0]:  # a different method, at its own setting
+            v = res["rows"][0]["verified"]
+            steps = ", ".join(f"{row['n']}² {row['verified']['mujoco_substeps']} of "
+                              f"{1e6 * row['verified']['timestep']:.1f} µs" for row in res["rows"])
+            lines.append(f"{r.label}: {v['method']}, not equal work with csb ('/ csb' is time per frame of the same "
+                         f"cloth): {MAPPING[r.side]}; edge stiffness {v['edge_stiffness']:g} N/m: "
+                         f"{v['edge_stiffness_why']}; sub-steps a frame from the explicit stability limit: {steps}")
+            continue
         mismatched = []
         for row in res["rows"]:
             v = row["verified"]
@@ -905,9 +1114,11 @@ def main(sizes: Sequence[int] = SIZES, cases: Sequence[tuple[int, int]] = CASES,
          warmup: int = 2, min_time: float = MIN_TIME, sides: Sequence[str] = ("csb", "pypbd", "newton", "jolt"),
          pypbd_threads: Sequence[int] = (1, 2), newton_cold: bool = True, hold_frames: int = 0,
          newton_launches: bool = True, passes: int = PASSES, jolt: str | None = None,
-         jolt_threads: Sequence[int] = (1, 2)) -> list[Run]:
+         jolt_threads: Sequence[int] = (1, 2),
+         csb_variants: Sequence[tuple[str, str]] = (("pbd", "float64"),)) -> list[Run]:
     with tempfile.TemporaryDirectory(prefix="csb-warp-cache-") as cache:
-        runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches, jolt, jolt_threads)
+        runs, skipped = plan_runs(sides, pypbd_threads, newton_cold, cache, newton_launches, jolt, jolt_threads,
+                                  csb_variants)
         for s in skipped:
             print(s)
         for n in sizes:

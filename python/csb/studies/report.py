@@ -44,10 +44,10 @@ from pathlib import Path
 # body, a balloon, tearing.
 SCENES = ("cloth_drop", "cloth_sphere", "cloth_table", "soft_cube_drop", "balloon_squeeze", "cloth_tear")
 PARALLEL = 2  # scenes and scripts run two at a time (the studies on a LocalCluster of as many workers)
-# The benchmark tables of the quick tier (about 40 s on a 2-core machine); the full tier prints
-# every table (csb bench --help lists them: front ends, frames per second of big cloths, cost per
-# particle up to a million, a million-particle cloth, the reference's KLU cost, ...).
-QUICK_BENCH_PARTS = ("step", "dispatch", "types", "threads", "memory", "viewer")
+# The benchmark tables of the quick tier (about 2 minutes on a 2-core machine); the full tier
+# prints every table (csb bench --help lists them: front ends, frames per second of big cloths,
+# cost per particle up to a million, a million-particle cloth, the reference's KLU cost, ...).
+QUICK_BENCH_PARTS = ("step", "dispatch", "xpbd", "precision", "types", "threads", "memory", "viewer")
 
 
 @dataclass
