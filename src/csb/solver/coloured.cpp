@@ -458,8 +458,7 @@ void PbdStepper::step_single(const Model& model, State& state, Real h) {
           if (sub > 0 && g < parts)
             for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
               const auto [begin, end] = coloured_.part_runs[k];
-              update(kStride<float> * begin, kStride<float> * end);
-              predict(kStride<float> * begin, kStride<float> * end);
+              advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
             }
         };
         sweep_coloured<M, false>(share, model, coloured_, single_.distance, single_.bending, approx, p, p, x, nullptr,
@@ -467,17 +466,18 @@ void PbdStepper::step_single(const Model& model, State& state, Real h) {
       }
       const bool last = sub + 1 == substeps;
       if (in_tasks && !last) continue;
-      // (12)-(15), then (last sub-step) the finiteness check or the next sub-step's prediction.
+      // (12)-(15) and the next sub-step's prediction in one pass, or (last sub-step) (12)-(15) and
+      // the finiteness check.
       share.split(n, [&](Index begin, Index end) {
-        update(kStride<float> * begin, kStride<float> * end);
-        if (last) {
-          for (Index i = begin; i < end && bad_[t] < 0; ++i) {
-            const float* xi = x + kStride<float> * i;
-            if (!std::isfinite(xi[0]) || !std::isfinite(xi[1]) || !std::isfinite(xi[2])) bad_[t] = i;
-          }
-        } else {
-          predict(kStride<float> * begin, kStride<float> * end);
+        if (!last) {
+          advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
           zero_multipliers(t, shares);
+          return;
+        }
+        update(kStride<float> * begin, kStride<float> * end);
+        for (Index i = begin; i < end && bad_[t] < 0; ++i) {
+          const float* xi = x + kStride<float> * i;
+          if (!std::isfinite(xi[0]) || !std::isfinite(xi[1]) || !std::isfinite(xi[2])) bad_[t] = i;
         }
       });
     }

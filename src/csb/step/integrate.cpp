@@ -60,43 +60,46 @@ namespace {
 
 // The update of a sub-step and the prediction of the next for coordinates [k0, k1) in one pass:
 // Euler v = (p - x)/h + a, x = p, p = x + h v; Verlet x* = x, x = p, p = x + keep (x - x*) + a
-// (a = accel_). The operations of commit and predict_range, in their order: the same bits.
-inline __attribute__((always_inline)) void advance_euler_body(Real* __restrict x, Real* __restrict v,
-                                                              Real* __restrict p, const Real* __restrict a, Real h,
-                                                              Index k0, Index k1) {
+// (a = accel_). The operations of commit and predict_range, in their order: the same bits. S:
+// double, or float for the single-precision step.
+template <class S>
+inline __attribute__((always_inline)) void advance_euler_body(S* __restrict x, S* __restrict v, S* __restrict p,
+                                                              const S* __restrict a, S h, Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) {
-    const Real pk = p[k];
-    const Real vk = (pk - x[k]) / h + a[k];
+    const S pk = p[k];
+    const S vk = (pk - x[k]) / h + a[k];
     x[k] = pk;
     v[k] = vk;
     p[k] = pk + h * vk;
   }
 }
-inline __attribute__((always_inline)) void advance_verlet_body(Real* __restrict x, Real* __restrict xp,
-                                                               Real* __restrict p, const Real* __restrict a, Real keep,
-                                                               Index k0, Index k1) {
+template <class S>
+inline __attribute__((always_inline)) void advance_verlet_body(S* __restrict x, S* __restrict xp, S* __restrict p,
+                                                               const S* __restrict a, S keep, Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) {
-    const Real pk = p[k], xk = x[k];
+    const S pk = p[k], xk = x[k];
     xp[k] = xk;
     x[k] = pk;
     p[k] = pk + keep * (pk - xk) + a[k];
   }
 }
-void advance_euler_base(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0, Index k1) {
+template <class S>
+void advance_euler_base(S* x, S* v, S* p, const S* a, S h, Index k0, Index k1) {
   advance_euler_body(x, v, p, a, h, k0, k1);
 }
-void advance_verlet_base(Real* x, Real* xp, Real* p, const Real* a, Real keep, Index k0, Index k1) {
+template <class S>
+void advance_verlet_base(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
 // Four lanes instead of SSE2's two (the division dominates): taken with the AVX2 kernels.
 #define CSB_ADVANCE_AVX2 1
-__attribute__((target("avx2"))) void advance_euler_avx2(Real* x, Real* v, Real* p, const Real* a, Real h, Index k0,
-                                                         Index k1) {
+template <class S>
+__attribute__((target("avx2"))) void advance_euler_avx2(S* x, S* v, S* p, const S* a, S h, Index k0, Index k1) {
   advance_euler_body(x, v, p, a, h, k0, k1);
 }
-__attribute__((target("avx2"))) void advance_verlet_avx2(Real* x, Real* xp, Real* p, const Real* a, Real keep,
-                                                          Index k0, Index k1) {
+template <class S>
+__attribute__((target("avx2"))) void advance_verlet_avx2(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
 #endif
@@ -133,6 +136,18 @@ void PbdStepper::advance(State& state, Real h, Index begin, Index end) {
     advance_verlet_base(x, v, p_.data(), accel_.data(), keep, 3 * begin, 3 * end);
   else
     advance_euler_base(x, v, p_.data(), accel_.data(), h, 3 * begin, 3 * end);
+}
+
+
+void stepper_detail::advance_single(float* x, float* v, float* p, const float* a, float h, float keep, bool verlet,
+                                    Index k0, Index k1) {
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) {
+    verlet ? advance_verlet_avx2(x, v, p, a, keep, k0, k1) : advance_euler_avx2(x, v, p, a, h, k0, k1);
+    return;
+  }
+#endif
+  verlet ? advance_verlet_base(x, v, p, a, keep, k0, k1) : advance_euler_base(x, v, p, a, h, k0, k1);
 }
 
 

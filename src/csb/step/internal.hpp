@@ -78,6 +78,12 @@ struct VolumeTerms {
   Vec3* grad;
 };
 
+// The single-precision step's update of a sub-step and prediction of the next for coordinates
+// [k0, k1) in one pass (PbdStepper::advance's operations in float; v: Verlet's previous
+// positions), in AVX2 lanes where the processor has them (step/integrate.cpp).
+void advance_single(float* x, float* v, float* p, const float* a, float h, float keep, bool verlet, Index k0,
+                    Index k1);
+
 template <class T>
 std::size_t capacity_bytes(const std::vector<T>& v) {
   return v.capacity() * sizeof(T);
