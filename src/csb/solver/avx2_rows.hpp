@@ -138,6 +138,13 @@ CSB_AVX2_INLINE __m128 update(__m128 o, __m128 d) {
   else
     return _mm_add_ps(o, d);
 }
+template <bool Subtract>
+CSB_AVX2_INLINE __m256 update(__m256 o, __m256 d) {
+  if constexpr (Subtract)
+    return _mm256_sub_ps(o, d);
+  else
+    return _mm256_add_ps(o, d);
+}
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
 template <bool Subtract = false>
@@ -152,6 +159,65 @@ CSB_AVX2_INLINE void store_rows(float* o, const Index at[4], __m128 x, __m128 y,
   __m128 v[4];
   particles(x, y, z, v);
   for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], v[l]);
+}
+
+// Eight particles at a time in 256-bit registers (lane l from the particle at o + at[l]; lanes
+// 0-3 and 4-7 are two 128-bit halves, so particles l and l + 4 share a register before the
+// transpose): six shuffles and four inserts for eight particles where two groups of four take
+// twelve shuffles, and the way back likewise.
+CSB_AVX2_INLINE __m256 load_pair(const float* a, const float* b) {
+  return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(a)), _mm_loadu_ps(b), 1);
+}
+
+CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x, __m256& y, __m256& z) {
+  const __m256 t0 = _mm256_unpacklo_ps(v0, v1);  // x0 x1 y0 y1 | x4 x5 y4 y5
+  const __m256 t1 = _mm256_unpacklo_ps(v2, v3);  // x2 x3 y2 y3 | x6 x7 y6 y7
+  const __m256 t2 = _mm256_unpackhi_ps(v0, v1);  // z0 z1 ·  ·  | z4 z5 ·  ·
+  const __m256 t3 = _mm256_unpackhi_ps(v2, v3);  // z2 z3 ·  ·  | z6 z7 ·  ·
+  x = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));
+  y = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));
+  z = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));
+}
+
+// Rows x, y, z of the eight particles at o + at[l].
+CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z) {
+  rows8(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
+        load_pair(o + at[3], o + at[7]), x, y, z);
+}
+
+// The [x, y, z, 0] vectors of rows x, y, z: v[l] holds particles l and l + 4.
+CSB_AVX2_INLINE void particles8(__m256 x, __m256 y, __m256 z, __m256 v[4]) {
+  const __m256 zero = _mm256_setzero_ps();
+  const __m256 t0 = _mm256_unpacklo_ps(x, y);     // x0 y0 x1 y1 | x4 y4 x5 y5
+  const __m256 t1 = _mm256_unpackhi_ps(x, y);     // x2 y2 x3 y3 | x6 y6 x7 y7
+  const __m256 t2 = _mm256_unpacklo_ps(z, zero);  // z0 0  z1 0  | z4 0  z5 0
+  const __m256 t3 = _mm256_unpackhi_ps(z, zero);  // z2 0  z3 0  | z6 0  z7 0
+  v[0] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(1, 0, 1, 0));
+  v[1] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(3, 2, 3, 2));
+  v[2] = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(1, 0, 1, 0));
+  v[3] = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(3, 2, 3, 2));
+}
+
+// Lane l of the rows (x, y, z) written to the particle at o + at[l], its pad 0.
+CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m256 z) {
+  __m256 v[4];
+  particles8(x, y, z, v);
+  for (int l = 0; l < 4; ++l) {
+    _mm_storeu_ps(o + at[l], _mm256_castps256_ps128(v[l]));
+    _mm_storeu_ps(o + at[l + 4], _mm256_extractf128_ps(v[l], 1));
+  }
+}
+
+// Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
+template <bool Subtract = false>
+CSB_AVX2_INLINE void add8(float* o, const Index at[8], __m256 dx, __m256 dy, __m256 dz) {
+  __m256 d[4];
+  particles8(dx, dy, dz, d);
+  for (int l = 0; l < 4; ++l) {
+    const __m256 sum = update<Subtract>(load_pair(o + at[l], o + at[l + 4]), d[l]);
+    _mm_storeu_ps(o + at[l], _mm256_castps256_ps128(sum));
+    _mm_storeu_ps(o + at[l + 4], _mm256_extractf128_ps(sum, 1));
+  }
 }
 
 }  // namespace csb::avx2

@@ -115,22 +115,41 @@ CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, Index begin, Index 
   }
 }
 
-// Single precision (the single-precision step, Gauss-Seidel: o = r): four constraints gathered at
-// a time in 128-bit registers, the new positions P + (S w_s) ∇_s C (bending_scatter's operations)
-// computed in SIMD lanes and stored four constraints at a time; a block's last m % 4 constraints
-// one at a time.
+// Single precision (the single-precision step, Gauss-Seidel: o = r): eight constraints gathered at
+// a time in 256-bit registers (then four, in 128-bit ones), the new positions P + (S w_s) ∇_s C
+// (bending_scatter's operations) computed in SIMD lanes and stored eight (four) constraints at a
+// time; a block's last m % 4 constraints one at a time.
 template <bool Xpbd, bool Damped>
 CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index m, const float* r, float* o,
                                        const float* x) {
   using namespace avx2;
+  constexpr Index S = kStride<float>;
   BendingBlock<Xpbd, Damped, float> t;
-  const Index m4 = m - m % 4;
-  for (Index k = 0; k < m4; k += 4) {
+  const Index m8 = m - m % 8, m4 = m - m % 4;
+  for (Index k = 0; k < m8; k += 8) {
+    const auto* q = &b.q[c0 + k];
+    for (int s = 0; s < 4; ++s) {
+      const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
+                           S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
+      __m256 ex, ey, ez;
+      gather8(r, at, ex, ey, ez);
+      _mm256_store_ps(&t.P[3 * s][k], ex);
+      _mm256_store_ps(&t.P[3 * s + 1][k], ey);
+      _mm256_store_ps(&t.P[3 * s + 2][k], ez);
+      if constexpr (Damped) {
+        gather8(x, at, ex, ey, ez);
+        _mm256_store_ps(&t.X[3 * s][k], ex);
+        _mm256_store_ps(&t.X[3 * s + 1][k], ey);
+        _mm256_store_ps(&t.X[3 * s + 2][k], ez);
+      }
+    }
+  }
+  for (Index k = m8; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       __m128 v[4], d[4];
       for (int l = 0; l < 4; ++l) {
-        const Index i = 4 * q[l][s];
+        const Index i = S * q[l][s];
         v[l] = load_xyz(r + i);
         if constexpr (Damped) d[l] = load_xyz(x + i);
       }
@@ -146,6 +165,8 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
         _mm_store_ps(&t.X[3 * s + 2][k], ez);
       }
     }
+  }
+  for (Index k = 0; k < m4; k += 4) {
     __m128 wa, wb, wc, wd;
     rows4(b.w[c0 + k].data(), wa, wb, wc, wd);
     _mm_store_ps(&t.W[0][k], wa);
@@ -163,10 +184,19 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
 #pragma omp simd
       for (Index k = 0; k < m4; ++k) g[k] = pe[k] + (t.S[k] * ws[k]) * g[k];
     }
-  for (Index k = 0; k < m4; k += 4) {
+  for (Index k = 0; k < m8; k += 8) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Index at[4] = {4 * q[0][s], 4 * q[1][s], 4 * q[2][s], 4 * q[3][s]};
+      const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
+                           S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
+      store8(o, at, _mm256_load_ps(&t.G[3 * s][k]), _mm256_load_ps(&t.G[3 * s + 1][k]),
+             _mm256_load_ps(&t.G[3 * s + 2][k]));
+    }
+  }
+  for (Index k = m8; k < m4; k += 4) {
+    const auto* q = &b.q[c0 + k];
+    for (int s = 0; s < 4; ++s) {
+      const Index at[4] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s]};
       store_rows(o, at, _mm_load_ps(&t.G[3 * s][k]), _mm_load_ps(&t.G[3 * s + 1][k]),
                  _mm_load_ps(&t.G[3 * s + 2][k]));
     }
