@@ -239,6 +239,11 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     single_.bending = narrowed<float>(cb.bending);
     cb.distance = {};
     cb.bending = {};
+    // What a prediction adds, h g (Verlet: h² g), 0 where w = 0: fixed for the model.
+    const Real h = substep_size(), step = settings_.front_end == FrontEnd::Verlet ? h * h : h;
+    for (Index i = 0; i < model.num_particles(); ++i)
+      for (int e = 0; e < 3; ++e)
+        single_.accel[kStride<float> * i + e] = static_cast<float>(w[i] > 0 ? step * settings_.gravity[e] : 0);
   }
   cb.model_id = model.id;
 }

@@ -369,8 +369,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
 // ------------------------------------------------------------------------- single precision
 //
 // Precision::Single: one step of every sub-step in one fork of the team, in float. The state is
-// rounded to float (positions, velocities or Verlet's previous positions, h g per particle; each
-// particle's x, y, z and a pad of 0, kStride<float> apart),
+// rounded to float (positions, and velocities or Verlet's previous positions: each particle's x,
+// y, z and a pad of 0, kStride<float> apart; h g per particle is the model's, set when built),
 // then per sub-step the prediction, `iterations` coloured Gauss-Seidel sweeps of the float
 // batches (the kernels of the double sweep, instantiated for float: twice the SIMD lanes, half
 // the bytes) and the update. When every constraint lies in a part or an interface (no rest
@@ -434,17 +434,8 @@ void PbdStepper::step_single(const Model& model, State& state, Real h) {
     Share share{team_.get(), t};
     const int shares = share.team.size();
     share.split(n, [&](Index begin, Index end) {
-      const Real* xd = state.x.data();
-      const Real* vd = verlet ? x_prev_.data() : state.v.data();
-      const Real* w = model.inv_mass.data();
-      const Real step = verlet ? h * h : h;
-      for (Index i = begin; i < end; ++i)
-        for (int e = 0; e < 3; ++e) {
-          const Index k = kStride<float> * i + e;
-          x[k] = static_cast<float>(xd[3 * i + e]);
-          v[k] = static_cast<float>(vd[3 * i + e]);
-          a[k] = static_cast<float>(w[i] > 0 ? step * settings_.gravity[e] : 0);
-        }
+      narrow_positions(state.x.data(), x, begin, end);
+      narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end);
       predict(kStride<float> * begin, kStride<float> * end);
       if (!in_tasks) zero_multipliers(t, shares);
     });
@@ -484,10 +475,8 @@ void PbdStepper::step_single(const Model& model, State& state, Real h) {
     for (const Index b : bad_)
       if (b >= 0) return;  // every thread sees the same bad_ after the last barrier
     share.split(n, [&](Index begin, Index end) {
-      Real* xd = state.x.data();
-      Real* vd = verlet ? x_prev_.data() : state.v.data();
-      for (Index i = begin; i < end; ++i)
-        for (int e = 0; e < 3; ++e) xd[3 * i + e] = x[kStride<float> * i + e], vd[3 * i + e] = v[kStride<float> * i + e];
+      widen_positions(x, state.x.data(), begin, end);
+      widen_positions(v, verlet ? x_prev_.data() : state.v.data(), begin, end);
     });
   });
   Index bad = -1;

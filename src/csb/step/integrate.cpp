@@ -3,6 +3,7 @@
 #include "csb/pbd.hpp"
 #include "csb/format.hpp"
 #include "csb/step/internal.hpp"
+#include "csb/solver/avx2_rows.hpp"
 #include "csb/solver/coloured_bending.hpp"
 #include <Eigen/Eigenvalues>
 
@@ -148,6 +149,51 @@ void stepper_detail::advance_single(float* x, float* v, float* p, const float* a
   }
 #endif
   verlet ? advance_verlet_base(x, v, p, a, keep, k0, k1) : advance_euler_base(x, v, p, a, h, k0, k1);
+}
+
+
+namespace {
+
+// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z, 0 (4 apart), rounded to
+// nearest, and back (exact). The AVX2 copies move a particle as one conversion and a masked load
+// of three doubles, or a 128-bit and a 64-bit store (a masked store is slow on some processors):
+// the same values.
+void narrow_base(const Real* in, float* out, Index begin, Index end) {
+  for (Index i = begin; i < end; ++i)
+    for (int e = 0; e < 3; ++e) out[4 * i + e] = static_cast<float>(in[3 * i + e]);
+}
+void widen_base(const float* in, Real* out, Index begin, Index end) {
+  for (Index i = begin; i < end; ++i)
+    for (int e = 0; e < 3; ++e) out[3 * i + e] = in[4 * i + e];
+}
+#if CSB_HAS_AVX2_ROWS
+__attribute__((target("avx2"))) void narrow_avx2(const Real* in, float* out, Index begin, Index end) {
+  const __m256i xyz = _mm256_setr_epi64x(-1, -1, -1, 0);
+  for (Index i = begin; i < end; ++i) _mm_storeu_ps(out + 4 * i, _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)));
+}
+__attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Index begin, Index end) {
+  for (Index i = begin; i < end; ++i) {
+    const __m256d d = _mm256_cvtps_pd(_mm_loadu_ps(in + 4 * i));
+    _mm_storeu_pd(out + 3 * i, _mm256_castpd256_pd128(d));
+    _mm_store_sd(out + 3 * i + 2, _mm256_extractf128_pd(d, 1));
+  }
+}
+#endif
+
+}  // namespace
+
+void stepper_detail::narrow_positions(const Real* in, float* out, Index begin, Index end) {
+#if CSB_HAS_AVX2_ROWS
+  if (kernels_use_avx2()) return narrow_avx2(in, out, begin, end);
+#endif
+  narrow_base(in, out, begin, end);
+}
+
+void stepper_detail::widen_positions(const float* in, Real* out, Index begin, Index end) {
+#if CSB_HAS_AVX2_ROWS
+  if (kernels_use_avx2()) return widen_avx2(in, out, begin, end);
+#endif
+  widen_base(in, out, begin, end);
 }
 
 

@@ -84,6 +84,11 @@ struct VolumeTerms {
 void advance_single(float* x, float* v, float* p, const float* a, float h, float keep, bool verlet, Index k0,
                     Index k1);
 
+// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z (4 apart, the pads left
+// as they are), rounded to nearest; and back, exactly (step/integrate.cpp).
+void narrow_positions(const Real* in, float* out, Index begin, Index end);
+void widen_positions(const float* in, Real* out, Index begin, Index end);
+
 template <class T>
 std::size_t capacity_bytes(const std::vector<T>& v) {
   return v.capacity() * sizeof(T);
