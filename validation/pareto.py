@@ -31,20 +31,11 @@ from pathlib import Path
 import numpy as np
 
 import csb
-from csb.studies import make_stepper, omega_max, run_method, swinging_chain, write_csv
+from csb.studies import hanging_cloth, make_stepper, omega_max, run_method, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 LEVELS = (0.1, 0.01, 0.001)
 SIZE = 0.5  # m, both scenes
-
-
-def cloth(n: int) -> csb.Model:
-    b = csb.ModelBuilder()
-    inst = b.add_mesh(csb.cloth_grid(SIZE, SIZE, n, n), density=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
-                      bending_compliance=1.0)
-    b.pin(inst.nearest([-SIZE / 2, 0, -SIZE / 2]))
-    b.pin(inst.nearest([SIZE / 2, 0, -SIZE / 2]))
-    return b.build()
 
 
 def timed(model, start, times, stepper, dt, ref_x):
@@ -109,7 +100,7 @@ def main() -> None:
     out.mkdir(parents=True, exist_ok=True)
     scenes = {
         "chain": swinging_chain(links=5 if args.quick else 10, compliance=1e-6),
-        "cloth": cloth(6 if args.quick else 12),
+        "cloth": hanging_cloth(6 if args.quick else 12, size=SIZE),
     }
     duration = 0.3 if args.quick else 1.0
     results = {}

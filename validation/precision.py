@@ -32,20 +32,11 @@ import numpy as np
 
 import csb
 from csb.bench import format_precision_rates, format_precision_table, precision_rates, precision_table
-from csb.studies import run_method, swinging_chain, write_csv
+from csb.studies import hanging_cloth, run_method, swinging_chain, write_csv
 
 G = (0.0, -9.81, 0.0)
 SIZE = 0.5  # m, both scenes
 METHODS = ("pbd", "xpbd", "jakobsen")
-
-
-def cloth(n: int) -> csb.Model:
-    b = csb.ModelBuilder()
-    inst = b.add_mesh(csb.cloth_grid(SIZE, SIZE, n, n), density=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
-                      bending_compliance=1.0)
-    b.pin(inst.nearest([-SIZE / 2, 0, -SIZE / 2]))
-    b.pin(inst.nearest([SIZE / 2, 0, -SIZE / 2]))
-    return b.build()
 
 
 def positions(model, start, times, stepper, dt) -> np.ndarray:
@@ -96,7 +87,7 @@ def main() -> None:
     t0 = time.perf_counter()
     scenes = {
         "chain": swinging_chain(links=5 if args.quick else 10, compliance=1e-6),
-        "cloth": cloth(6 if args.quick else 12),
+        "cloth": hanging_cloth(6 if args.quick else 12, size=SIZE),
     }
     duration = 0.3 if args.quick else 1.0
     substeps = (1, 4, 16, 64) if args.quick else (1, 2, 4, 8, 16, 32, 64)

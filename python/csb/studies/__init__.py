@@ -164,6 +164,19 @@ def swinging_chain(*, links: int = 10, compliance: float = 1e-7, link_length: fl
     return b.build()
 
 
+def hanging_cloth(n: int, *, size: float = 0.5) -> _core.Model:
+    """A square cloth of n x n particles and `size` m a side (0.2 kg/m², stretch compliance 1e-4
+    m/N, bending stiffness 1 and compliance 1 1/(N m)), flat and pinned at its two corners at -z:
+    released, it falls and swings on them. The accuracy studies' cloth (validation/pareto.py,
+    validation/precision.py)."""
+    b = ModelBuilder()
+    inst = b.add_mesh(_core.cloth_grid(size, size, n, n), density=0.2, stretch_compliance=1e-4, bending_stiffness=1.0,
+                      bending_compliance=1.0)
+    b.pin(inst.nearest([-size / 2, 0, -size / 2]))
+    b.pin(inst.nearest([size / 2, 0, -size / 2]))
+    return b.build()
+
+
 def relative_energy_drift(model: _core.Model, states: list, gravity) -> float:
     """|E(end) - E(start)| of the total (kinetic + gravitational + elastic) energy, relative to
     the larger of |E(start)| and the largest kinetic energy seen, so that the figure does not
