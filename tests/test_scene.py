@@ -324,7 +324,7 @@ def test_the_readme_command_line_examples_run_as_written(tmp_path):
     (block,) = [b for b in re.findall(r"```sh\n(.*?)```", text, re.S) if "csb --version" in b]
     exe = Path(sys.executable).parent / "csb"
     commands = [shlex.split(line.split("#")[0]) for line in block.splitlines() if line.startswith("csb ")]
-    assert len(commands) == 4
+    assert len(commands) == 5
     # `csb render` needs the viewer: where it cannot load (a wheel without the system's display
     # libraries), that command says so, in one line, and the others run.
     viewer = csb.viewer_available() or os.environ.get("CSB_REQUIRE_VIEWER") == "1"
@@ -335,4 +335,5 @@ def test_the_readme_command_line_examples_run_as_written(tmp_path):
             continue
         assert r.returncode == 0, (argv, r.stderr)
     assert (tmp_path / "out" / "cloth_drop" / "cloth_drop.usd").exists()
+    assert (tmp_path / "out" / "cloth_grid" / "metrics.csv").exists()  # the float32 run
     assert (tmp_path / "out" / "cloth_drop" / "frames" / "frame_00059.png").exists() or not viewer
