@@ -205,3 +205,24 @@ def test_a_scene_file_and_the_command_line_choose_the_precision(tmp_path):
 
     assert SolverSpec(method="xpbd", precision="float32").stepper().settings.precision == "float32"
     assert SolverSpec().stepper().settings.precision == "float64"
+
+
+def test_a_long_float32_step_stops_on_a_signal_between_its_forks_of_sub_steps():
+    """A step of 3000 sub-steps runs in forks of 64, the state widened to double between them: a
+    SIGINT from another thread stops it within a fraction of a second at the end of a fork, with
+    a finite state, and stepping on from it works."""
+    from test_threads import sigint_after
+
+    model = cloth(32)
+    state = model.initial_state()
+    stepper = csb.PbdStepper(substeps=3000, iterations=1, precision="float32")
+    h = 1 / 60 / 3000
+    with sigint_after(0.2) as waited:
+        stepper.step(model, state, 5)
+    assert waited[0] < 2.0
+    assert state.step < 5 and np.isfinite(state.x).all() and np.isfinite(state.v).all()
+    done = round((state.t - state.step / 60) / h)
+    assert state.t == pytest.approx(state.step / 60 + done * h, rel=1e-12) and done % 64 == 0
+    steps = state.step
+    stepper.step(model, state, 1)
+    assert state.step == steps + 1

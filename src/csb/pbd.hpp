@@ -351,11 +351,12 @@ class PbdStepper : public Integrator {
   template <Method M, bool Jacobi>
   void project_coloured(const Model& model, const Positions& x_start, Fused* fused);
   // Precision::Single: what in the model or the stepper's state stands in its way (throws
-  // InvalidArgument), and one step of all sub-steps in float (solver/coloured.cpp).
+  // InvalidArgument), and `count` sub-steps of a step in float, sub-steps first .. first + count
+  // - 1 (solver/coloured.cpp).
   void check_single(const Model& model) const;
-  void step_single(const Model& model, State& state, Real h);
+  void substeps_single(const Model& model, State& state, Real h, int first, int count);
   template <Method M>
-  void step_single(const Model& model, State& state, Real h);
+  void substeps_single(const Model& model, State& state, Real h, int first, int count);
   void build_coloured(const Model& model, const Real* w);
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;

@@ -368,7 +368,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
 
 // ------------------------------------------------------------------------- single precision
 //
-// Precision::Single: one step of every sub-step in one fork of the team, in float. The state is
+// Precision::Single: `count` sub-steps of a step (at most kFusedSubsteps, so that a step of very
+// many can be interrupted between them) in one fork of the team, in float. The state is
 // rounded to float (positions, and velocities or Verlet's previous positions: each particle's x,
 // y, z and a pad of 0, kStride<float> apart; h g per particle is the model's, set when built),
 // then per sub-step the prediction, `iterations` coloured Gauss-Seidel sweeps of the float
@@ -377,13 +378,14 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
 // group), part g's task of a sub-step's first sweep updates and predicts its own particles and
 // each group's task zeroes its XPBD multipliers, as in the double fused step (two barriers a
 // sub-step); otherwise the update and prediction are split by particle between the threads. At
-// the end every new position is checked finite before the state takes them, widened to double.
-// The same operations in the same order whatever the thread count: the same bits.
+// the end every new position is checked finite before the state takes them, widened to double
+// (exactly, so that rounding it again for the next sub-steps gives the same floats). The same
+// operations in the same order whatever the thread count and however a step is cut: the same bits.
 template <Method M>
-void PbdStepper::step_single(const Model& model, State& state, Real h) {
+void PbdStepper::substeps_single(const Model& model, State& state, Real h, int first, int count) {
   const Index n = model.num_particles();
   const bool verlet = settings_.front_end == FrontEnd::Verlet;
-  const int substeps = settings_.substeps, iterations = settings_.iterations, threads = threads_used_;
+  const int substeps = count, iterations = settings_.iterations, threads = threads_used_;
   const bool approx = settings_.sqrt_approximation;
   const float hf = static_cast<float>(h), keep = static_cast<float>(1 - settings_.verlet_drag);
   float* x = single_.x.data();
@@ -486,22 +488,22 @@ void PbdStepper::step_single(const Model& model, State& state, Real h) {
     if (verlet) state.v = (state.x - x_prev_) / h;
     std::ostringstream msg;
     const float* xb = x + kStride<float> * bad;
-    msg << "step " << state.step << " (t = " << state.t << " s, single precision): particle " << bad
-        << " got a non-finite position (" << xb[0] << ", " << xb[1] << ", " << xb[2]
-        << "); the state is left at the start of this step";
+    msg << "step " << state.step << " (sub-steps " << first << "-" << first + count - 1 << ", t = " << state.t
+        << " s, single precision): particle " << bad << " got a non-finite position (" << xb[0] << ", " << xb[1]
+        << ", " << xb[2] << "); the state is left where sub-step " << first << " started";
     throw SimulationError(msg.str());
   }
   if constexpr (M == Method::Xpbd) lambda_stale_ = true;
 }
 
-void PbdStepper::step_single(const Model& model, State& state, Real h) {
+void PbdStepper::substeps_single(const Model& model, State& state, Real h, int first, int count) {
   switch (settings_.method) {
     case Method::Pbd:
-      return step_single<Method::Pbd>(model, state, h);
+      return substeps_single<Method::Pbd>(model, state, h, first, count);
     case Method::Xpbd:
-      return step_single<Method::Xpbd>(model, state, h);
+      return substeps_single<Method::Xpbd>(model, state, h, first, count);
     case Method::Jakobsen:
-      return step_single<Method::Jakobsen>(model, state, h);
+      return substeps_single<Method::Jakobsen>(model, state, h, first, count);
   }
 }
 

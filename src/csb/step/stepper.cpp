@@ -96,7 +96,11 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
   const Real h = substep_size();
   for (std::int64_t s = 0; s < steps; ++s) {
     if (single)
-      step_single(model, state, h);
+      for (int first = 0; first < settings_.substeps; first += kFusedSubsteps) {  // interruptible between forks
+        const int count = std::min(kFusedSubsteps, settings_.substeps - first);
+        substeps_single(model, state, h, first, count);
+        if (first + count < settings_.substeps) stop_if_asked(state, h, first + count - 1, interrupt);
+      }
     else if (fused)
       substeps_fused(model, state, h, interrupt);
     else
