@@ -155,31 +155,34 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, 
   }
 }
 
-// The blocks again with AVX2 lanes, four constraints gathered and scattered at a time in AVX2
-// registers (csb/avx2_rows.hpp), the rest of a block one at a time; taken when the processor has
-// AVX2 (see coloured_bending.cpp).
-__attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDistance& b, Index begin, Index end,
-                                                               const Real* r, Real* o) {
+// d = p_i - p_j (and, Damped, u = (p_i - x_i) - (p_j - x_j)) of constraints c0 + [0, m4) as rows,
+// four at a time in AVX2 registers (csb/avx2_rows.hpp).
+template <bool Damped>
+CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistance& b, Index c0, Index m4, const Real* r, const Real* x,
+                                          Real* dx, Real* dy, Real* dz, Real* ux, Real* uy, Real* uz) {
   using namespace avx2;
-  constexpr Index B = kDistanceBlock;
-  alignas(64) Real dx[B], dy[B], dz[B], s[B];
-  for (Index c0 = begin; c0 < end; c0 += B) {
-    const Index m = std::min(B, end - c0), m4 = m - m % 4;
-    const Index* bi = b.i.data() + c0;
-    const Index* bj = b.j.data() + c0;
-    for (Index k = 0; k < m4; k += 4) {
-      __m256d d[4];
-      for (int l = 0; l < 4; ++l) d[l] = _mm256_sub_pd(load_xyz(r + 3 * bi[k + l]), load_xyz(r + 3 * bj[k + l]));
-      __m256d x, y, z;
-      rows(d[0], d[1], d[2], d[3], x, y, z);
-      _mm256_store_pd(dx + k, x);
-      _mm256_store_pd(dy + k, y);
-      _mm256_store_pd(dz + k, z);
+  const Index* bi = b.i.data() + c0;
+  const Index* bj = b.j.data() + c0;
+  for (Index k = 0; k < m4; k += 4) {
+    __m256d d[4], u[4];
+    for (int l = 0; l < 4; ++l) {
+      const __m256d pi = load_xyz(r + 3 * bi[k + l]), pj = load_xyz(r + 3 * bj[k + l]);
+      d[l] = _mm256_sub_pd(pi, pj);
+      if constexpr (Damped)
+        u[l] = _mm256_sub_pd(_mm256_sub_pd(pi, load_xyz(x + 3 * bi[k + l])),
+                             _mm256_sub_pd(pj, load_xyz(x + 3 * bj[k + l])));
     }
-    distance_gather(b, c0, m4, m, r, dx, dy, dz);
-    distance_pbd_block_s<false>(b, c0, m, dx, dy, dz, s);
-    distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
-    distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
+    __m256d rx, ry, rz;
+    rows(d[0], d[1], d[2], d[3], rx, ry, rz);
+    _mm256_store_pd(dx + k, rx);
+    _mm256_store_pd(dy + k, ry);
+    _mm256_store_pd(dz + k, rz);
+    if constexpr (Damped) {
+      rows(u[0], u[1], u[2], u[3], rx, ry, rz);
+      _mm256_store_pd(ux + k, rx);
+      _mm256_store_pd(uy + k, ry);
+      _mm256_store_pd(uz + k, rz);
+    }
   }
 }
 #endif
@@ -281,52 +284,8 @@ CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index
 }
 
 #if CSB_HAS_AVX2_ROWS
-// The XPBD blocks with AVX2 gathers and scatters, four constraints at a time, as
-// distance_pbd_blocks_avx2.
-template <bool Damped>
-__attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistance& b, Index begin, Index end,
-                                                                const Real* r, Real* o, const Real* x) {
-  using namespace avx2;
-  constexpr Index B = kDistanceBlock;
-  alignas(64) Real dx[B], dy[B], dz[B], s[B];
-  alignas(64) Real ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
-  for (Index c0 = begin; c0 < end; c0 += B) {
-    const Index m = std::min(B, end - c0), m4 = m - m % 4;
-    const Index* bi = b.i.data() + c0;
-    const Index* bj = b.j.data() + c0;
-    for (Index k = 0; k < m4; k += 4) {
-      __m256d d[4], u[4];
-      for (int l = 0; l < 4; ++l) {
-        const __m256d pi = load_xyz(r + 3 * bi[k + l]), pj = load_xyz(r + 3 * bj[k + l]);
-        d[l] = _mm256_sub_pd(pi, pj);
-        if constexpr (Damped)
-          u[l] = _mm256_sub_pd(_mm256_sub_pd(pi, load_xyz(x + 3 * bi[k + l])),
-                               _mm256_sub_pd(pj, load_xyz(x + 3 * bj[k + l])));
-      }
-      __m256d rx, ry, rz;
-      rows(d[0], d[1], d[2], d[3], rx, ry, rz);
-      _mm256_store_pd(dx + k, rx);
-      _mm256_store_pd(dy + k, ry);
-      _mm256_store_pd(dz + k, rz);
-      if constexpr (Damped) {
-        rows(u[0], u[1], u[2], u[3], rx, ry, rz);
-        _mm256_store_pd(ux + k, rx);
-        _mm256_store_pd(uy + k, ry);
-        _mm256_store_pd(uz + k, rz);
-      }
-    }
-    distance_gather(b, c0, m4, m, r, dx, dy, dz);
-    if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
-    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
-    distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
-    distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
-  }
-}
-#endif
-
-#if CSB_HAS_AVX2_ROWS
-// Single precision: the blocks with AVX2 gathers and scatters of four constraints at a time in
-// 128-bit registers (csb/avx2_rows.hpp), their arithmetic in eight float lanes.
+// Single precision: distance_scatter_rows and distance_gather_rows eight constraints at a time in
+// 256-bit registers, then four in 128-bit ones (csb/avx2_rows.hpp).
 template <bool Xpbd>
 CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, Index c0, Index m4, const float* s,
                                            const float* vx, const float* vy, const float* vz, float* o) {
@@ -402,14 +361,18 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
   }
 }
 
-template <bool Approx>
-CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<float>& b, Index begin, Index end,
-                                              const float* r, float* o) {
+// The blocks with AVX2 gathers and scatters (distance_gather_rows, distance_scatter_rows: four
+// doubles or eight floats at a time), the rest of a block one at a time; the arithmetic in SIMD
+// lanes. Per constraint the operations of the portable blocks, so the same bits.
+template <bool Approx, class S>
+CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r,
+                                              S* o) {
   constexpr Index B = kDistanceBlock;
-  alignas(64) float dx[B], dy[B], dz[B], s[B];
+  alignas(64) S dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0), m4 = m - m % 4;
-    distance_gather_rows<false>(b, c0, m4, r, nullptr, dx, dy, dz, nullptr, nullptr, nullptr);
+    distance_gather_rows<false>(b, c0, m4, r, static_cast<const S*>(nullptr), dx, dy, dz, static_cast<S*>(nullptr),
+                                static_cast<S*>(nullptr), static_cast<S*>(nullptr));
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
     distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
@@ -417,12 +380,12 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<float>& b,
   }
 }
 
-template <bool Damped>
-CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<float>& b, Index begin, Index end, const float* r,
-                                               float* o, const float* x) {
+template <bool Damped, class S>
+CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
+                                               const S* x) {
   constexpr Index B = kDistanceBlock;
-  alignas(64) float dx[B], dy[B], dz[B], s[B];
-  alignas(64) float ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  alignas(64) S dx[B], dy[B], dz[B], s[B];
+  alignas(64) S ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0), m4 = m - m % 4;
     distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
@@ -435,69 +398,50 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<float>& b, Inde
 }
 #endif
 #if defined(CSB_DISTANCE_AVX2)
-template <bool Approx>
-__attribute__((target("avx2"))) void distance_pbd_blocks_single_avx2(const ColouredDistanceT<float>& b, Index begin,
-                                                                      Index end, const float* r, float* o) {
+// The row blocks compiled for AVX2 in the portable build, taken when the processor has it (see
+// coloured_bending.cpp).
+template <bool Approx, class S>
+__attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDistanceT<S>& b, Index begin, Index end,
+                                                               const S* r, S* o) {
   distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
 }
-template <bool Damped>
-__attribute__((target("avx2"))) void distance_xpbd_blocks_single_avx2(ColouredDistanceT<float>& b, Index begin,
-                                                                       Index end, const float* r, float* o,
-                                                                       const float* x) {
+template <bool Damped, class S>
+__attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistanceT<S>& b, Index begin, Index end,
+                                                                const S* r, S* o, const S* x) {
   distance_xpbd_blocks_rows<Damped>(b, begin, end, r, o, x);
 }
 #endif
 
-// PBD and Jakobsen over the independent constraints [begin, end) of one colour. Double: the
-// blocks, with AVX2 gathers where the processor has them (Jakobsen's square-root approximation
-// one constraint per SIMD lane); float: the portable blocks, in AVX2 lanes where it has them.
+// PBD and Jakobsen over the independent constraints [begin, end) of one colour: the blocks, with
+// AVX2 gathers and scatters where the processor has them; in double, Jakobsen's square-root
+// approximation one constraint per SIMD lane.
 template <bool Approx, class S>
 inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o) {
-  if constexpr (std::is_same_v<S, float>) {
-#if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2()) return distance_pbd_blocks_single_avx2<Approx>(b, begin, end, r, o);
-#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-    return distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
-#endif
-    distance_pbd_blocks<Approx>(b, begin, end, r, o);
-  } else if constexpr (Approx) {
+  if constexpr (Approx && std::is_same_v<S, Real>) {
 #pragma omp simd
     for (Index c = begin; c < end; ++c) distance_pbd<true>(b, c, r, o);
   } else {
 #if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2()) return distance_pbd_blocks_avx2(b, begin, end, r, o);
-    distance_pbd_blocks<false>(b, begin, end, r, o);
+    if (kernels_use_avx2()) return distance_pbd_blocks_avx2<Approx>(b, begin, end, r, o);
 #elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-    distance_pbd_blocks_avx2(b, begin, end, r, o);
-#else
-    distance_pbd_blocks<false>(b, begin, end, r, o);
+    return distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
 #endif
+    distance_pbd_blocks<Approx>(b, begin, end, r, o);
   }
 }
 
-// XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2
-// gathers where the processor has them (double), or in AVX2 lanes (float).
+// XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2 gathers
+// and scatters where the processor has them.
 template <class S>
 inline void distance_xpbd_range(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
-  if constexpr (std::is_same_v<S, float>) {
 #if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2())
-      return b.damped ? distance_xpbd_blocks_single_avx2<true>(b, begin, end, r, o, x)
-                      : distance_xpbd_blocks_single_avx2<false>(b, begin, end, r, o, x);
-#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-    return b.damped ? distance_xpbd_blocks_rows<true>(b, begin, end, r, o, x)
-                    : distance_xpbd_blocks_rows<false>(b, begin, end, r, o, x);
-#endif
-  } else {
-#if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2())
-      return b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
-                      : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
-#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+  if (kernels_use_avx2())
     return b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
                     : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+#elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
+  return b.damped ? distance_xpbd_blocks_rows<true>(b, begin, end, r, o, x)
+                  : distance_xpbd_blocks_rows<false>(b, begin, end, r, o, x);
 #endif
-  }
   b.damped ? distance_xpbd_blocks<true>(b, begin, end, r, o, x) : distance_xpbd_blocks<false>(b, begin, end, r, o, x);
 }
 
