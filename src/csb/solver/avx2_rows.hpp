@@ -56,20 +56,14 @@ CSB_AVX2_INLINE void rows4(const Real* q, __m256d& a, __m256d& b, __m256d& c, __
   d = _mm256_permute2f128_pd(t1, t3, 0x31);
 }
 
-// One coordinate of a particle: o += d (Subtract: o -= d).
-template <bool Subtract>
-CSB_AVX2_INLINE void update(Real& o, Real d) {
+// o + d (Subtract: o - d), lane by lane: a scalar, or a vector of GCC's vector types (__m128d,
+// __m128, __m256, whose + and - are the lanes' IEEE addition and subtraction).
+template <bool Subtract, class V>
+CSB_AVX2_INLINE V update(V o, V d) {
   if constexpr (Subtract)
-    o -= d;
+    return o - d;
   else
-    o += d;
-}
-template <bool Subtract>
-CSB_AVX2_INLINE __m128d update(__m128d o, __m128d d) {
-  if constexpr (Subtract)
-    return _mm_sub_pd(o, d);
-  else
-    return _mm_add_pd(o, d);
+    return o + d;
 }
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
@@ -84,7 +78,7 @@ CSB_AVX2_INLINE void add_rows(Real* o, const Index at[4], __m256d dx, __m256d dy
   for (int l = 0; l < 4; ++l) {
     Real* p = o + at[l];
     _mm_storeu_pd(p, update<Subtract>(_mm_loadu_pd(p), xy[l]));
-    update<Subtract>(p[2], z[l]);
+    p[2] = update<Subtract>(p[2], z[l]);
   }
 }
 
@@ -131,20 +125,6 @@ CSB_AVX2_INLINE void rows4(const float* q, __m128& a, __m128& b, __m128& c, __m1
   _MM_TRANSPOSE4_PS(a, b, c, d);
 }
 
-template <bool Subtract>
-CSB_AVX2_INLINE __m128 update(__m128 o, __m128 d) {
-  if constexpr (Subtract)
-    return _mm_sub_ps(o, d);
-  else
-    return _mm_add_ps(o, d);
-}
-template <bool Subtract>
-CSB_AVX2_INLINE __m256 update(__m256 o, __m256 d) {
-  if constexpr (Subtract)
-    return _mm256_sub_ps(o, d);
-  else
-    return _mm256_add_ps(o, d);
-}
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
 template <bool Subtract = false>
