@@ -243,16 +243,11 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   const Index parts = model.num_parts;
   // XPBD: group g's multipliers (of every batch) set to zero.
   const auto zero_group_multipliers = [&](Index g) {
-    const auto zero = [g](const Colouring& c, std::vector<Real>& lambda) {
-      if (lambda.empty() || static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
-      std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
-                lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], 0.0);
-    };
-    zero(coloured_.distance_colours, coloured_.distance.lambda);
-    zero(model.bending.colours, coloured_.bending.lambda);
-    zero(model.bending.colours, coloured_.bending.pair_lambda);
-    zero(model.volume.colours, coloured_.volume.lambda);
-    zero(model.attachments.colours, coloured_.attachments.lambda);
+    zero_group(coloured_.distance_colours, g, coloured_.distance.lambda);
+    zero_group(model.bending.colours, g, coloured_.bending.lambda);
+    zero_group(model.bending.colours, g, coloured_.bending.pair_lambda);
+    zero_group(model.volume.colours, g, coloured_.volume.lambda);
+    zero_group(model.attachments.colours, g, coloured_.attachments.lambda);
   };
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
@@ -398,20 +393,13 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   // XPBD's multipliers set to zero: share t of `shares` of every float batch's, or group g's.
   const auto zero_multipliers = [&](int t, int shares) {
     if constexpr (M == Method::Xpbd)
-      for (std::vector<float>* l : {&single_.distance.lambda, &single_.bending.lambda, &single_.bending.pair_lambda}) {
-        const std::int64_t m = static_cast<std::int64_t>(l->size());
-        std::fill(l->begin() + m * t / shares, l->begin() + m * (t + 1) / shares, 0.0f);
-      }
+      for (std::vector<float>* l : {&single_.distance.lambda, &single_.bending.lambda, &single_.bending.pair_lambda})
+        zero_share(*l, t, shares);
   };
   const auto zero_group_multipliers = [&](Index g) {
-    const auto zero = [g](const Colouring& c, std::vector<float>& l) {
-      if (l.empty() || static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
-      std::fill(l.begin() + c.colour_offsets[c.group_colours[g]], l.begin() + c.colour_offsets[c.group_colours[g + 1]],
-                0.0f);
-    };
-    zero(coloured_.distance_colours, single_.distance.lambda);
-    zero(model.bending.colours, single_.bending.lambda);
-    zero(model.bending.colours, single_.bending.pair_lambda);
+    zero_group(coloured_.distance_colours, g, single_.distance.lambda);
+    zero_group(model.bending.colours, g, single_.bending.lambda);
+    zero_group(model.bending.colours, g, single_.bending.pair_lambda);
   };
   // p from x and v (Euler: v += a first) for coordinates [k0, k1).
   const auto predict = [&](Index k0, Index k1) {

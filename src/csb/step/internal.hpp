@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdint>
 #include <vector>
 
 namespace csb::stepper_detail {
@@ -77,6 +78,21 @@ struct VolumeTerms {
   const std::vector<Real>& g_balloon;
   Vec3* grad;
 };
+
+// XPBD's multipliers set to zero: share `share` of `shares` (equal runs) of a batch's, as the
+// threads split them; or those of group g of the batch's colouring (its colours' ranges; none
+// where the batch is empty or the colouring has no group g).
+template <class S>
+void zero_share(std::vector<S>& lambda, int share, int shares) {
+  const std::int64_t m = static_cast<std::int64_t>(lambda.size());
+  std::fill(lambda.begin() + m * share / shares, lambda.begin() + m * (share + 1) / shares, S(0));
+}
+template <class S>
+void zero_group(const Colouring& c, Index g, std::vector<S>& lambda) {
+  if (lambda.empty() || static_cast<std::size_t>(g) + 1 >= c.group_colours.size()) return;
+  std::fill(lambda.begin() + c.colour_offsets[c.group_colours[g]],
+            lambda.begin() + c.colour_offsets[c.group_colours[g + 1]], S(0));
+}
 
 // The single-precision step's update of a sub-step and prediction of the next for coordinates
 // [k0, k1) in one pass (PbdStepper::advance's operations in float; v: Verlet's previous

@@ -89,14 +89,10 @@ void PbdStepper::prepare(const Model& model) {
 
 
 void PbdStepper::zero_coloured_multipliers(int share, int shares) {
-  const auto zero = [share, shares](std::vector<Real>& l) {
-    const std::int64_t m = static_cast<std::int64_t>(l.size());
-    std::fill(l.begin() + m * share / shares, l.begin() + m * (share + 1) / shares, 0.0);
-  };
   for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.bending.pair_lambda,
                                &coloured_.volume.lambda, &coloured_.attachments.lambda, &lambda_.balloon})
-    zero(*l);
-  for (std::vector<Real>& l : lambda_.family) zero(l);
+    zero_share(*l, share, shares);
+  for (std::vector<Real>& l : lambda_.family) zero_share(l, share, shares);
 }
 
 
