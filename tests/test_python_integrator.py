@@ -325,14 +325,16 @@ def test_a_study_runs_a_python_method(rng):
         ref_x.append(np.asarray(ref_state.x).copy())
     built_in = run_method(model, start, times, make_stepper("symplectic-euler", dt=5e-4), reference_x=np.array(ref_x))
     assert not built_in["blew_up"] and built_in["error"] == 0.0  # the same bits
-    mine = run_method(model, start, times, make_stepper(SymplecticEuler, dt=5e-4), reference_x=np.array(ref_x))
+    mine = run_method(model, start, times, make_stepper(SymplecticEuler, dt=5e-4), reference_x=np.array(ref_x),
+                      positions=True)
     assert not mine["blew_up"] and mine["error"] == 0.0
+    assert np.array_equal(mine["x"], np.array(ref_x))  # the positions at the times, kept on request
     assert make_stepper(reference, dt=5e-4) is reference
     with pytest.raises(csb.ParameterError, match="dt"):
         make_stepper(reference, dt=1e-3)
     # A Python method that blows up is measured as blown up, as a built-in is.
-    unstable = run_method(model, start, np.arange(3) * 0.5, SymplecticEuler(0.05))
-    assert unstable["blew_up"] and unstable["error"] == math.inf
+    unstable = run_method(model, start, np.arange(3) * 0.5, SymplecticEuler(0.05), positions=True)
+    assert unstable["blew_up"] and unstable["error"] == math.inf and unstable["x"] is None
 
 
 def test_backward_euler_is_an_integrator_and_runs_in_a_study():

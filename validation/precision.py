@@ -39,16 +39,6 @@ SIZE = 0.5  # m, both scenes
 METHODS = ("pbd", "xpbd", "jakobsen")
 
 
-def positions(model, start, times, stepper, dt) -> np.ndarray:
-    """(T, N, 3) positions at `times` (multiples of dt) from `start`."""
-    state = start.copy()
-    out = [np.asarray(state.x).copy()]
-    for k in range(1, len(times)):
-        stepper.step(model, state, int(round((times[k] - times[k - 1]) / dt)))
-        out.append(np.asarray(state.x).copy())
-    return np.array(out)
-
-
 def sweep(model: csb.Model, duration: float, substeps: tuple[int, ...]) -> list[dict]:
     start = model.initial_state()
     times = np.linspace(0, duration, 11)
@@ -61,14 +51,13 @@ def sweep(model: csb.Model, duration: float, substeps: tuple[int, ...]) -> list[
             row = dict(method=method, substeps=n)
             x = {}
             for precision in ("float64", "float32"):
-                def stepper():
-                    return csb.PbdStepper(method=method, dt=dt, substeps=n, iterations=1, gravity=G, threads=1,
-                                          precision=precision)
-                r = run_method(model, start, times, stepper(), dt=dt, reference_x=ref.x)
+                stepper = csb.PbdStepper(method=method, dt=dt, substeps=n, iterations=1, gravity=G, threads=1,
+                                         precision=precision)
+                r = run_method(model, start, times, stepper, dt=dt, reference_x=ref.x, positions=True)
                 row[precision + "_error"] = r["error"] / SIZE
                 row[precision + "_cpu_per_simulated_s"] = r["cpu_time"] / duration
                 row[precision + "_blew_up"] = r["blew_up"]
-                x[precision] = None if r["blew_up"] else positions(model, start, times, stepper(), dt)
+                x[precision] = r["x"]
             row["rounding"] = (float(np.linalg.norm(x["float32"] - x["float64"], axis=2).max()) / SIZE
                                if x["float32"] is not None and x["float64"] is not None else float("nan"))
             rows.append(row)

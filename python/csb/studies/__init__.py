@@ -332,13 +332,15 @@ def omega_max(model: _core.Model, state: _core.State, gravity=(0.0, -9.81, 0.0))
 
 
 def run_method(model: _core.Model, start: _core.State, times: np.ndarray, stepper: _core.Integrator, *,
-               dt: float | None = None, reference_x: np.ndarray | None = None, blow_up: float = 100.0) -> dict:
+               dt: float | None = None, reference_x: np.ndarray | None = None, blow_up: float = 100.0,
+               positions: bool = False) -> dict:
     """Steps `start` with `stepper`, any csb.Integrator (a built-in or a user's own), through
     `times` (multiples of its dt, s; `dt` defaults to stepper.dt()). Returns the wall time and the
     process's CPU time of stepping (s), whether it blew up (csb.SimulationError, non-finite, or a
     particle farther than `blow_up` times the model's size from where it started) and, with
-    `reference_x` (T, N, 3), the largest distance to it (m). Any other exception the method
-    raises passes through."""
+    `reference_x` (T, N, 3), the largest distance to it (m); with `positions`, also the positions
+    at `times` as "x" (T, N, 3; None if it blew up). Any other exception the method raises passes
+    through."""
     if not isinstance(stepper, _core.Integrator):
         raise _core.ParameterError(f"stepper must be a csb.Integrator, got {type(stepper).__name__}")
     if dt is None:
@@ -347,6 +349,7 @@ def run_method(model: _core.Model, start: _core.State, times: np.ndarray, steppe
     x0 = np.asarray(start.x).copy()
     size = float(np.linalg.norm(x0.max(axis=0) - x0.min(axis=0)))
     wall, cpu, error, blew = 0.0, 0.0, 0.0, False
+    xs = [x0]
     with hard_under_pbd():
         for k in range(1, len(times)):
             n = int(round((times[k] - times[k - 1]) / dt))
@@ -362,4 +365,9 @@ def run_method(model: _core.Model, start: _core.State, times: np.ndarray, steppe
                 break
             if reference_x is not None:
                 error = max(error, float(np.linalg.norm(np.asarray(state.x) - reference_x[k], axis=1).max()))
-    return dict(wall_time=wall, cpu_time=cpu, blew_up=blew, error=error if not blew else float("inf"))
+            if positions:
+                xs.append(np.asarray(state.x).copy())
+    result = dict(wall_time=wall, cpu_time=cpu, blew_up=blew, error=error if not blew else float("inf"))
+    if positions:
+        result["x"] = None if blew else np.array(xs)
+    return result
