@@ -109,6 +109,7 @@ class SelfCollision {
     // the per-sub-step checks then run over their coordinates as flat arrays.
     Index first = -1, count = 0;
     Real cell = 1;                       // m, hash cell edge
+    Real edge = 0;                       // m, the mean rest edge of its triangles
     std::vector<Index> triangles;        // into model.triangles
     std::vector<std::array<Index, 2>> edges;  // the triangles' edges, particle pairs, ascending
     // The candidate pairs (find_candidates): point-triangle (particle, triangle index into
@@ -194,6 +195,7 @@ class SelfCollision {
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
   Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
   Positions end_p_;                      // m, the last sub-step certification's end positions
+  std::vector<Real> across_x_, across_p_;  // m, a large node's particles across its axis (certify_node)
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
   // The continuous test's culling (certify): per node whether it or an ancestor is certified
