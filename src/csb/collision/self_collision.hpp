@@ -76,7 +76,10 @@ class SelfCollision {
   // The next begin() finds the candidate pairs afresh instead of keeping them while they hold, and
   // the patches' axes afresh: what follows depends on the positions alone.
   void forget_candidates() {
-    for (Group& g : groups_) g.searched = false, g.axis.clear();
+    for (Group& g : groups_) {
+      g.searched = false, g.axis.clear(), g.failed.clear();
+      for (Group::Union& u : g.unions) u.axis.setZero(), u.end_at = 0;
+    }
   }
   // The threads the per-sub-step tests may use (1: the caller's); the results do not depend on it.
   void set_threads(int threads, Fork fork);
@@ -150,6 +153,24 @@ class SelfCollision {
     // axis forgets it.
     std::vector<Real> end_normal;
     std::vector<std::uint64_t> end_at;
+    // Unions of two nodes across the cut of a node that failed (certify_union), by the pair of
+    // nodes (a < b; union_of[a]: its pairs b and their index in unions): whether their triangles form a disc and, if so,
+    // its corners (a's, then b's) and boundary loop, kept once made (the mesh's connectivity),
+    // and the axis and carried end of its certifications, as a node keeps them.
+    struct Union {
+      bool disc = false;
+      std::vector<Triangle> corners;
+      std::vector<std::array<Index, 2>> boundary;
+      Vec3 axis = Vec3::Zero();
+      Real end_normal = 0;
+      std::uint64_t end_at = 0;
+    };
+    std::vector<Union> unions;
+    std::vector<Vec3> rest_lo, rest_hi;  // m, per node: its triangles' box in the rest shape
+    std::vector<std::vector<std::array<Index, 2>>> union_of;
+    // Pairs of nodes (a, b, and the patch whose self-pair they descend from) that the search did
+    // not enter, their union certified: searched when a sub-step's motion does not certify it.
+    std::vector<std::array<Index, 3>> deferred_unions;
     std::uint64_t serial = 0;            // the sub-step certifications so far
     bool carried = false;                // this sub-step starts where the last one ended
     Real step2 = 0;                      // m², the largest |p - x|² of this sub-step
@@ -160,6 +181,24 @@ class SelfCollision {
     Real toi;
   };
 
+  // What certify_patch needs of a patch: its triangles' corners, its boundary loop, the squared
+  // size of its box (the margin's scale), whether it is as large as its group's particles (the
+  // projection across the axis pays), and where its axis and carried end are kept.
+  struct PatchView {
+    const Triangle* tri;
+    Index size;
+    const std::array<Index, 2>* edges;
+    Index m;
+    Real box2;
+    bool across;
+    Vec3& axis;
+    Real& end_normal;
+    std::uint64_t& end_at;
+  };
+  struct DiscScratch {
+    std::vector<std::array<Index, 2>> directed, boundary;
+    std::vector<Index> vertices;
+  };
   void find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w,
                        int substeps);
   void search_boxes(const Model& model, Group& g);
@@ -168,17 +207,25 @@ class SelfCollision {
   void unite_boxes(const Model& model, const Group& g, const Positions& lo, const Positions& hi, std::vector<Vec3>& tri_lo,
                    std::vector<Vec3>& tri_hi, std::vector<Vec3>* edge_lo, std::vector<Vec3>* edge_hi);
   void find_impacts(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
-  void search_node(const Model& model, Group& g, Index root, const Real* w);
+  void search_node(const Model& model, Group& g, const std::array<Index, 3>& start, const Real* w, const Positions& x,
+                   const Positions& q);
+  bool certify_union(Group& g, Index a, Index b, const Positions& x, const Positions& p, bool sub_step);
+  void resume_unions(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
   void add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w);
-  void resume_deferred(const Model& model, Group& g, const Real* w);
+  void resume_deferred(const Model& model, Group& g, const Real* w, const Positions& x, const Positions& p);
   static void find_patches(const Model& model, Group& g);
+  static bool disc_boundary(const Triangle* tri, Index size, std::vector<std::array<Index, 2>>& loop, DiscScratch& s);
   void certify(const Model& model, Group& g, const Positions& x, const Positions& p, bool sub_step);
   bool certify_node(Group& g, Index k, const Positions& x, const Positions& p, bool sub_step);
+  bool certify_patch(Group& g, const PatchView& v, const Positions& x, const Positions& p, bool sub_step);
   void project(Positions& p, const Real* w);
   template <class F>
   int in_chunks(std::size_t n, F&& chunk);
 
   static constexpr std::size_t kParallelPairs = 8192;  // candidate pairs worth a fork of the team
+  // The largest union of two nodes tried (certify_union), in triangles: a union is tested on
+  // each sub-step while it is deferred, at the cost of its triangles.
+  static constexpr Index kUnionMost = 256;
   std::vector<Group> groups_;
   std::vector<SelfContact> contacts_;
   SelfCollisionCounts counts_;
@@ -193,7 +240,6 @@ class SelfCollision {
   Positions sweep_lo_, sweep_hi_;        // m, each particle's swept box over x -> p this sub-step
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
-  Positions lookahead_;                  // m, where each particle's prediction leads in a step (the search's)
   Positions end_p_;                      // m, the last sub-step certification's end positions
   std::vector<Real> across_x_, across_p_;  // m, a large node's particles across its axis (certify_node)
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
@@ -201,6 +247,7 @@ class SelfCollision {
   // The continuous test's culling (certify): per node whether it or an ancestor is certified
   // free of self-intersection over the motion.
   std::vector<std::uint8_t> certified_;
+  DiscScratch disc_scratch_;             // for certify_union's disc test
   SpatialHash hash_;                     // triangles, for the particles in no triangle
   std::vector<std::uint32_t> stamps_;    // per triangle: queried for the current particle
   std::uint32_t stamp_ = 0;
