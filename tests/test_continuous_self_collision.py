@@ -309,9 +309,9 @@ def test_a_cape_hanging_past_a_right_angle_keeps_few_pairs_and_never_crosses_its
     """The benchmark's 40 x 40 cape (XPBD, 10 x 1) hangs past 90 degrees after its fall, where
     no axis sees it whole: its root cannot be certified. Its nodes below are cut between rows of
     quads, so they can be; the unions of two nodes across a failed cut are certified too; and a
-    particle's search box reaches two edges ahead, not a whole step. So the pairs it keeps stay
-    a small part of its particles on every step (at most 0.11 a particle here; 19.8 with median
-    cuts and a whole step's look-ahead), and no edge crosses a triangle at any step's end."""
+    particle's search box reaches at most four edges ahead. So the pairs it keeps stay a small
+    part of its particles on every step (at most 0.13 a particle here; 19.8 with median cuts and
+    neither of the others), and no edge crosses a triangle at any step's end."""
     from csb.bench import cape
 
     model = cape(40)

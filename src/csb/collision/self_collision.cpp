@@ -59,11 +59,11 @@ constexpr Real kSeparation = 0.1;
 constexpr Real kSearchPad = 1.5;
 // A particle's look-ahead (find_candidates) reaches at most this many of its group's mean rest
 // edges, so that a box holds a bounded number of edges at any resolution: the pairs a particle
-// keeps grow as the square of its box in edges. The 80 x 80 cape's steps (XPBD, 10 x 1, frames
-// 30-90, five alternating rounds) averaged 7.39 ms at 2 edges against 9.57 with a whole step's
-// look-ahead (3.45 without self-collision), 9.06 at 1 edge (more searches) and 7.96 at 3; the
-// 40 x 40 cape's, 1.17 ms at 2 edges and 1.18 with a whole step's.
-constexpr Real kLookaheadEdges = 2;
+// keeps grow as the square of its box in edges. A shorter look-ahead searches more often. The
+// cape's steps (XPBD, 10 x 1, frames 30-90, five alternating rounds) averaged, at 2 edges, 4
+// and a whole step's look-ahead: 1.18, 1.14 and 1.15 ms at 40 x 40 (0.73 without
+// self-collision), 3.31, 2.99 and 3.10 at 56 x 56 (1.46), 6.26, 5.85 and 5.90 at 80 x 80 (2.84).
+constexpr Real kLookaheadEdges = 4;
 // The widest a particle's or a feature's search box may be (m) for a group of rest size `size` and
 // thickness h; a wider one is left out of the search (find_candidates).
 inline Real search_reach(Real size, Real h) { return size + 2 * (kSearchPad * h); }
