@@ -88,3 +88,23 @@ def test_the_table_names_its_units_and_says_a_quick_run_is_not_the_limits(quick_
     for label in ("GFLOP/s", "GB/s", "1/ns", "GHz", "FMA peak, double", "DRAM (dram): 3 x 1 MiB",
                   "not this machine's limits"):
         assert label in r.stdout, label
+
+
+def test_the_validation_study_sets_the_xpbd_step_against_the_machine(tmp_path):
+    """validation/machine_limits.py --quick: the machine's figures, the 128² cloth's XPBD frames in
+    float64 and float32 with their elements and bounds (finite, positive), and a profile where perf
+    can take one, else a sentence saying why not."""
+    import csv
+
+    r = subprocess.run([sys.executable, str(ROOT / "validation" / "machine_limits.py"), "--quick", "--out",
+                        str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
+    assert json.loads((tmp_path / "machine_limits.json").read_text())["figures"]
+    with (tmp_path / "machine_limits_csb.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert [(row["cloth"], row["precision"]) for row in rows] == [("128x128", "float64"), ("128x128", "float32")]
+    for row in rows:
+        assert int(row["elements_per_frame"]) > 0
+        for key in ("ms_per_frame", "ns_per_element", "workspace_mb", "ms_at_dram", "ms_at_l3"):
+            assert math.isfinite(float(row[key])) and float(row[key]) > 0, (key, row)
+    assert "samples by function" in r.stdout or "no profile:" in r.stdout

@@ -11,9 +11,9 @@ What runs, in order:
 * the study files ``<studies>/studies/*.toml`` of the tier asked for (``tier = "quick"`` by
   default; with ``--full`` every file), on one Dask LocalCluster, each into
   ``<out>/studies/<name>/``; a study keeps its cells, so an unchanged one computes nothing;
-* the validation scripts ``<studies>/*.py``, two at a time, each with ``--quick`` unless
-  ``--full``, their files gathered into ``<out>/validation/`` (what a script printed is kept
-  beside them as ``<script>.txt``);
+* the validation scripts ``<studies>/*.py``, two at a time (but those in ALONE, which time the
+  machine, alone after the others), each with ``--quick`` unless ``--full``, their files gathered
+  into ``<out>/validation/`` (what a script printed is kept beside them as ``<script>.txt``);
 * the benchmarks (``csb bench``: the quick tier's tables, QUICK_BENCH_PARTS, or with ``--full``
   every table; ``--no-bench`` skips them), into ``<out>/validation/benchmarks.txt``.
 
@@ -44,6 +44,7 @@ from pathlib import Path
 # body, a balloon, tearing.
 SCENES = ("cloth_drop", "cloth_sphere", "cloth_table", "soft_cube_drop", "balloon_squeeze", "cloth_tear")
 PARALLEL = 2  # scenes and scripts run two at a time (the studies on a LocalCluster of as many workers)
+ALONE = ("machine_limits.py",)  # validation scripts that run alone, after the others (they time the machine)
 # The benchmark tables of the quick tier (about 2 minutes on a 2-core machine); the full tier
 # prints every table (csb bench --help lists them: front ends, frames per second of big cloths,
 # cost per particle up to a million, a million-particle cloth, the reference's KLU cost, ...).
@@ -402,8 +403,16 @@ def main(argv: list[str] | None = None) -> int:
         studies = run_study_files(chosen, out)
     else:
         studies = []
+    # The scripts that measure the machine itself run alone, after the others: a script beside
+    # them would take half of what they measure.
+    together = [s for s in scripts if s.name not in ALONE]
     with ThreadPoolExecutor(PARALLEL) as pool:
-        sections = list(pool.map(lambda s: run_study(s, vdir, quick=not args.full, cache=cache, echo=False), scripts))
+        done = dict(zip(together, pool.map(lambda s: run_study(s, vdir, quick=not args.full, cache=cache, echo=False),
+                                           together)))
+    for s in scripts:
+        if s.name in ALONE:
+            done[s] = run_study(s, vdir, quick=not args.full, cache=cache, echo=False)
+    sections = [done[s] for s in scripts]
     for s in sections:
         print(f"[report] {s.name}: exit status {s.returncode}, {s.seconds:.0f} s{' (stored)' if s.reused else ''}",
               flush=True)
