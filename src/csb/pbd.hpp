@@ -155,7 +155,9 @@ struct ContactSummary {
   std::int64_t self_culled = 0;  // candidate pairs left untested in certified patches, since made
   Index self_skipped = 0;     // triangles left out of self-collision: spread over more than the cloth's size in a step
   Real max_depth = 0;         // m, deepest violation r - (p - q)·n of a contact at the prediction
-  Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step
+  Real max_penetration = 0;   // m, deepest violation left at the end of the sub-step (both below)
+  Real collider_penetration = 0;  // m, of the collider contacts (projected last: round-off)
+  Real self_penetration = 0;  // m, of the self-contacts' thickness (a collider's push may thin it)
 };
 
 class PbdStepper : public Integrator {

@@ -178,6 +178,8 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
         d["self_skipped"] = sum.self_skipped;
         d["max_depth"] = sum.max_depth;
         d["max_penetration"] = sum.max_penetration;
+        d["collider_penetration"] = sum.collider_penetration;
+        d["self_penetration"] = sum.self_penetration;
         d["particle"] = particle;
         d["collider"] = collider;
         d["point"] = point;
@@ -192,7 +194,9 @@ void bind_methods(py::module_& m, const Warnings& warnings) {
          "searches since the stepper was made), self_skipped (triangles left out: spread over more than the cloth's size "
          "within a step), max_depth "
          "(m, deepest violation r - (p - q)·n at the prediction), max_penetration (m, deepest violation left at the "
-         "end of the sub-step, thickness included), and per contact: particle, collider, point q (m), normal n, "
+         "end of the sub-step, thickness included; the larger of collider_penetration, the collider contacts', which "
+         "they take last and so leave at round-off, and self_penetration, the self-contacts', which a collider's push "
+         "after them may leave thinner than their thickness), and per contact: particle, collider, point q (m), normal n, "
          "normal_correction (m) and lambda (XPBD multiplier, kg m; force λ/h² N).")
       .def("grab", [](PbdStepper& s, const Model& model, const State& state, IntArg particle, py::handle target,
                       double compliance) {

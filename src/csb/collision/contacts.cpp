@@ -239,8 +239,9 @@ void PbdStepper::apply_restitution(const Model& model, State& state, Real h) {
     worst = std::max(worst, k.thickness - (state.x.col(k.particle) - k.point).dot(k.normal));
     contact_summary_.active += k.normal_correction > 0;
   }
-  worst = std::max(worst, self_.penetration(state.x));
-  contact_summary_.max_penetration = worst;
+  contact_summary_.collider_penetration = worst;
+  contact_summary_.self_penetration = self_.penetration(state.x);
+  contact_summary_.max_penetration = std::max(worst, contact_summary_.self_penetration);
 }
 
 }  // namespace csb
