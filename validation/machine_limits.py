@@ -121,9 +121,12 @@ def profile(n: int, out: Path) -> str:
                     f"st.step(sim.model, sim.state, 2)\n"
                     f"open({str(control)!r}, 'w').write('enable\\n')\n"
                     f"st.step(sim.model, sim.state, {max(20, 80 * 128 * 128 // (n * n))})\n")
-            rec = subprocess.run([perf, "record", "-q", "-e", "cpu-clock", "-D", "-1", f"--control=fifo:{control}",
-                                  "-o", str(data), sys.executable, "-c", code],
-                                 capture_output=True, text=True, env={**os.environ, "OPENBLAS_NUM_THREADS": "1"})
+            try:  # (a perf that runs the child but never reads the fifo would leave it waiting)
+                rec = subprocess.run([perf, "record", "-q", "-e", "cpu-clock", "-D", "-1", f"--control=fifo:{control}",
+                                      "-o", str(data), sys.executable, "-c", code], capture_output=True, text=True,
+                                     env={**os.environ, "OPENBLAS_NUM_THREADS": "1"}, timeout=600)
+            except subprocess.TimeoutExpired:
+                return "no profile: perf record did not finish within 600 s"
             if rec.returncode != 0:
                 return f"no profile: perf record failed ({rec.stderr.strip().splitlines()[-1] if rec.stderr.strip() else rec.returncode})"
             rep = subprocess.run([perf, "report", "-i", str(data), "--dsos", "libcsb.so", "--percentage", "relative",
