@@ -315,7 +315,8 @@ void SelfCollision::prepare(const Model& model) {
       sg.bvh_order = std::move(order);  // each node's triangles are a run of it
       sg.bvh_corners.resize(T);
       for (Index i = 0; i < T; ++i) sg.bvh_corners[i] = model.triangles[sg.triangles[sg.bvh_order[i]]];
-      find_patches(model, sg);
+      find_patches(sg);
+      sg.union_of.assign(sg.bvh_child.size(), {});
       // The nodes' rest boxes, children after their parent in preorder: refitted from the end.
       const Index nodes = static_cast<Index>(sg.bvh_child.size());
       sg.rest_lo.resize(nodes);
@@ -375,8 +376,7 @@ std::size_t SelfCollision::bytes() const {
 // boundary) forming one loop through distinct vertices, and V - E + F = 1. Its boundary loop is
 // kept, each edge directed as in its triangle (counter-clockwise about the triangles' normals).
 // Leaves (one triangle) hold no pair and are not patches.
-void SelfCollision::find_patches(const Model& model, Group& g) {
-  (void)model;  // the corners are g.bvh_corners
+void SelfCollision::find_patches(Group& g) {
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   g.patch_start.assign(1, 0);
   g.patch_edges.clear();
@@ -933,9 +933,11 @@ void SelfCollision::search_node(const Model& model, Group& g, const std::array<I
       continue;
     }
     if (!boxes_overlap(g.node_lo[a], g.node_hi[a], g.node_lo[b], g.node_hi[b])) continue;
-    // (Two children of their patch are that patch, which failed: no union of them is tried.)
+    // (Two children of their patch are that patch, which failed: no union of them is tried; nor
+    // is the pair the search starts from, a union that resume_unions just saw fail this motion.)
     const auto& cl = g.bvh_child[lca];
-    if (!((cl[0] == a && cl[1] == b) || (cl[0] == b && cl[1] == a)) && certify_union(g, a, b, x, q, false)) {
+    const bool tried = (cl[0] == a && cl[1] == b) || (cl[0] == b && cl[1] == a) || (a == start[0] && b == start[1]);
+    if (!tried && certify_union(g, a, b, x, q, false)) {
       g.deferred_unions.push_back({a, b, lca});
       continue;
     }
@@ -997,7 +999,6 @@ bool SelfCollision::certify_union(Group& g, Index a, Index b, const Positions& x
       !boxes_overlap(g.rest_lo[a], g.rest_hi[a], g.rest_lo[b], g.rest_hi[b]))
     return false;
   if (b < a) std::swap(a, b);
-  if (g.union_of.size() != g.bvh_child.size()) g.union_of.resize(g.bvh_child.size());
   auto& known = g.union_of[a];
   Index index = -1;
   for (const auto& [other, i] : known)

@@ -213,7 +213,7 @@ class SelfCollision {
   void resume_unions(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w);
   void add_point_triangle(const Model& model, Group& g, Index q, Index t, Index lca, const Real* w);
   void resume_deferred(const Model& model, Group& g, const Real* w, const Positions& x, const Positions& p);
-  static void find_patches(const Model& model, Group& g);
+  static void find_patches(Group& g);
   static bool disc_boundary(const Triangle* tri, Index size, std::vector<std::array<Index, 2>>& loop, DiscScratch& s);
   void certify(const Model& model, Group& g, const Positions& x, const Positions& p, bool sub_step);
   bool certify_node(Group& g, Index k, const Positions& x, const Positions& p, bool sub_step);
