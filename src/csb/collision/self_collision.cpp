@@ -355,7 +355,7 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.end_normal) + b(g.end_at) +
+         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.carry) +
          b(g.tri_lo) + b(g.tri_hi) + b(g.node_lo) + b(g.node_hi) + b(g.unions) + b(g.deferred_unions) + b(g.union_of) + b(g.rest_lo) + b(g.rest_hi);
   for (const Group& g : groups_) {
     for (const Group::Union& u : g.unions) s += b(u.corners) + b(u.boundary);
@@ -469,8 +469,7 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
                        (g.node_hi[k] - g.node_lo[k]).squaredNorm(),
                        g.first >= 0 && g.bvh_size[k] >= g.count,
                        g.axis[k],
-                       g.end_normal[k],
-                       g.end_at[k]};
+                       g.carry[k]};
   return certify_patch(g, view, x, p, sub_step);
 }
 
@@ -492,31 +491,37 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
     Vec3 e0, f0, e1, f1;
     for (Index i = 0; i < size; ++i) corners(i, e0, f0, e1, f1), V += e0.cross(f0);
     fresh = true;
-    v.end_at = 0;
+    v.carry.at = 0;
   };
   if (V.isZero(0)) renew_axis();
   const Real box2 = v.box2;
   const auto* edges = v.edges;
   const Index m = v.m;
   // The boundary about O: every edge's signed area positive over the motion, and a ray from O
-  // crossing it once at s = 0.
+  // crossing it once at s = 0. Keeps O and the least signed area at the end for the next sub-step.
+  Vec3 origin = Vec3::Zero();
+  Real least_boundary = 0;
   const auto star_about = [&](const Vec3& O, Real margin) {
     const Vec3 u = (std::abs(V.x()) < std::abs(V.y()) ? Vec3::UnitX().cross(V) : Vec3::UnitY().cross(V)).normalized();
     const Vec3 w = V.cross(u);  // u, w: two axes of the plane across V, for the ray's crossings
     int crossings = 0;
+    Real least = std::numeric_limits<Real>::infinity();
     for (Index i = 0; i < m; ++i) {
       const Vec3 a0 = x.col(edges[i][0]) - O, b0 = x.col(edges[i][1]) - O;
       const Vec3 a1 = p.col(edges[i][0]) - O, b1 = p.col(edges[i][1]) - O;
-      if (!(a0.cross(b0).dot(V) > margin && a1.cross(b1).dot(V) > margin &&
-            (a0.cross(b1) + a1.cross(b0)).dot(V) > 2 * margin))
+      const Real end = a1.cross(b1).dot(V);
+      if (!(a0.cross(b0).dot(V) > margin && end > margin && (a0.cross(b1) + a1.cross(b0)).dot(V) > 2 * margin))
         return false;
+      least = std::min(least, end);
       const Real ay = a0.dot(w), by = b0.dot(w);
       if ((ay > 0) != (by > 0)) {
         const Real ax = a0.dot(u), bx = b0.dot(u);
         if (ax + (0 - ay) * (bx - ax) / (by - ay) > 0) ++crossings;
       }
     }
-    return crossings == 1;
+    if (crossings != 1) return false;
+    origin = O, least_boundary = least;
+    return true;
   };
   // O: the centroid of the boundary's area projected along V at x (a notch of the boundary
   // near its vertices' centroid, common in the hierarchy's small nodes, turned most of the
@@ -535,6 +540,28 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
     }
     if (area > 0 && star_about(R + moment / (3 * area), margin)) return true;
     return star_about(R, margin);
+  };
+  // A sub-step that starts where the last one ended, the boundary certified then about O with
+  // this axis: each edge's signed area about O at the start is its area at that sub-step's end, at
+  // least end_boundary, and only the end's is computed. The middle coefficient, (a0 x b1 + a1 x
+  // b0)·V = c0 + c2 - ((a1 - a0) x (b1 - b0))·V, with a1 - a0 and b1 - b0 the moves of two
+  // particles (each at most |p - x| long), stays above 2 margin when c0 and c2 are above margin +
+  // |V| max |p - x|². No ray is needed: the areas stayed positive over the last sub-step, so O
+  // never met the boundary and the boundary still winds once about it, every crossing of a ray
+  // from O being in the same sense.
+  const auto carried_star = [&](Real margin) {
+    const Real need = margin + V.norm() * g.step2 * (1 + 1e-12);
+    if (!(v.carry.end_boundary > need)) return false;
+    const Vec3 O = v.carry.origin;
+    Real least = std::numeric_limits<Real>::infinity();
+    for (Index i = 0; i < m; ++i) {
+      const Vec3 a1 = p.col(edges[i][0]) - O, b1 = p.col(edges[i][1]) - O;
+      const Real end = a1.cross(b1).dot(V);
+      if (!(end > need)) return false;  // false for NaN
+      least = std::min(least, end);
+    }
+    origin = O, least_boundary = least;
+    return true;
   };
   Real least_end = 0;  // the least V·(e x f) at p, for the next sub-step
   // A node of at least as many triangles as its group has particles (a cloth's root, a child or
@@ -566,13 +593,13 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
     }
   };
   // A sub-step that starts where the last one ended, the node certified then with this axis:
-  // V·n(0) is that sub-step's V·n(1), at least end_normal, and only V·n(1) = V·(e1 x f1) is
+  // V·n(0) is that sub-step's V·n(1), at least carry.end_normal, and only V·n(1) = V·(e1 x f1) is
   // computed. The middle coefficient is (c0 + c2 - V·((e1 - e0) x (f1 - f0)))/2, and each of
   // e1 - e0 and f1 - f0 is at most 2 |p - x| long: c0 and c2 above margin + 2 |V| max |p - x|²
   // keep it above the margin.
   const auto carried_normals = [&](Real margin) {
     const Real need = margin + 2 * V.norm() * g.step2 * (1 + 1e-12);
-    if (!(v.end_normal > need)) return false;
+    if (!(v.carry.end_normal > need)) return false;
     if (across) {
       const Real scale = V.norm();
       const Real* P = project(p, across_p_);
@@ -670,9 +697,9 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
   for (;;) {
     const Real margin = 1e-9 * box2 * V.norm();
     if (!(margin > 0)) return false;  // NaN, or a collapsed patch
-    const bool carry = sub_step && g.carried && v.end_at + 1 == g.serial;
-    if (star(margin) && ((carry && carried_normals(margin)) || normals(margin))) {
-      if (sub_step) v.end_normal = least_end, v.end_at = g.serial;
+    const bool carry = sub_step && g.carried && v.carry.at + 1 == g.serial;
+    if (((carry && carried_star(margin)) || star(margin)) && ((carry && carried_normals(margin)) || normals(margin))) {
+      if (sub_step) v.carry = {g.serial, least_end, least_boundary, origin};
       return true;
     }
     if (fresh) return false;
@@ -692,7 +719,7 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   if (g.axis.size() != static_cast<std::size_t>(nodes)) g.axis.assign(nodes, Vec3::Zero());
   if (g.failed.size() != static_cast<std::size_t>(nodes)) g.failed.assign(nodes, 0);
-  if (g.end_at.size() != static_cast<std::size_t>(nodes)) g.end_at.assign(nodes, 0), g.end_normal.assign(nodes, 0);
+  if (g.carry.size() != static_cast<std::size_t>(nodes)) g.carry.assign(nodes, Group::Carried{});
   if (sub_step) {
     ++g.serial;
     bool same = end_p_.cols() == x.cols();
@@ -1018,8 +1045,7 @@ bool SelfCollision::certify_union(Group& g, Index a, Index b, const Positions& x
   if (!u.disc) return false;
   const Vec3 lo = g.node_lo[a].cwiseMin(g.node_lo[b]), hi = g.node_hi[a].cwiseMax(g.node_hi[b]);
   const PatchView view{u.corners.data(), static_cast<Index>(u.corners.size()), u.boundary.data(),
-                       static_cast<Index>(u.boundary.size()), (hi - lo).squaredNorm(), false, u.axis, u.end_normal,
-                       u.end_at};
+                       static_cast<Index>(u.boundary.size()), (hi - lo).squaredNorm(), false, u.axis, u.carry};
   return certify_patch(g, view, x, p, sub_step);
 }
 

@@ -78,7 +78,7 @@ class SelfCollision {
   void forget_candidates() {
     for (Group& g : groups_) {
       g.searched = false, g.axis.clear(), g.failed.clear();
-      for (Group::Union& u : g.unions) u.axis.setZero(), u.end_at = 0;
+      for (Group::Union& u : g.unions) u.axis.setZero(), u.carry.at = 0;
     }
   }
   // The threads the per-sub-step tests may use (1: the caller's); the results do not depend on it.
@@ -147,12 +147,18 @@ class SelfCollision {
     std::vector<Index> deferred;         // nodes not searched inside, certified when searched, ascending
     std::vector<std::uint8_t> failed;    // per node: a sub-step's certification failed since the search
     std::vector<Vec3> axis;              // per node: the axis V of its last certification (zero: none yet)
-    // Per node certified by a sub-step's full test, the least V·(e x f) at its end (m² times
-    // |V|) and the sub-step's serial: the next sub-step starts where it ended, so that is its
-    // least coefficient at the start, and only the end's are computed (certify_node). A new
-    // axis forgets it.
-    std::vector<Real> end_normal;
-    std::vector<std::uint64_t> end_at;
+    // What a patch's certification by a sub-step leaves for the next (certify_patch): the
+    // sub-step's serial, the least V·(e x f) over its triangles at the end (m² times |V|), and the
+    // boundary's centre O with the least signed area of its edges about O at the end (the same
+    // units). The next sub-step starts where this one ended, so these are its least coefficients
+    // at the start, and only the end's are computed. A new axis forgets them.
+    struct Carried {
+      std::uint64_t at = 0;
+      Real end_normal = 0;
+      Real end_boundary = 0;
+      Vec3 origin = Vec3::Zero();
+    };
+    std::vector<Carried> carry;  // per node
     // Unions of two nodes across the cut of a node that failed (certify_union), by the pair of
     // nodes (a < b; union_of[a]: its pairs b and their index in unions): whether their triangles form a disc and, if so,
     // its corners (a's, then b's) and boundary loop, kept once made (the mesh's connectivity),
@@ -162,8 +168,7 @@ class SelfCollision {
       std::vector<Triangle> corners;
       std::vector<std::array<Index, 2>> boundary;
       Vec3 axis = Vec3::Zero();
-      Real end_normal = 0;
-      std::uint64_t end_at = 0;
+      Carried carry;
     };
     std::vector<Union> unions;
     std::vector<Vec3> rest_lo, rest_hi;  // m, per node: its triangles' box in the rest shape
@@ -183,7 +188,7 @@ class SelfCollision {
 
   // What certify_patch needs of a patch: its triangles' corners, its boundary loop, the squared
   // size of its box (the margin's scale), whether it is as large as its group's particles (the
-  // projection across the axis pays), and where its axis and carried end are kept.
+  // projection across the axis pays), and where its axis and what a sub-step carries are kept.
   struct PatchView {
     const Triangle* tri;
     Index size;
@@ -192,8 +197,7 @@ class SelfCollision {
     Real box2;
     bool across;
     Vec3& axis;
-    Real& end_normal;
-    std::uint64_t& end_at;
+    Group::Carried& carry;
   };
   struct DiscScratch {
     std::vector<std::array<Index, 2>> directed, boundary;
