@@ -301,7 +301,7 @@ class PbdStepper : public Integrator {
   void predict_range(const Model& model, State& state, Real h, Index begin, Index end);
   void commit(State& state, Real h, Index begin, Index end);
   // commit then predict_range for particles [begin, end) in one pass (the same operations), the
-  // prediction's h g (Verlet: h² g) taken from accel_ (a fused step).
+  // prediction's h g (Verlet: h² g) taken from accel_ (set_accel).
   void advance(State& state, Real h, Index begin, Index end);
   // accel_ for particles [begin, end).
   void set_accel(const Model& model, Real h, Index begin, Index end);
@@ -313,7 +313,9 @@ class PbdStepper : public Integrator {
   // The stages of step() (step/stepper.cpp lists them against Algorithm 1).
   void check_request(const Model& model, const State& state, std::int64_t steps) const;
   bool begin_steps(const Model& model, State& state);
-  void substep(const Model& model, State& state, Real h, int sub);
+  bool substep(const Model& model, State& state, Real h, int sub, bool predicted, bool next);
+  // Whether a sub-step's update may also predict the next (advance): predict() is predict_range.
+  bool advancing() const { return settings_.front_end == FrontEnd::Verlet || settings_.damping <= 0; }
   void substeps(const Model& model, State& state, Real h, int first, int count, const std::function<bool()>& interrupt);
   void substeps_fused(const Model& model, State& state, Real h, const std::function<bool()>& interrupt);
   void stop_if_asked(State& state, Real h, int sub, const std::function<bool()>& interrupt);
@@ -379,7 +381,7 @@ class PbdStepper : public Integrator {
   Positions p_;                          // predicted positions
   Positions x_prev_;                     // Verlet: positions one sub-step back
   Positions x_step_, v_step_;            // a fused step checked once: x and v (Verlet: x_prev_) at its start
-  std::vector<Real> accel_;              // a fused step: what a prediction adds, h g (Verlet h² g), 0 where w = 0
+  std::vector<Real> accel_;              // advance: what a prediction adds, h g (Verlet h² g), 0 where w = 0
   Positions p_start_, delta_;            // Jacobi: positions at the sweep's start, summed corrections
   std::vector<Real> count_;              // Jacobi: corrections each particle received in the sweep
   // XPBD with averaged Jacobi: per particle 1/(projections that reach it in a sweep, contacts

@@ -84,6 +84,17 @@ inline __attribute__((always_inline)) void advance_verlet_body(S* __restrict x, 
     p[k] = pk + keep * (pk - xk) + a[k];
   }
 }
+// (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p.
+inline __attribute__((always_inline)) void commit_euler_body(Real* __restrict x, Real* __restrict v,
+                                                             const Real* __restrict p, Real h, Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    v[k] = (p[k] - x[k]) / h;
+    x[k] = p[k];
+  }
+}
+void commit_euler_base(Real* x, Real* v, const Real* p, Real h, Index k0, Index k1) {
+  commit_euler_body(x, v, p, h, k0, k1);
+}
 template <class S>
 void advance_euler_base(S* x, S* v, S* p, const S* a, S h, Index k0, Index k1) {
   advance_euler_body(x, v, p, a, h, k0, k1);
@@ -98,6 +109,9 @@ void advance_verlet_base(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index 
 template <class S>
 __attribute__((target("avx2"))) void advance_euler_avx2(S* x, S* v, S* p, const S* a, S h, Index k0, Index k1) {
   advance_euler_body(x, v, p, a, h, k0, k1);
+}
+__attribute__((target("avx2"))) void commit_euler_avx2(Real* x, Real* v, const Real* p, Real h, Index k0, Index k1) {
+  commit_euler_body(x, v, p, h, k0, k1);
 }
 template <class S>
 __attribute__((target("avx2"))) void advance_verlet_avx2(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
@@ -207,12 +221,12 @@ void PbdStepper::commit(State& state, Real h, Index begin, Index end) {
       xp[k] = x[k];
       x[k] = p[k];
     }
-  } else {
-    for (Index k = 3 * begin; k < 3 * end; ++k) {
-      v[k] = (p[k] - x[k]) / h;
-      x[k] = p[k];
-    }
+    return;
   }
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) return commit_euler_avx2(x, v, p, h, 3 * begin, 3 * end);
+#endif
+  commit_euler_base(x, v, p, h, 3 * begin, 3 * end);
 }
 
 

@@ -115,9 +115,13 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
   finish_steps(state, h);
 }
 
-// One sub-step of Algorithm 1 outside a fused fork.
-void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
-  predict(model, state, h);                                                 // (5)-(7)
+// One sub-step of Algorithm 1 outside a fused fork. `predicted`: the last sub-step's update
+// already made this one's prediction. With `next` (another sub-step of the step follows) and
+// nothing to change the velocities after the update (no contact of either kind this sub-step;
+// no Müller damping), the update and the next prediction are one pass (advance, the same
+// operations): returns whether it made the next prediction.
+bool PbdStepper::substep(const Model& model, State& state, Real h, int sub, bool predicted, bool next) {
+  if (!predicted) predict(model, state, h);                                 // (5)-(7)
   if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
   if (!collider_motion_.empty()) move_colliders(model, sub);             // poses, attached particles
   reset_multipliers();
@@ -126,17 +130,29 @@ void PbdStepper::substep(const Model& model, State& state, Real h, int sub) {
   if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
   if (!contacts_.empty()) apply_friction(model, state.x);                   // (16), on p
   if (!self_.empty()) resolve_self_collisions(model, state.x, h);          // the last word on p
+  const bool settle = !contacts_.empty() || !self_.contacts().empty();
+  if (next && !settle && advancing()) {
+    advance(state, h, 0, model.num_particles());                            // (12)-(15), then (5)-(7)
+    return true;
+  }
   commit(state, h, 0, model.num_particles());                               // (12)-(15)
   if (!self_.contacts().empty()) settle_self_contact_velocities(model, state, h);  // (16), inelastic
-  if (!contacts_.empty() || !self_.contacts().empty()) apply_restitution(model, state, h);  // (16)
+  if (settle) apply_restitution(model, state, h);                           // (16)
+  return false;
 }
 
 // Sub-steps first .. first + count - 1 of a step, one at a time (each checked for finiteness),
-// asking between them whether to stop.
+// asking between them whether to stop (the state is then at the end of a sub-step: an update
+// that also predicted the next leaves x and v as commit does).
 void PbdStepper::substeps(const Model& model, State& state, Real h, int first, int count,
                           const std::function<bool()>& interrupt) {
+  if (advancing()) {
+    accel_.resize(3 * static_cast<std::size_t>(model.num_particles()));
+    set_accel(model, h, 0, model.num_particles());
+  }
+  bool predicted = false;
   for (int sub = first; sub < first + count; ++sub) {
-    substep(model, state, h, sub);
+    predicted = substep(model, state, h, sub, predicted, sub + 1 < first + count);
     if (sub + 1 < settings_.substeps) stop_if_asked(state, h, sub, interrupt);
   }
 }
