@@ -313,7 +313,7 @@ class PbdStepper : public Integrator {
   // The stages of step() (step/stepper.cpp lists them against Algorithm 1).
   void check_request(const Model& model, const State& state, std::int64_t steps) const;
   bool begin_steps(const Model& model, State& state);
-  bool substep(const Model& model, State& state, Real h, int sub, bool predicted, bool next);
+  bool substep(const Model& model, State& state, Real h, int sub, bool after, bool predicted, bool next);
   // Whether a sub-step's update may also predict the next (advance): predict() is predict_range.
   bool advancing() const { return settings_.front_end == FrontEnd::Verlet || settings_.damping <= 0; }
   void substeps(const Model& model, State& state, Real h, int first, int count, const std::function<bool()>& interrupt);
@@ -364,7 +364,8 @@ class PbdStepper : public Integrator {
   void build_coloured(const Model& model, const Real* w);
   int resolve_threads(const Model& model);
   void damp_velocities(const Model& model, State& state) const;
-  void generate_contacts(const Model& model, const Positions& x, Real h);
+  // x_resolved: x is the p that the last sub-step's self-collision resolve left (SelfCollision::begin).
+  void generate_contacts(const Model& model, const Positions& x, Real h, bool x_resolved = false);
   void set_relaxation(const Model& model);
   void project_contacts(const Model& model, bool jacobi);
   void project_self_contacts(const Model& model, bool jacobi);

@@ -13,7 +13,7 @@ using namespace stepper_detail;
 
 // Algorithm 1 line (8): the collision constraints of this sub-step, from the positions x at its
 // start and the prediction p (see collision.hpp for the rule). Particles that cannot move get none.
-void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real h) {
+void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real h, bool x_resolved) {
   contacts_.clear();
   contact_summary_ = {};
   const Real* w = grabs_.empty() ? model.inv_mass.data() : w_.data();  // a held particle follows the hand
@@ -52,7 +52,7 @@ void PbdStepper::generate_contacts(const Model& model, const Positions& x, Real 
     self_.set_threads(threads_used_, [this](int threads, const std::function<void(int)>& job) {
       team_.get().run(threads, spin_, job);
     });
-    self_.begin(model, x, p_, w, settings_.substeps, h, true);
+    self_.begin(model, x, p_, w, settings_.substeps, h, true, x_resolved);
     report_self_collision();
   }
 }

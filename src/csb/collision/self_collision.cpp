@@ -33,6 +33,7 @@
 
 #include "csb/collision/collision.hpp"
 #include "csb/format.hpp"
+#include "csb/solver/coloured_bending.hpp"  // kernels_use_avx2
 
 #include <algorithm>
 #include <limits>
@@ -69,26 +70,30 @@ constexpr Real kLookaheadEdges = 4;
 inline Real search_reach(Real size, Real h) { return size + 2 * (kSearchPad * h); }
 
 // Whether y[j] lies in [lo[j], hi[j]] for j < n (a NaN is not outside: as Eigen's comparisons
-// in candidates_hold's loop over particles): the per-sub-step check of a whole cloth, two
-// coordinates per SSE2 compare where there is SSE2 (the compiler keeps the plain loop scalar), with
-// one branch per run.
-bool within(const Real* y, const Real* lo, const Real* hi, Index n) {
-  Index j = 0;
-#if defined(__SSE2__)
+// in candidates_hold's loop over particles): the per-sub-step check of a whole cloth, one branch
+// per run of kRun coordinates, the compares of a run vectorised (four lanes where AVX2 is).
+inline __attribute__((always_inline)) bool within_body(const Real* __restrict y, const Real* __restrict lo,
+                                                       const Real* __restrict hi, Index n) {
   constexpr Index kRun = 256;
-  const Index pairs = n & ~Index(1);
-  while (j < pairs) {
-    __m128d out = _mm_setzero_pd();
-    for (const Index end = std::min(pairs, j + kRun); j < end; j += 2) {
-      const __m128d v = _mm_loadu_pd(y + j);
-      out = _mm_or_pd(out, _mm_or_pd(_mm_cmplt_pd(v, _mm_loadu_pd(lo + j)), _mm_cmpgt_pd(v, _mm_loadu_pd(hi + j))));
-    }
-    if (_mm_movemask_pd(out)) return false;
+  for (Index j = 0; j < n;) {
+    std::uint64_t out = 0;  // as wide as a coordinate: the compares' masks are or-ed as they are
+    for (const Index end = std::min(n, j + kRun); j < end; ++j)
+      out |= std::uint64_t(y[j] < lo[j]) | std::uint64_t(y[j] > hi[j]);
+    if (out) return false;
   }
-#endif
-  for (; j < n; ++j)
-    if (y[j] < lo[j] || y[j] > hi[j]) return false;
   return true;
+}
+bool within_base(const Real* y, const Real* lo, const Real* hi, Index n) { return within_body(y, lo, hi, n); }
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+__attribute__((target("avx2"))) bool within_avx2(const Real* y, const Real* lo, const Real* hi, Index n) {
+  return within_body(y, lo, hi, n);
+}
+#endif
+bool within(const Real* y, const Real* lo, const Real* hi, Index n) {
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+  if (kernels_use_avx2()) return within_avx2(y, lo, hi, n);
+#endif
+  return within_base(y, lo, hi, n);
 }
 
 // For the n particles at x, p and e (3 x n, contiguous): whether x equals e coordinate for
@@ -315,6 +320,12 @@ void SelfCollision::prepare(const Model& model) {
       sg.bvh_order = std::move(order);  // each node's triangles are a run of it
       sg.bvh_corners.resize(T);
       for (Index i = 0; i < T; ++i) sg.bvh_corners[i] = model.triangles[sg.triangles[sg.bvh_order[i]]];
+      sg.bvh_across.clear();
+      if (sg.first >= 0 && T >= sg.count) {  // a node may be large enough to project (certify_patch)
+        sg.bvh_across.resize(T);
+        for (Index i = 0; i < T; ++i)
+          for (int e = 0; e < 3; ++e) sg.bvh_across[i][e] = 2 * (sg.bvh_corners[i][e] - sg.first);
+      }
       find_patches(sg);
       sg.union_of.assign(sg.bvh_child.size(), {});
       // The nodes' rest boxes, children after their parent in preorder: refitted from the end.
@@ -355,7 +366,7 @@ std::size_t SelfCollision::bytes() const {
   for (const Group& g : groups_)
     s += b(g.triangles) + b(g.edges) + b(g.pt) + b(g.ee) + b(g.owned_particle_start) + b(g.owned_particles) +
          b(g.owned_edge_start) + b(g.owned_edges) + b(g.loose) + b(g.bvh_child) + b(g.bvh_size) + b(g.bvh_order) +
-         b(g.bvh_begin) + b(g.bvh_corners) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.carry) +
+         b(g.bvh_begin) + b(g.bvh_corners) + b(g.bvh_across) + b(g.patch_start) + b(g.patch_edges) + b(g.is_patch) + b(g.deferred) + b(g.failed) + b(g.axis) + b(g.carry) +
          b(g.tri_lo) + b(g.tri_hi) + b(g.node_lo) + b(g.node_hi) + b(g.unions) + b(g.deferred_unions) + b(g.union_of) + b(g.rest_lo) + b(g.rest_hi);
   for (const Group& g : groups_) {
     for (const Group::Union& u : g.unions) s += b(u.corners) + b(u.boundary);
@@ -467,7 +478,7 @@ bool SelfCollision::certify_node(Group& g, Index k, const Positions& x, const Po
                        g.patch_edges.data() + g.patch_start[k],
                        g.patch_start[k + 1] - g.patch_start[k],
                        (g.node_hi[k] - g.node_lo[k]).squaredNorm(),
-                       g.first >= 0 && g.bvh_size[k] >= g.count,
+                       g.first >= 0 && g.bvh_size[k] >= g.count ? g.bvh_across.data() + g.bvh_begin[k] : nullptr,
                        g.axis[k],
                        g.carry[k]};
   return certify_patch(g, view, x, p, sub_step);
@@ -571,7 +582,7 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
   // rounding of either form is some 1e-16 of |V| |e| |f|, far below the margin.) The cape's median
   // step with self-collision went from 1.51 to 1.43 times the step without at 40 x 40 and from
   // 1.70 to 1.48 at 80 x 80 (XPBD, 10 x 1, frames 30-90, nine and three alternating rounds).
-  const bool across = v.across;
+  const std::array<Index, 3>* across = v.across;
   const auto project = [&](const Positions& y, std::vector<Real>& out) {
     const Vec3 U = (std::abs(V.x()) < std::abs(V.y()) ? Vec3::UnitX().cross(V) : Vec3::UnitY().cross(V)).normalized();
     const Vec3 W = V.normalized().cross(U);
@@ -604,24 +615,29 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
       const Real scale = V.norm();
       const Real* P = project(p, across_p_);
       // Four triangles a trip, each lane its own least and verdict: no chain of dependent
-      // minimums from one triangle to the next (the least is exact, in any order).
+      // minimums from one triangle to the next (the least is exact, in any order); the verdicts
+      // are looked at every kRun triangles.
       constexpr int L = 4;
+      constexpr Index kRun = 256;
       Real least[L];
       unsigned char all[L];
       for (int l = 0; l < L; ++l) least[l] = std::numeric_limits<Real>::infinity(), all[l] = 1;
       const auto lane = [&](Index i, int l) {
-        const Triangle& t = tri[i];
-        const Real *a = P + 2 * (t[0] - g.first), *b = P + 2 * (t[1] - g.first), *c = P + 2 * (t[2] - g.first);
+        const std::array<Index, 3>& t = across[i];
+        const Real *a = P + t[0], *b = P + t[1], *c = P + t[2];
         const Real end = (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0]);
         all[l] &= end * scale > need;  // false for NaN
         least[l] = std::min(least[l], end);
       };
       Index i = 0;
-      for (; i + L <= size; i += L)
-        for (int l = 0; l < L; ++l) lane(i + l, l);
+      while (i + L <= size) {
+        for (const Index end = std::min(size - L, i + kRun); i <= end; i += L)
+          for (int l = 0; l < L; ++l) lane(i + l, l);
+        if (!(all[0] & all[1] & all[2] & all[3])) return false;
+      }
       for (; i < size; ++i) lane(i, 0);
       least_end = std::min(std::min(least[0], least[1]), std::min(least[2], least[3])) * scale;
-      return (all[0] & all[1] & all[2] & all[3]) != 0;
+      return all[0] != 0;
     }
     alignas(64) Real e[3][B], f[3][B];
     alignas(64) Real end[B];
@@ -650,8 +666,7 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
       Real least = std::numeric_limits<Real>::infinity();
       bool all = true;
       for (Index i = 0; i < size; ++i) {
-        const Triangle& t = tri[i];
-        const Index i0 = 2 * (t[0] - g.first), i1 = 2 * (t[1] - g.first), i2 = 2 * (t[2] - g.first);
+        const auto [i0, i1, i2] = across[i];
         const Real ex0 = X[i1] - X[i0], ex1 = X[i1 + 1] - X[i0 + 1], fx0 = X[i2] - X[i0], fx1 = X[i2 + 1] - X[i0 + 1];
         const Real ep0 = P[i1] - P[i0], ep1 = P[i1 + 1] - P[i0 + 1], fp0 = P[i2] - P[i0], fp1 = P[i2 + 1] - P[i0 + 1];
         const Real c0 = (ex0 * fx1 - ex1 * fx0) * scale, c2 = (ep0 * fp1 - ep1 * fp0) * scale;
@@ -1045,7 +1060,7 @@ bool SelfCollision::certify_union(Group& g, Index a, Index b, const Positions& x
   if (!u.disc) return false;
   const Vec3 lo = g.node_lo[a].cwiseMin(g.node_lo[b]), hi = g.node_hi[a].cwiseMax(g.node_hi[b]);
   const PatchView view{u.corners.data(), static_cast<Index>(u.corners.size()), u.boundary.data(),
-                       static_cast<Index>(u.boundary.size()), (hi - lo).squaredNorm(), false, u.axis, u.carry};
+                       static_cast<Index>(u.boundary.size()), (hi - lo).squaredNorm(), nullptr, u.axis, u.carry};
   return certify_patch(g, view, x, p, sub_step);
 }
 
@@ -1133,7 +1148,7 @@ void SelfCollision::unite_boxes(const Model& model, const Group& g, const Positi
 // proximity contacts, tried too, only added energy to the soft drape's whip, 10 E0 against 4 E0,
 // and cost a fifth more: edges are kept from crossing by the continuous test alone.)
 void SelfCollision::begin(const Model& model, const Positions& x, const Positions& p, const Real* w, int substeps,
-                          Real h, bool proximity) {
+                          Real h, bool proximity, bool x_resolved) {
   contacts_.clear();
   counts_.continuous = counts_.failsafe = counts_.unresolved = 0;
   if (particle_lo_.cols() != p.cols())
@@ -1141,7 +1156,7 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
   if (stopped_.size() != static_cast<std::size_t>(p.cols())) stopped_.assign(p.cols(), 0);
   for (Group& g : groups_) {
     const Real hs = g.thickness;
-    if (!g.searched || !candidates_hold(model, g, &x, p)) find_candidates(model, g, x, p, w, substeps);
+    if (!g.searched || !candidates_hold(model, g, x_resolved ? nullptr : &x, p)) find_candidates(model, g, x, p, w, substeps);
     // The deferred nodes are searched when the continuous test's motion does not certify them
     // (find_impacts): a patch has proximity contacts from the sub-step after it stops being one.
     if (!proximity || g.pt.empty()) continue;

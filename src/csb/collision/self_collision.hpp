@@ -86,9 +86,10 @@ class SelfCollision {
 
   // The start of a sub-step of h seconds, one of `substeps` in a step, with the motion x -> p (the
   // prediction) and inverse masses w: the candidate pairs kept or found again, the contacts
-  // cleared, and with `proximity` the point–triangle proximity contacts made.
+  // cleared, and with `proximity` the point–triangle proximity contacts made. `x_resolved`: x is
+  // the p the last resolve left (which it found the candidates to hold), so only p is checked.
   void begin(const Model& model, const Positions& x, const Positions& p, const Real* w, int substeps, Real h,
-             bool proximity);
+             bool proximity, bool x_resolved = false);
   // After the stepper's solve: the continuous test along x -> p, responses and fail-safe, which
   // move p (see self_collision.cpp). Follows the sub-step's begin, with the same x.
   void resolve(const Model& model, const Positions& x, Positions& p, const Real* w, int substeps, Real h);
@@ -142,6 +143,9 @@ class SelfCollision {
     // other nodes have none.
     std::vector<Index> bvh_order, bvh_begin, patch_start;
     std::vector<Triangle> bvh_corners;  // the particles of bvh_order's triangles, in that order
+    // Their corners as offsets 2 (i - first) into the group's particles projected across an axis
+    // (certify_patch's large nodes), where the group is one run and may have such a node.
+    std::vector<std::array<Index, 3>> bvh_across;
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
     std::vector<Index> deferred;         // nodes not searched inside, certified when searched, ascending
@@ -187,15 +191,16 @@ class SelfCollision {
   };
 
   // What certify_patch needs of a patch: its triangles' corners, its boundary loop, the squared
-  // size of its box (the margin's scale), whether it is as large as its group's particles (the
-  // projection across the axis pays), and where its axis and what a sub-step carries are kept.
+  // size of its box (the margin's scale), where it is as large as its group's particles (the
+  // projection across the axis pays) its corners' offsets into that projection (else null), and
+  // where its axis and what a sub-step carries are kept.
   struct PatchView {
     const Triangle* tri;
     Index size;
     const std::array<Index, 2>* edges;
     Index m;
     Real box2;
-    bool across;
+    const std::array<Index, 3>* across;
     Vec3& axis;
     Group::Carried& carry;
   };

@@ -115,17 +115,18 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
   finish_steps(state, h);
 }
 
-// One sub-step of Algorithm 1 outside a fused fork. `predicted`: the last sub-step's update
-// already made this one's prediction. With `next` (another sub-step of the step follows) and
+// One sub-step of Algorithm 1 outside a fused fork. `after`: it follows a sub-step of the same
+// call to substeps, so its start x is what that one's stages left as p (only p is changed between
+// them); `predicted`: that sub-step's update already made this one's prediction. With `next` (another sub-step of the step follows) and
 // nothing to change the velocities after the update (no contact of either kind this sub-step;
 // no Müller damping), the update and the next prediction are one pass (advance, the same
 // operations): returns whether it made the next prediction.
-bool PbdStepper::substep(const Model& model, State& state, Real h, int sub, bool predicted, bool next) {
+bool PbdStepper::substep(const Model& model, State& state, Real h, int sub, bool after, bool predicted, bool next) {
   if (!predicted) predict(model, state, h);                                 // (5)-(7)
   if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
   if (!collider_motion_.empty()) move_colliders(model, sub);             // poses, attached particles
   reset_multipliers();
-  generate_contacts(model, state.x, h);                                     // (8)
+  generate_contacts(model, state.x, h, after);                              // (8)
   project(model, state.x);                                                  // (9)-(11)
   if (const Index i = first_non_finite(p_); i >= 0) fail_non_finite(state, sub, i, h);
   if (!contacts_.empty()) apply_friction(model, state.x);                   // (16), on p
@@ -152,7 +153,7 @@ void PbdStepper::substeps(const Model& model, State& state, Real h, int first, i
   }
   bool predicted = false;
   for (int sub = first; sub < first + count; ++sub) {
-    predicted = substep(model, state, h, sub, predicted, sub + 1 < first + count);
+    predicted = substep(model, state, h, sub, sub > first, predicted, sub + 1 < first + count);
     if (sub + 1 < settings_.substeps) stop_if_asked(state, h, sub, interrupt);
   }
 }
