@@ -665,14 +665,17 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
       const Real *X = project(x, across_x_), *P = project(p, across_p_);
       Real least = std::numeric_limits<Real>::infinity();
       bool all = true;
-      for (Index i = 0; i < size; ++i) {
-        const auto [i0, i1, i2] = across[i];
-        const Real ex0 = X[i1] - X[i0], ex1 = X[i1 + 1] - X[i0 + 1], fx0 = X[i2] - X[i0], fx1 = X[i2 + 1] - X[i0 + 1];
-        const Real ep0 = P[i1] - P[i0], ep1 = P[i1 + 1] - P[i0 + 1], fp0 = P[i2] - P[i0], fp1 = P[i2 + 1] - P[i0 + 1];
-        const Real c0 = (ex0 * fx1 - ex1 * fx0) * scale, c2 = (ep0 * fp1 - ep1 * fp0) * scale;
-        const Real c1 = ((ex0 * fp1 - ex1 * fp0) + (ep0 * fx1 - ep1 * fx0)) * scale;
-        all &= (c0 > margin) & (c1 > 2 * margin) & (c2 > margin);  // false for NaN
-        least = std::min(least, c2);
+      constexpr Index kRun = 256;  // the verdict looked at every kRun triangles
+      for (Index i = 0; i < size && all;) {
+        for (const Index last = std::min(size, i + kRun); i < last; ++i) {
+          const auto [i0, i1, i2] = across[i];
+          const Real ex0 = X[i1] - X[i0], ex1 = X[i1 + 1] - X[i0 + 1], fx0 = X[i2] - X[i0], fx1 = X[i2 + 1] - X[i0 + 1];
+          const Real ep0 = P[i1] - P[i0], ep1 = P[i1 + 1] - P[i0 + 1], fp0 = P[i2] - P[i0], fp1 = P[i2 + 1] - P[i0 + 1];
+          const Real c0 = (ex0 * fx1 - ex1 * fx0) * scale, c2 = (ep0 * fp1 - ep1 * fp0) * scale;
+          const Real c1 = ((ex0 * fp1 - ex1 * fp0) + (ep0 * fx1 - ep1 * fx0)) * scale;
+          all &= (c0 > margin) & (c1 > 2 * margin) & (c2 > margin);  // false for NaN
+          least = std::min(least, c2);
+        }
       }
       least_end = least;
       return all;
@@ -724,12 +727,12 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
 
 // certified_[k]: node k or one of its ancestors is a patch certified for the motion x -> p
 // (certify_node), top-down: a node below a certified one needs no test of its own.
-// A certification does not try again a node that a sub-step turned down since the last search
-// (g.failed, cleared by the search after its own certification): it would most likely fail
-// again, at the cost of its triangles, and a certification only spares tests (a node searched because it failed stays searched). The
-// search's certification of a cape hanging past 90 degrees tried its root again at each search,
-// two or three passes over the triangles, two to five searches a step where it folds. Deferred
-// nodes are never in g.failed: the first failure searches them.
+// A certification does not try again, for a step's worth of sub-steps, a node that a sub-step
+// turned down (g.failed): it would most likely fail again, at the cost of its triangles (two or
+// three passes, with a fresh axis), and a certification only spares tests (a node searched because
+// it failed stays searched). Tried again after every search instead, the nodes along a fold (the
+// root, its children, theirs...) cost the 56 x 56 cape's folding steps some 9,000 triangles a
+// sub-step. Deferred nodes are never turned down when searched: the first failure searches them.
 void SelfCollision::certify(const Model& model, Group& g, const Positions& x, const Positions& p, bool sub_step) {
   const Index nodes = static_cast<Index>(g.bvh_child.size());
   if (g.axis.size() != static_cast<std::size_t>(nodes)) g.axis.assign(nodes, Vec3::Zero());
@@ -756,7 +759,7 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
   // certified with it and skipped.
   certified_.assign(nodes, 0);
   for (Index k = 0; k < nodes;) {
-    if (g.is_patch[k] && !g.failed[k]) {
+    if (g.is_patch[k] && !(g.failed[k] > 0 && g.serial < g.failed[k] + static_cast<std::uint64_t>(g.substeps))) {
       if (k > 0 && !g.boxes_ready) search_boxes(model, g);  // the margin's scale
       if (certify_node(g, k, x, p, sub_step)) {
         const Index end = k + 2 * g.bvh_size[k] - 1;
@@ -764,7 +767,7 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
         k = end;
         continue;
       }
-      if (sub_step) g.failed[k] = 1;
+      if (sub_step) g.failed[k] = g.serial;
     }
     ++k;
   }
@@ -865,7 +868,6 @@ void SelfCollision::find_candidates(const Model& model, Group& g, const Position
   // motion failed were searched, and then culled by the sub-steps that certified them: at
   // 56 x 56 a step kept up to 15,225 pairs, 72 thousand culled in its sub-steps, against 6,929.)
   certify(model, g, x, p, false);
-  g.failed.assign(nodes, 0);
   g.pt.clear();
   g.ee.clear();
   g.deferred.clear();
@@ -1155,6 +1157,7 @@ void SelfCollision::begin(const Model& model, const Positions& x, const Position
     for (Positions* m : {&particle_lo_, &particle_hi_, &hold_lo_, &hold_hi_, &sweep_lo_, &sweep_hi_}) m->resize(3, p.cols());
   if (stopped_.size() != static_cast<std::size_t>(p.cols())) stopped_.assign(p.cols(), 0);
   for (Group& g : groups_) {
+    g.substeps = std::max(substeps, 1);
     const Real hs = g.thickness;
     if (!g.searched || !candidates_hold(model, g, x_resolved ? nullptr : &x, p)) find_candidates(model, g, x, p, w, substeps);
     // The deferred nodes are searched when the continuous test's motion does not certify them

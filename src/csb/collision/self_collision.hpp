@@ -149,7 +149,10 @@ class SelfCollision {
     std::vector<std::array<Index, 2>> patch_edges;
     std::vector<std::uint8_t> is_patch;
     std::vector<Index> deferred;         // nodes not searched inside, certified when searched, ascending
-    std::vector<std::uint8_t> failed;    // per node: a sub-step's certification failed since the search
+    // Per node: the serial of the sub-step certification that last turned it down (0: none), and the
+    // sub-steps of a step (certify tries it again a step later).
+    std::vector<std::uint64_t> failed;
+    int substeps = 1;
     std::vector<Vec3> axis;              // per node: the axis V of its last certification (zero: none yet)
     // What a patch's certification by a sub-step leaves for the next (certify_patch): the
     // sub-step's serial, the least V·(e x f) over its triangles at the end (m² times |V|), and the
