@@ -760,8 +760,12 @@ void SelfCollision::certify(const Model& model, Group& g, const Positions& x, co
   certified_.assign(nodes, 0);
   for (Index k = 0; k < nodes;) {
     if (g.is_patch[k] && !(g.failed[k] > 0 && g.serial < g.failed[k] + static_cast<std::uint64_t>(g.substeps))) {
-      if (k > 0 && !g.boxes_ready) search_boxes(model, g);  // the margin's scale
-      if (certify_node(g, k, x, p, sub_step)) {
+      // A search defers a node that the last sub-step certified without testing it again: the
+      // sub-steps decide (resume_deferred), and its proximity contacts wait a sub-step, as
+      // when a deferred node fails.
+      const bool passed = !sub_step && g.serial > 0 && g.carry[k].at == g.serial;
+      if (!passed && k > 0 && !g.boxes_ready) search_boxes(model, g);  // the margin's scale
+      if (passed || certify_node(g, k, x, p, sub_step)) {
         const Index end = k + 2 * g.bvh_size[k] - 1;
         std::fill(certified_.begin() + k, certified_.begin() + end, std::uint8_t(1));
         k = end;
@@ -1060,6 +1064,7 @@ bool SelfCollision::certify_union(Group& g, Index a, Index b, const Positions& x
   }
   Group::Union& u = g.unions[index];
   if (!u.disc) return false;
+  if (!sub_step && g.serial > 0 && u.carry.at == g.serial) return true;  // as certify does for a node
   const Vec3 lo = g.node_lo[a].cwiseMin(g.node_lo[b]), hi = g.node_hi[a].cwiseMax(g.node_hi[b]);
   const PatchView view{u.corners.data(), static_cast<Index>(u.corners.size()), u.boundary.data(),
                        static_cast<Index>(u.boundary.size()), (hi - lo).squaredNorm(), nullptr, u.axis, u.carry};

@@ -77,7 +77,7 @@ class SelfCollision {
   // the patches' axes afresh: what follows depends on the positions alone.
   void forget_candidates() {
     for (Group& g : groups_) {
-      g.searched = false, g.axis.clear(), g.failed.clear();
+      g.searched = false, g.axis.clear(), g.failed.clear(), g.carry.clear();
       for (Group::Union& u : g.unions) u.axis.setZero(), u.carry.at = 0;
     }
   }
