@@ -117,10 +117,11 @@ void PbdStepper::step(const Model& model, State& state, std::int64_t steps,
 
 // One sub-step of Algorithm 1 outside a fused fork. `after`: it follows a sub-step of the same
 // call to substeps, so its start x is what that one's stages left as p (only p is changed between
-// them); `predicted`: that sub-step's update already made this one's prediction. With `next` (another sub-step of the step follows) and
-// nothing to change the velocities after the update (no contact of either kind this sub-step;
-// no Müller damping), the update and the next prediction are one pass (advance, the same
-// operations): returns whether it made the next prediction.
+// them); `predicted`: that sub-step's update already made this one's prediction. With `next`
+// (another sub-step of the step follows) and nothing to change the velocities after the update
+// (no contact of either kind this sub-step; no Müller damping), the update and the next
+// prediction are one pass (advance, the same operations): returns whether it made the next
+// prediction.
 bool PbdStepper::substep(const Model& model, State& state, Real h, int sub, bool after, bool predicted, bool next) {
   if (!predicted) predict(model, state, h);                                 // (5)-(7)
   if (!grabs_.empty()) apply_grab_targets(Real(sub + 1) / settings_.substeps);
