@@ -83,17 +83,17 @@ inline __attribute__((always_inline)) bool within_body(const Real* __restrict y,
   }
   return true;
 }
-bool within_base(const Real* y, const Real* lo, const Real* hi, Index n) { return within_body(y, lo, hi, n); }
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+#define CSB_WITHIN_AVX2 1
 __attribute__((target("avx2"))) bool within_avx2(const Real* y, const Real* lo, const Real* hi, Index n) {
   return within_body(y, lo, hi, n);
 }
 #endif
 bool within(const Real* y, const Real* lo, const Real* hi, Index n) {
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+#if defined(CSB_WITHIN_AVX2)
   if (kernels_use_avx2()) return within_avx2(y, lo, hi, n);
 #endif
-  return within_base(y, lo, hi, n);
+  return within_body(y, lo, hi, n);
 }
 
 // For the n particles at x, p and e (3 x n, contiguous): whether x equals e coordinate for
@@ -806,8 +806,9 @@ int SelfCollision::in_chunks(std::size_t n, F&& chunk) {
 // The candidate pairs of a group, found once per step and kept while they hold. Each particle gets
 // a box: over its start x, its prediction p and where the prediction leads in a step's time
 // (x + k (p - x), k the sub-steps of a step, but no farther than kLookaheadEdges mean edges; not
-// beyond the cloth's size), widened by 1.5 h on each side. A feature's box is the union of its particles'; a pair is kept if its boxes overlap,
-// the features share no particle, and one of its particles can move.
+// beyond the cloth's size), widened by 1.5 h on each side. A feature's box is the union of its
+// particles'; a pair is kept if its boxes overlap, the features share no particle, and one of its
+// particles can move.
 //
 // The pairs hold for a sub-step as long as every particle's x and p lie in its box shrunk by h
 // (candidates_hold; h/2 of slack for the path to bend away from the straight line): then
