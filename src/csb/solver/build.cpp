@@ -152,8 +152,9 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     ColouredFour& f = cb.bending;
     const std::size_t m = pair_of.size();
     f.pair_rest.assign(m, 0);
-    f.pair_ca.assign(m, 0);
-    f.pair_cb.assign(m, 0);
+    // XPBD's shares are the inverse masses of a and b, which the kernel has (ColouredFour::w)
+    f.pair_ca.assign(xpbd ? 0 : m, 0);
+    f.pair_cb.assign(xpbd ? 0 : m, 0);
     f.pair_alpha.assign(xpbd ? m : 0, 0);
     f.pair_gamma.assign(xpbd ? m : 0, 0);
     f.pair_inv_den.assign(xpbd ? m : 0, 0);
@@ -174,10 +175,15 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
       // the same values: d, n and the damping's relative motion change sign exactly)
       const bool forward = db.particles[o][0] == f.q[c][0];
       f.pair_rest[c] = db.rest_length[o];
-      f.pair_ca[c] = forward ? ci : cj;
-      f.pair_cb[c] = forward ? cj : ci;
+      if (!xpbd) {
+        f.pair_ca[c] = forward ? ci : cj;
+        f.pair_cb[c] = forward ? cj : ci;
+      }
     }
     f.damped = f.damped || any_damping(f.pair_gamma);
+    f.k_same = same_copies(f.k);
+    f.alpha_same = same_copies(f.alpha);
+    f.pair_alpha_same = same_copies(f.pair_alpha);
   }
   four(cb.volume, model.volume.particles, model.volume.rest_volume, model.volume.colours, k_volume_, a_volume_, g_volume_);
   {

@@ -126,9 +126,12 @@ void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk
 // single-precision step's, which has no volumes or attachments); cb: their colourings.
 // start(g): called at the start of group g's task (a part's interior or an interface).
 // relax: XPBD with averaged Jacobi (else null), see PbdStepper::set_relaxation.
+// first: the sub-step's first sweep, whose XPBD bending multipliers (and their edges') are +0:
+// the blocked kernels write them without reading them, so they need not be set to zero before it
+// (but for the relaxed kernel's, which reads them).
 template <Method M, bool Jacobi, class S, class Start>
 void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, ColouredDistanceT<S>& d,
-                    ColouredFourT<S>& bend, bool approx, const S* r, S* o, const S* x, const Real* relax,
+                    ColouredFourT<S>& bend, bool approx, bool first, const S* r, S* o, const S* x, const Real* relax,
                     Start&& start) {
   const auto distance = [&](Index begin, Index end, bool independent) {
     if constexpr (M == Method::Xpbd && Jacobi) {
@@ -164,7 +167,7 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, Colou
         return;
       }
     }
-    project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, r, o, x);
+    project_bending_range<M == Method::Xpbd>(bend, begin, end, independent, first, r, o, x);
   };
   ColouredFour& vol = cb.volume;
   const auto volume = [&](Index begin, Index end, bool) {
@@ -241,11 +244,10 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   }
   if (advancing) accel_.resize(3 * static_cast<std::size_t>(n));
   const Index parts = model.num_parts;
-  // XPBD: group g's multipliers (of every batch) set to zero.
+  // XPBD: group g's multipliers set to zero (but the bending elements', which the first sweep
+  // writes without reading).
   const auto zero_group_multipliers = [&](Index g) {
     zero_group(coloured_.distance_colours, g, coloured_.distance.lambda);
-    zero_group(model.bending.colours, g, coloured_.bending.lambda);
-    zero_group(model.bending.colours, g, coloured_.bending.pair_lambda);
     zero_group(model.volume.colours, g, coloured_.volume.lambda);
     zero_group(model.attachments.colours, g, coloured_.attachments.lambda);
   };
@@ -254,7 +256,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
     // (5)-(7) of Algorithm 1, and XPBD's multipliers set to zero.
     const auto predict = [&](Index begin, Index end) {
       predict_range(model, *fused->state, fused->h, begin, end);
-      if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
+      if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size(), relax != nullptr);
     };
     if (in_tasks) {
       // Keep the step's start, then predict (the multipliers are zeroed by the group tasks).
@@ -298,8 +300,8 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
             }
           });
         }
-        sweep_coloured<M, Jacobi>(share, model, coloured_, coloured_.distance, coloured_.bending, approx, r, o, x, relax,
-                                  start);
+        sweep_coloured<M, Jacobi>(share, model, coloured_, coloured_.distance, coloured_.bending, approx, it == 0, r, o,
+                                  x, relax, start);
         if (tail) {
           share.single([&] {
             // Balloons: one constraint over many particles each, serial (see sweep_batches).
@@ -353,7 +355,7 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
             return;
           }
           advance(*fused->state, fused->h, begin, end);
-          if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size());
+          if constexpr (M == Method::Xpbd) zero_coloured_multipliers(t, share.team.size(), relax != nullptr);
         });
       }
     }
@@ -390,16 +392,13 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   const Index parts = model.num_parts;
   const bool in_tasks = coloured_.rest_empty;
-  // XPBD's multipliers set to zero: share t of `shares` of every float batch's, or group g's.
+  // XPBD's multipliers set to zero: share t of `shares` of the float distance batch's, or group
+  // g's (the bending elements' are written, not read, by a sub-step's first sweep).
   const auto zero_multipliers = [&](int t, int shares) {
-    if constexpr (M == Method::Xpbd)
-      for (std::vector<float>* l : {&single_.distance.lambda, &single_.bending.lambda, &single_.bending.pair_lambda})
-        zero_share(*l, t, shares);
+    if constexpr (M == Method::Xpbd) zero_share(single_.distance.lambda, t, shares);
   };
   const auto zero_group_multipliers = [&](Index g) {
     zero_group(coloured_.distance_colours, g, single_.distance.lambda);
-    zero_group(model.bending.colours, g, single_.bending.lambda);
-    zero_group(model.bending.colours, g, single_.bending.pair_lambda);
   };
   // p from x and v (Euler: v += a first) for coordinates [k0, k1).
   const auto predict = [&](Index k0, Index k1) {
@@ -442,8 +441,8 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
               advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
             }
         };
-        sweep_coloured<M, false>(share, model, coloured_, single_.distance, single_.bending, approx, p, p, x, nullptr,
-                                 start);
+        sweep_coloured<M, false>(share, model, coloured_, single_.distance, single_.bending, approx, it == 0, p, p, x,
+                                 nullptr, start);
       }
       const bool last = sub + 1 == substeps;
       if (in_tasks && !last) continue;

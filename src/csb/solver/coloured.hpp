@@ -19,6 +19,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <type_traits>
 #include <vector>
 
@@ -58,12 +59,31 @@ struct ColouredFourT {
   // Bending with Gauss-Seidel (PBD and Jakobsen with the exact square root, and XPBD): the
   // distance constraint on each element's edge (a, b), when the model has one, projected by the
   // same kernel just before the bending constraint (see PbdStepper::build_coloured); empty
-  // otherwise. Its rest length (m), and the shares of the correction of a and of b: PBD's
-  // k w / Σw, XPBD's w (0 and 0 where the element has no distance constraint). XPBD also keeps
-  // the edge's α̃, γ, 1/((1 + γ) Σw + α̃) (0: none) and multiplier, at the element's position.
+  // otherwise. Its rest length (m), and PBD's shares of the correction of a and of b, k w / Σw
+  // (0 and 0 where the element has no distance constraint; XPBD's are w, the element's own w[0]
+  // and w[1]). XPBD keeps the edge's α̃, γ, 1/((1 + γ) Σw + α̃) (0: none) and multiplier, at the
+  // element's position.
   std::vector<S> pair_rest, pair_ca, pair_cb;
   std::vector<S> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
+  // A coefficient every element of the batch shares (the usual case: one material): a block's
+  // worth of copies (kSameCopies) that the blocked kernels read in place of the batch's array,
+  // which then stays out of the memory a sweep streams (8 B an element each); empty when the
+  // elements differ. Kept with the arrays they copy (build_coloured, narrowed).
+  std::vector<S> k_same, alpha_same, pair_alpha_same;
 };
+
+// The copies a ColouredFourT::*_same holds: one block of the blocked kernels (kBendingBlock).
+constexpr Index kSameCopies = 48;
+
+// kSameCopies copies of v's value when v is not empty and its values are all alike (bit for
+// bit), else empty (ColouredFourT::k_same and the others).
+template <class S>
+std::vector<S> same_copies(const std::vector<S>& v) {
+  if (v.empty()) return {};
+  for (const S& e : v)
+    if (std::memcmp(&e, &v[0], sizeof(S)) != 0) return {};
+  return std::vector<S>(kSameCopies, v[0]);
+}
 using ColouredFour = ColouredFourT<Real>;
 
 struct ColouredAttachments {
@@ -88,7 +108,7 @@ ColouredFourT<To> narrowed(const ColouredFourT<From>& f) {
     for (int s = 0; s < 4; ++s) w[c][s] = static_cast<To>(f.w[c][s]);
   return {f.q, cast(f.rest), std::move(w), cast(f.k), cast(f.alpha), cast(f.gamma), cast(f.lambda), f.damped,
           cast(f.pair_rest), cast(f.pair_ca), cast(f.pair_cb), cast(f.pair_alpha), cast(f.pair_gamma),
-          cast(f.pair_inv_den), cast(f.pair_lambda)};
+          cast(f.pair_inv_den), cast(f.pair_lambda), cast(f.k_same), cast(f.alpha_same), cast(f.pair_alpha_same)};
 }
 
 // Whether some damping coefficient γ is not +0 (ColouredDistance::damped, ColouredFour::damped).

@@ -25,28 +25,30 @@ namespace csb {
 
 namespace {
 
-template <bool Xpbd, bool Damped, class S>
-CSB_ATAN2_INLINE void blocks(ColouredFourT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
-  for (Index c0 = begin; c0 < end; c0 += kBendingBlock)
-    bending_block<Xpbd, Damped>(b, c0, std::min(kBendingBlock, end - c0), r, o, x);
-}
+// The kernels' variants, each instruction set's blocks below choosing one per block in the same
+// way: PBD; or XPBD with or without damping (ColouredFourT::damped), its multipliers +0 or not
+// (fresh: a sub-step's first sweep).
 
-// The portable blocks (gathers and scatters one constraint at a time) of the method and damping.
+// The portable blocks (gathers and scatters one constraint at a time).
 template <class S>
-CSB_ATAN2_INLINE void blocks_portable(ColouredFourT<S>& b, bool xpbd, Index begin, Index end, const S* r, S* o,
-                                      const S* x) {
-  if (xpbd && b.damped)
-    blocks<true, true>(b, begin, end, r, o, x);
-  else if (xpbd)
-    blocks<true, false>(b, begin, end, r, o, x);
-  else
-    blocks<false, false>(b, begin, end, r, o, x);
+CSB_ATAN2_INLINE void blocks_portable(ColouredFourT<S>& b, bool xpbd, bool fresh, Index begin, Index end, const S* r,
+                                      S* o, const S* x) {
+  for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
+    const Index m = std::min(kBendingBlock, end - c0);
+    if (!xpbd)
+      bending_block<false, false, S, false>(b, c0, m, r, o, x);
+    else if (b.damped)
+      fresh ? bending_block<true, true, S, true>(b, c0, m, r, o, x) : bending_block<true, true, S, false>(b, c0, m, r, o, x);
+    else
+      fresh ? bending_block<true, false, S, true>(b, c0, m, r, o, x)
+            : bending_block<true, false, S, false>(b, c0, m, r, o, x);
+  }
 }
 
 #if CSB_HAS_AVX2_ROWS
 // The AVX2 copy also gathers and scatters four constraints at a time in AVX2 registers
 // (csb/avx2_rows.hpp); a block's last m % 4 constraints go one at a time.
-template <bool Xpbd, bool Damped>
+template <bool Xpbd, bool Damped, bool Fresh>
 CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* r, Real* o, const Real* x) {
   using namespace avx2;
   BendingBlock<Xpbd, Damped> t;
@@ -80,7 +82,7 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
     _mm256_store_pd(&t.W[3][k], wd);
   }
   bending_gather(t, b, c0, m4, m, r, x);
-  bending_compute(t, b, c0, m);
+  bending_compute<Xpbd, Damped, Real, Fresh>(t, b, c0, m);
   const bool in_place = o == r;
   for (Index k = 0; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
@@ -102,16 +104,16 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
   bending_scatter(t, b, c0, m4, m, in_place, o);
 }
 
-CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o,
-                                 const Real* x) {
+CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end, const Real* r,
+                                 Real* o, const Real* x) {
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
     const Index m = std::min(kBendingBlock, end - c0);
-    if (xpbd && b.damped)
-      block_rows<true, true>(b, c0, m, r, o, x);
-    else if (xpbd)
-      block_rows<true, false>(b, c0, m, r, o, x);
+    if (!xpbd)
+      block_rows<false, false, false>(b, c0, m, r, o, x);
+    else if (b.damped)
+      fresh ? block_rows<true, true, true>(b, c0, m, r, o, x) : block_rows<true, true, false>(b, c0, m, r, o, x);
     else
-      block_rows<false, false>(b, c0, m, r, o, x);
+      fresh ? block_rows<true, false, true>(b, c0, m, r, o, x) : block_rows<true, false, false>(b, c0, m, r, o, x);
   }
 }
 
@@ -119,7 +121,7 @@ CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, Index begin, Index 
 // a time in 256-bit registers (then four, in 128-bit ones), the new positions P + (S w_s) ∇_s C
 // (bending_scatter's operations) computed in SIMD lanes and stored eight (four) constraints at a
 // time; a block's last m % 4 constraints one at a time.
-template <bool Xpbd, bool Damped>
+template <bool Xpbd, bool Damped, bool Fresh>
 CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index m, const float* r, float* o,
                                        const float* x) {
   using namespace avx2;
@@ -175,7 +177,7 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
     _mm_store_ps(&t.W[3][k], wd);
   }
   bending_gather(t, b, c0, m4, m, r, x);
-  bending_compute(t, b, c0, m);
+  bending_compute<Xpbd, Damped, float, Fresh>(t, b, c0, m);
   for (int s = 0; s < 4; ++s)
     for (int e = 0; e < 3; ++e) {
       float* g = t.G[3 * s + e];
@@ -204,23 +206,25 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
   bending_scatter(t, b, c0, m4, m, true, o);
 }
 
-CSB_AVX2_INLINE void blocks_rows_single(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r,
-                                        float* o, const float* x) {
-  if (o != r) return blocks_portable(b, xpbd, begin, end, r, o, x);
+CSB_AVX2_INLINE void blocks_rows_single(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end,
+                                        const float* r, float* o, const float* x) {
+  if (o != r) return blocks_portable(b, xpbd, fresh, begin, end, r, o, x);
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
     const Index m = std::min(kBendingBlock, end - c0);
-    if (xpbd && b.damped)
-      block_rows_single<true, true>(b, c0, m, r, o, x);
-    else if (xpbd)
-      block_rows_single<true, false>(b, c0, m, r, o, x);
+    if (!xpbd)
+      block_rows_single<false, false, false>(b, c0, m, r, o, x);
+    else if (b.damped)
+      fresh ? block_rows_single<true, true, true>(b, c0, m, r, o, x)
+            : block_rows_single<true, true, false>(b, c0, m, r, o, x);
     else
-      block_rows_single<false, false>(b, c0, m, r, o, x);
+      fresh ? block_rows_single<true, false, true>(b, c0, m, r, o, x)
+            : block_rows_single<true, false, false>(b, c0, m, r, o, x);
   }
 }
 
-__attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r,
-                                                  Real* o, const Real* x) {
-  blocks_rows(b, xpbd, begin, end, r, o, x);
+__attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end,
+                                                  const Real* r, Real* o, const Real* x) {
+  blocks_rows(b, xpbd, fresh, begin, end, r, o, x);
 }
 #endif
 
@@ -231,37 +235,38 @@ __attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, Ind
 // projection. The distance blocks were slower so (3.94 → 4.25 ns) and keep the AVX2 copy
 // (papers/benchmarks.md).
 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_avx512(
-    ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
-  blocks_rows(b, xpbd, begin, end, r, o, x);
+    ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+  blocks_rows(b, xpbd, fresh, begin, end, r, o, x);
 }
 #endif
 
-void blocks_base(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+void blocks_base(ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end, const Real* r, Real* o,
+                 const Real* x) {
 #if CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-  blocks_avx2(b, xpbd, begin, end, r, o, x);
+  blocks_avx2(b, xpbd, fresh, begin, end, r, o, x);
 #else
-  blocks_portable(b, xpbd, begin, end, r, o, x);
+  blocks_portable(b, xpbd, fresh, begin, end, r, o, x);
 #endif
 }
 
 // Single precision: the blocks in the lanes of each instruction set, twice as many floats as
 // doubles (SSE2 four, AVX2 and AVX-512 eight), with AVX2's gathers and stores four at a time.
-void blocks_single(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+void blocks_single(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end, const float* r, float* o,
                    const float* x) {
 #if CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-  blocks_rows_single(b, xpbd, begin, end, r, o, x);
+  blocks_rows_single(b, xpbd, fresh, begin, end, r, o, x);
 #else
-  blocks_portable(b, xpbd, begin, end, r, o, x);
+  blocks_portable(b, xpbd, fresh, begin, end, r, o, x);
 #endif
 }
 #if CSB_BENDING_AVX2
-__attribute__((target("avx2"))) void blocks_single_avx2(ColouredFourT<float>& b, bool xpbd, Index begin, Index end,
-                                                         const float* r, float* o, const float* x) {
-  blocks_rows_single(b, xpbd, begin, end, r, o, x);
+__attribute__((target("avx2"))) void blocks_single_avx2(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin,
+                                                         Index end, const float* r, float* o, const float* x) {
+  blocks_rows_single(b, xpbd, fresh, begin, end, r, o, x);
 }
 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_single_avx512(
-    ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o, const float* x) {
-  blocks_rows_single(b, xpbd, begin, end, r, o, x);
+    ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end, const float* r, float* o, const float* x) {
+  blocks_rows_single(b, xpbd, fresh, begin, end, r, o, x);
 }
 #endif
 
@@ -280,37 +285,38 @@ std::atomic<int> use_isa{cpu_isa()};
 
 }  // namespace
 
-void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x) {
+void bending_blocks(ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end, const Real* r, Real* o,
+                    const Real* x) {
 #if CSB_BENDING_AVX2
   switch (use_isa.load(std::memory_order_relaxed)) {
     case kAvx512:
-      blocks_avx512(b, xpbd, begin, end, r, o, x);
+      blocks_avx512(b, xpbd, fresh, begin, end, r, o, x);
       return;
     case kAvx2:
-      blocks_avx2(b, xpbd, begin, end, r, o, x);
+      blocks_avx2(b, xpbd, fresh, begin, end, r, o, x);
       return;
     default:
       break;
   }
 #endif
-  blocks_base(b, xpbd, begin, end, r, o, x);
+  blocks_base(b, xpbd, fresh, begin, end, r, o, x);
 }
 
-void bending_blocks(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+void bending_blocks(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end, const float* r, float* o,
                     const float* x) {
 #if CSB_BENDING_AVX2
   switch (use_isa.load(std::memory_order_relaxed)) {
     case kAvx512:
-      blocks_single_avx512(b, xpbd, begin, end, r, o, x);
+      blocks_single_avx512(b, xpbd, fresh, begin, end, r, o, x);
       return;
     case kAvx2:
-      blocks_single_avx2(b, xpbd, begin, end, r, o, x);
+      blocks_single_avx2(b, xpbd, fresh, begin, end, r, o, x);
       return;
     default:
       break;
   }
 #endif
-  blocks_single(b, xpbd, begin, end, r, o, x);
+  blocks_single(b, xpbd, fresh, begin, end, r, o, x);
 }
 
 bool kernels_use_avx2() {
@@ -346,9 +352,9 @@ void project_bending_coloured(ColouredFour& b, bool xpbd, bool independent, Real
   const Index m = static_cast<Index>(b.q.size());
   b.damped = any_damping(b.gamma);
   if (xpbd)
-    project_bending_range<true>(b, 0, m, independent, p, p, x);
+    project_bending_range<true>(b, 0, m, independent, false, p, p, x);
   else
-    project_bending_range<false>(b, 0, m, independent, p, p, x);
+    project_bending_range<false>(b, 0, m, independent, false, p, p, x);
 }
 
 void atan2_rational_array(const Real* y, const Real* x, Real* out, Index n) {

@@ -41,8 +41,9 @@ namespace csb {
 // kernels (the distance blocks and the bending elements' edges): from d = p_i - p_j (and, Damped,
 // the relative motion u = (p_i - x_i) - (p_j - x_j)) the unit n = d/|d| (0 for |d| = 0), |d| and
 // Δλ = (-(|d| - rest) - α̃ λ - γ n·u) * inv_den, before any sign clamp. Without damping γ n·u is
-// +0, whose subtraction changes no value, and is left out.
-template <bool Damped, class T>
+// +0, whose subtraction changes no value, and is left out. Fresh: λ is +0 (a sub-step's first
+// sweep), so α̃ λ is +0 (α̃ is finite and >= 0) and likewise left out: neither α̃ nor λ is read.
+template <bool Damped, class T, bool Fresh = false>
 CSB_ATAN2_INLINE T xpbd_distance_step(T dx, T dy, T dz, T ux, T uy, T uz, T rest, T alpha,
                                          T gamma, T inv_den, T lambda, T& nx, T& ny, T& nz,
                                          T& len) {
@@ -50,13 +51,14 @@ CSB_ATAN2_INLINE T xpbd_distance_step(T dx, T dy, T dz, T ux, T uy, T uz, T rest
   const T inv_len = T(len > 0 ? 1 : 0) / (len > 0 ? len : T(1));
   nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
   const T cl = len - rest;
+  T num = -cl;
+  if constexpr (!Fresh) num = num - alpha * lambda;
   if constexpr (Damped) {
     const T along = nx * ux + ny * uy + nz * uz;
     const T moved = gamma == 0 ? T(0) : along;
-    return (-cl - alpha * lambda - gamma * moved) * inv_den;
-  } else {
-    return (-cl - alpha * lambda) * inv_den;
+    num = num - gamma * moved;
   }
+  return num * inv_den;
 }
 
 // Constraints per block: a multiple of 8 (the AVX-512 copy's compute loops run 8 lanes, its
@@ -65,6 +67,15 @@ CSB_ATAN2_INLINE T xpbd_distance_step(T dx, T dy, T dz, T ux, T uy, T uz, T rest
 // 1.05-1.10 at 256², 128 1.07-1.08 at 64². The SSE2 and AVX2 copies do not care (1.00). The
 // block size changes no result: every constraint is computed alike in any lane and block.
 constexpr Index kBendingBlock = 48;
+static_assert(kBendingBlock <= kSameCopies, "a block reads at most kSameCopies shared coefficients");
+
+// Where a block of constraints c0 + [0, kBendingBlock) reads a coefficient: the batch's shared
+// copies when its elements all have the same (ColouredFourT::k_same and the others), else their
+// own.
+template <class T>
+CSB_ATAN2_INLINE const T* coefficients(const std::vector<T>& same, const std::vector<T>& own, Index c0) {
+  return same.empty() ? own.data() + c0 : same.data();
+}
 
 // A block's working arrays. P[3 s + e][k]: coordinate e of particle s (a, b, c, d) of constraint
 // c0 + k (a and b moved by the edge's distance constraint, if projected with the element);
@@ -72,7 +83,9 @@ constexpr Index kBendingBlock = 48;
 // start, for damping (the motion p - x is taken after the edge's projection); Theta: the angle;
 // S: the multiplier step, Δp_s = S w_s ∇_s C. Damped: XPBD on a batch with damping
 // (ColouredFour::damped); without, the damping term is zero and X is neither gathered nor read.
-// T: the scalar, double or (the single-precision step) float.
+// T: the scalar, double or (the single-precision step) float. (Fresh, a template argument of the
+// kernels below: XPBD's multipliers are +0, a sub-step's first sweep: they are written, not read,
+// see bending_compute.)
 template <bool Xpbd, bool Damped = Xpbd, class T = Real>
 struct BendingBlock {
   static_assert(Xpbd || !Damped);
@@ -109,8 +122,17 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped, T>& t, const Col
 // and the polynomials (~100 cycles of latency), and only a short loop body lets the processor
 // overlap that chain across iterations (in a micro-benchmark one fused loop ran at 1.25x the old
 // scalar kernel, the split one at 1.7x).
-template <bool Xpbd, bool Damped, class T>
+//
+// Fresh (XPBD): every multiplier of these constraints is +0, as at a sub-step's first sweep
+// (Macklin 2016, Algorithm 1, sets them to zero before it): λ is not read, α̃ λ is +0 (α̃ finite,
+// >= 0) and its subtraction changes no value, and the new λ is +0 + Δλ: the same bits as reading
+// the zeros, without streaming the multipliers in or setting them to zero beforehand.
+// XPBD's edge shares its correction by its particles' inverse masses, W[0] and W[1], not read
+// again (pair_ca and pair_cb are PBD's): an element without an edge has inv_den = 0, so its Δλ
+// is ±0 and w Δλ the same ±0 as 0 Δλ.
+template <bool Xpbd, bool Damped, class T, bool Fresh = false>
 CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, ColouredFourT<T>& b, Index c0, Index m) {
+  static_assert(Xpbd || !Fresh);
   auto& P = t.P;
   auto& G = t.G;
   const auto& W = t.W;
@@ -122,9 +144,7 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
       // Σw + α̃), Δa = +ca Δλ n, Δb = -cb Δλ n; ca = cb = 0 and no multiplier step for an element
       // without one), into the block's positions of a and b.
       const T* rest = b.pair_rest.data() + c0;
-      const T* ca = b.pair_ca.data() + c0;
-      const T* cb = b.pair_cb.data() + c0;
-      const T* alpha = b.pair_alpha.data() + c0;
+      const T* alpha = coefficients(b.pair_alpha_same, b.pair_alpha, c0);
       const T* gamma = b.pair_gamma.data() + c0;
       const T* inv_den = b.pair_inv_den.data() + c0;
       T* lambda = b.pair_lambda.data() + c0;
@@ -136,13 +156,14 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
           uy = (P[1][k] - X[1][k]) - (P[4][k] - X[4][k]);
           uz = (P[2][k] - X[2][k]) - (P[5][k] - X[5][k]);
         }
-        const T l = lambda[k];
+        const T l = Fresh ? T(0) : lambda[k];
         T nx, ny, nz, len;
-        T dl = xpbd_distance_step<Damped>(P[0][k] - P[3][k], P[1][k] - P[4][k], P[2][k] - P[5][k], ux, uy, uz,
-                                             rest[k], alpha[k], gamma[k], inv_den[k], l, nx, ny, nz, len);
+        T dl = xpbd_distance_step<Damped, T, Fresh>(P[0][k] - P[3][k], P[1][k] - P[4][k], P[2][k] - P[5][k], ux, uy,
+                                                    uz, rest[k], Fresh ? T(0) : alpha[k], gamma[k], inv_den[k], l, nx,
+                                                    ny, nz, len);
         dl = len > 0 ? dl : T(0);
         lambda[k] = l + dl;
-        const T da = ca[k] * dl, db = cb[k] * dl;
+        const T da = W[0][k] * dl, db = W[1][k] * dl;
         P[0][k] += da * nx, P[1][k] += da * ny, P[2][k] += da * nz;
         P[3][k] -= db * nx, P[4][k] -= db * ny, P[5][k] -= db * nz;
       }
@@ -207,7 +228,7 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
   for (Index k = 0; k < m; ++k) t.Theta[k] = atan2_rational(t.Theta[k], t.Cos[k]);
   const T* rest = b.rest.data() + c0;
   if constexpr (Xpbd) {
-    const T* alpha = b.alpha.data() + c0;
+    const T* alpha = coefficients(b.alpha_same, b.alpha, c0);
     const T* gamma = b.gamma.data() + c0;
     T* lambda = b.lambda.data() + c0;
 #pragma omp simd
@@ -215,10 +236,11 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
       const T violation = wrap_angle(t.Theta[k] - rest[k]);
       const T wgrad = t.Wgrad[k];
       const bool move = wgrad > 0;
-      const T l = lambda[k];
+      const T l = Fresh ? T(0) : lambda[k];
       // Without damping (every γ +0) (1 + γ) w|∇C|² is w|∇C|² and γ moved is +0, whose
       // subtraction changes no value: the damping terms are left out, with the same bits.
-      T num = -violation - alpha[k] * l, den = wgrad + alpha[k];
+      T num = -violation, den = wgrad + alpha[k];
+      if constexpr (!Fresh) num = num - alpha[k] * l;
       if constexpr (Damped) {
         const T g = gamma[k];
         // the motion since the sub-step's start, p - x, along the gradient
@@ -233,7 +255,7 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
       lambda[k] = l + t.S[k];
     }
   } else {
-    const T* kk = b.k.data() + c0;
+    const T* kk = coefficients(b.k_same, b.k, c0);
 #pragma omp simd
     for (Index k = 0; k < m; ++k) {
       const T violation = wrap_angle(t.Theta[k] - rest[k]);
@@ -262,29 +284,33 @@ CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped, T>& t, co
 }
 
 // Constraints c0 + [0, m) as one block, gathered and scattered one constraint at a time.
-template <bool Xpbd, bool Damped = Xpbd, class T>
+template <bool Xpbd, bool Damped = Xpbd, class T, bool Fresh = false>
 CSB_ATAN2_INLINE void bending_block(ColouredFourT<T>& b, Index c0, Index m, const T* r, T* o, const T* x) {
   BendingBlock<Xpbd, Damped, T> t;
   bending_gather(t, b, c0, 0, m, r, x);
-  bending_compute(t, b, c0, m);
+  bending_compute<Xpbd, Damped, T, Fresh>(t, b, c0, m);
   bending_scatter(t, b, c0, 0, m, o == r, o);
 }
 
 // The blocks of constraints [begin, end) of one colour (they share no particle). Defined in
 // coloured_bending.cpp: on x86-64 compiled for SSE2, AVX2 and AVX-512, the best the processor
 // has taken (same bits: IEEE operations give the same results in any lane width, and no copy
-// contracts to FMA).
-void bending_blocks(ColouredFour& b, bool xpbd, Index begin, Index end, const Real* r, Real* o, const Real* x);
-void bending_blocks(ColouredFourT<float>& b, bool xpbd, Index begin, Index end, const float* r, float* o,
+// contracts to FMA). fresh (XPBD): the multipliers are +0 (a sub-step's first sweep; see
+// bending_compute).
+void bending_blocks(ColouredFour& b, bool xpbd, bool fresh, Index begin, Index end, const Real* r, Real* o,
+                    const Real* x);
+void bending_blocks(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end, const float* r, float* o,
                     const float* x);
 
 // Constraints [begin, end) of one colour. independent: they share no particle (blocks);
-// otherwise one at a time, in order.
+// otherwise one at a time, in order. fresh: as bending_blocks'.
 template <bool Xpbd, class T>
-inline void project_bending_range(ColouredFourT<T>& b, Index begin, Index end, bool independent, const T* r, T* o,
-                                  const T* x) {
+inline void project_bending_range(ColouredFourT<T>& b, Index begin, Index end, bool independent, bool fresh,
+                                  const T* r, T* o, const T* x) {
   if (independent) {
-    bending_blocks(b, Xpbd, begin, end, r, o, x);
+    bending_blocks(b, Xpbd, fresh, begin, end, r, o, x);
+  } else if (Xpbd && fresh) {
+    for (Index c = begin; c < end; ++c) bending_block<Xpbd, Xpbd, T, Xpbd>(b, c, 1, r, o, x);
   } else {
     for (Index c = begin; c < end; ++c) bending_block<Xpbd>(b, c, 1, r, o, x);
   }

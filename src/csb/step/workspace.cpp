@@ -88,10 +88,12 @@ void PbdStepper::prepare(const Model& model) {
 }
 
 
-void PbdStepper::zero_coloured_multipliers(int share, int shares) {
-  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.bending.pair_lambda,
-                               &coloured_.volume.lambda, &coloured_.attachments.lambda, &lambda_.balloon})
+void PbdStepper::zero_coloured_multipliers(int share, int shares, bool bending) {
+  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.volume.lambda, &coloured_.attachments.lambda,
+                               &lambda_.balloon})
     zero_share(*l, share, shares);
+  if (bending)
+    for (std::vector<Real>* l : {&coloured_.bending.lambda, &coloured_.bending.pair_lambda}) zero_share(*l, share, shares);
   for (std::vector<Real>& l : lambda_.family) zero_share(l, share, shares);
 }
 
@@ -168,7 +170,7 @@ std::size_t PbdStepper::workspace_bytes() const {
 void PbdStepper::reset_multipliers() {
   if (settings_.method != Method::Xpbd) return;
   if (settings_.ordering == Ordering::Coloured) {
-    zero_coloured_multipliers(0, 1);
+    zero_coloured_multipliers(0, 1, true);
     lambda_stale_ = true;
     return;
   }
