@@ -327,10 +327,10 @@ class PbdStepper : public Integrator {
   Real guard_size_ = 0, guard_v0_ = 0, guard_t0_ = 0;
   bool guard_started_ = false;
   // XPBD: share `share` of `shares` (equal runs) of every coloured batch's multipliers, and the
-  // balloons', set to zero (at the start of a sub-step); the bending elements' only if `bending`
-  // (the blocked kernels' first sweep of a sub-step writes them without reading them; the relaxed
-  // Jacobi kernel reads them).
-  void zero_coloured_multipliers(int share, int shares, bool bending);
+  // balloons', set to zero (at the start of a sub-step); the distance and bending constraints'
+  // only if `all` (a sub-step's first sweep writes them without reading them, but for the relaxed
+  // Jacobi kernels, which read them).
+  void zero_coloured_multipliers(int share, int shares, bool all);
   // The sub-steps of a step done entirely by the projection's threads, in one fork of the team
   // (no contacts, grabs or Müller damping): the prediction before the sweeps, the finiteness
   // check and the velocity update after them, the update and the next sub-step's prediction in

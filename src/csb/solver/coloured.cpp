@@ -126,9 +126,9 @@ void shared_colours(Share& share, const Colouring& colours, Index g, Index chunk
 // single-precision step's, which has no volumes or attachments); cb: their colourings.
 // start(g): called at the start of group g's task (a part's interior or an interface).
 // relax: XPBD with averaged Jacobi (else null), see PbdStepper::set_relaxation.
-// first: the sub-step's first sweep, whose XPBD bending multipliers (and their edges') are +0:
-// the blocked kernels write them without reading them, so they need not be set to zero before it
-// (but for the relaxed kernel's, which reads them).
+// first: the sub-step's first sweep, whose XPBD distance and bending multipliers are +0: their
+// kernels write them without reading them, so they need not be set to zero before it (but for
+// the relaxed Jacobi kernels, which read them).
 template <Method M, bool Jacobi, class S, class Start>
 void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, ColouredDistanceT<S>& d,
                     ColouredFourT<S>& bend, bool approx, bool first, const S* r, S* o, const S* x, const Real* relax,
@@ -142,7 +142,9 @@ void sweep_coloured(Share& share, const Model& model, ColouredBatches& cb, Colou
     }
     if constexpr (M == Method::Xpbd) {
       if (independent) {
-        distance_xpbd_range(d, begin, end, r, o, x);
+        first ? distance_xpbd_range<true>(d, begin, end, r, o, x) : distance_xpbd_range<false>(d, begin, end, r, o, x);
+      } else if (first) {
+        for (Index c = begin; c < end; ++c) distance_xpbd<false, S, true>(d, c, r, o, x);
       } else {
         for (Index c = begin; c < end; ++c) distance_xpbd(d, c, r, o, x);
       }
@@ -244,10 +246,9 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
   }
   if (advancing) accel_.resize(3 * static_cast<std::size_t>(n));
   const Index parts = model.num_parts;
-  // XPBD: group g's multipliers set to zero (but the bending elements', which the first sweep
-  // writes without reading).
+  // XPBD: group g's multipliers set to zero (but the distance and bending constraints', which the
+  // first sweep writes without reading).
   const auto zero_group_multipliers = [&](Index g) {
-    zero_group(coloured_.distance_colours, g, coloured_.distance.lambda);
     zero_group(model.volume.colours, g, coloured_.volume.lambda);
     zero_group(model.attachments.colours, g, coloured_.attachments.lambda);
   };
@@ -392,14 +393,8 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   const Index parts = model.num_parts;
   const bool in_tasks = coloured_.rest_empty;
-  // XPBD's multipliers set to zero: share t of `shares` of the float distance batch's, or group
-  // g's (the bending elements' are written, not read, by a sub-step's first sweep).
-  const auto zero_multipliers = [&](int t, int shares) {
-    if constexpr (M == Method::Xpbd) zero_share(single_.distance.lambda, t, shares);
-  };
-  const auto zero_group_multipliers = [&](Index g) {
-    zero_group(coloured_.distance_colours, g, single_.distance.lambda);
-  };
+  // (XPBD's multipliers need not be set to zero: a sub-step's first sweep writes them without
+  // reading them, see sweep_coloured.)
   // p from x and v (Euler: v += a first) for coordinates [k0, k1).
   const auto predict = [&](Index k0, Index k1) {
     for (Index k = k0; k < k1; ++k) {
@@ -421,12 +416,10 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   };
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
-    const int shares = share.team.size();
     share.split(n, [&](Index begin, Index end) {
       narrow_positions(state.x.data(), x, begin, end);
       narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end);
       predict(kStride<float> * begin, kStride<float> * end);
-      if (!in_tasks) zero_multipliers(t, shares);
     });
     for (int sub = 0; sub < substeps; ++sub) {
       for (int it = 0; it < iterations; ++it) {
@@ -434,7 +427,6 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
         // particles updated and predicted, before its first sweep's constraints.
         const auto start = [&](Index g) {
           if (!in_tasks || it > 0) return;
-          if constexpr (M == Method::Xpbd) zero_group_multipliers(g);
           if (sub > 0 && g < parts)
             for (Index k = coloured_.part_run_offsets[g]; k < coloured_.part_run_offsets[g + 1]; ++k) {
               const auto [begin, end] = coloured_.part_runs[k];
@@ -451,7 +443,6 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
       share.split(n, [&](Index begin, Index end) {
         if (!last) {
           advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
-          zero_multipliers(t, shares);
           return;
         }
         update(kStride<float> * begin, kStride<float> * end);

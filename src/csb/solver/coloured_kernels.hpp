@@ -66,12 +66,22 @@ CSB_INLINE void distance_pbd(const ColouredDistanceT<S>& b, Index c, const S* r,
 // so the same bits.
 constexpr Index kDistanceBlock = 32;
 
+// The senses of constraints c0 + [0, m) as S, in a loop of their own: a loop that mixes the int8
+// senses with the doubles runs as many lanes as the int8 fill a register (16 or 32, unrolled in
+// 128-bit registers for XPBD's, spilling), where one of doubles alone runs four.
+template <class S>
+CSB_INLINE void senses(const ColouredDistanceT<S>& b, Index c0, Index m, S* out) {
+  const std::int8_t* sense = b.sense.data() + c0;
+  for (Index k = 0; k < m; ++k) out[k] = sense[k];
+}
+
 // s of constraints c0 + [0, m) from their d = p_i - p_j.
 template <bool Approx, class S>
 CSB_INLINE void distance_pbd_block_s(const ColouredDistanceT<S>& b, Index c0, Index m, const S* dx, const S* dy,
                                      const S* dz, S* s) {
   const S* rest = b.rest.data() + c0;
-  const std::int8_t* sense = b.sense.data() + c0;
+  alignas(64) S sense[kDistanceBlock];
+  senses(b, c0, m, sense);
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
     const S dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
@@ -192,10 +202,12 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistance& b, Index c0, I
 
 // XPBD (Macklin 2016 Eq. (18), (26)); see project_distance_xpbd. x: positions at the sub-step's start.
 // Relaxed (averaged Jacobi): Δλ, after its sign clamp, scaled by the constraint's relaxation
-// min(relax_i, relax_j) (PbdStepper::set_relaxation).
-template <bool Relaxed = false, class S>
+// min(relax_i, relax_j) (PbdStepper::set_relaxation). Fresh: the multiplier is +0 (a sub-step's
+// first sweep): not read, α̃ λ (+0) not subtracted, the same bits (as bending_compute's).
+template <bool Relaxed = false, class S, bool Fresh = false>
 CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o, const S* x,
                               const Real* relax = nullptr) {
+  static_assert(!(Relaxed && Fresh));
   const Index i = kStride<S> * b.i[c], j = kStride<S> * b.j[c];
   const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const S len = std::sqrt(dx * dx + dy * dy + dz * dz);
@@ -206,8 +218,10 @@ CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o
   const S along = nx * ((r[i] - x[i]) - (r[j] - x[j])) + ny * ((r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1])) +
                      nz * ((r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]));
   const S moved = g == 0 ? S(0) : along;
-  const S lambda = b.lambda[c];
-  S dl = (-cl - b.alpha[c] * lambda - g * moved) * b.inv_den[c];
+  const S lambda = Fresh ? S(0) : b.lambda[c];
+  S num = -cl;
+  if constexpr (!Fresh) num = num - b.alpha[c] * lambda;
+  S dl = (num - g * moved) * b.inv_den[c];
   const S sense = b.sense[c];
   const S next = lambda + dl;
   const S clamped = sense > 0 ? std::max(next, S(0)) : std::min(next, S(0));
@@ -228,23 +242,25 @@ CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o
 // distance_pbd_blocks: per constraint the operations of distance_xpbd in its order, so the same
 // bits. Damped: the batch has damping (ColouredDistance::damped), and the gather also takes the
 // motion since the sub-step's start, u = (p_i - x_i) - (p_j - x_j); without it every γ is +0,
-// γ moved is +0, and its subtraction changes no value.
-template <bool Damped, class S>
+// γ moved is +0, and its subtraction changes no value. Fresh: the multipliers are +0 (see
+// distance_xpbd).
+template <bool Damped, bool Fresh, class S>
 CSB_INLINE void distance_xpbd_block_s(ColouredDistanceT<S>& b, Index c0, Index m, S* dx, S* dy, S* dz,
                                       const S* ux, const S* uy, const S* uz, S* s) {
   const S* rest = b.rest.data() + c0;
-  const std::int8_t* sense = b.sense.data() + c0;
+  alignas(64) S sense[kDistanceBlock];
+  senses(b, c0, m, sense);
   const S* alpha = b.alpha.data() + c0;
   const S* gamma = b.gamma.data() + c0;
   const S* inv_den = b.inv_den.data() + c0;
   S* lambda = b.lambda.data() + c0;
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
-    const S l = lambda[k];
+    const S l = Fresh ? S(0) : lambda[k];
     S nx, ny, nz, len;
-    S dl = xpbd_distance_step<Damped>(dx[k], dy[k], dz[k], Damped ? ux[k] : S(0), Damped ? uy[k] : S(0),
-                                         Damped ? uz[k] : S(0), rest[k], alpha[k], gamma[k], inv_den[k], l, nx,
-                                         ny, nz, len);
+    S dl = xpbd_distance_step<Damped, S, Fresh>(dx[k], dy[k], dz[k], Damped ? ux[k] : S(0), Damped ? uy[k] : S(0),
+                                                Damped ? uz[k] : S(0), rest[k], Fresh ? S(0) : alpha[k], gamma[k],
+                                                inv_den[k], l, nx, ny, nz, len);
     const S sn = sense[k];
     const S next = l + dl;
     const S clamped = sn > 0 ? std::max(next, S(0)) : std::min(next, S(0));
@@ -268,7 +284,7 @@ CSB_INLINE void distance_motion_gather(const ColouredDistanceT<S>& b, Index c0, 
   }
 }
 
-template <bool Damped, class S>
+template <bool Damped, bool Fresh, class S>
 CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                      const S* x) {
   constexpr Index B = kDistanceBlock;
@@ -278,7 +294,7 @@ CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, 0, m, r, x, ux, uy, uz);
-    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_xpbd_block_s<Damped, Fresh>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
     distance_scatter<true>(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
@@ -380,7 +396,7 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Ind
   }
 }
 
-template <bool Damped, class S>
+template <bool Damped, bool Fresh, class S>
 CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                                const S* x) {
   constexpr Index B = kDistanceBlock;
@@ -391,7 +407,7 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index be
     distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
-    distance_xpbd_block_s<Damped>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_xpbd_block_s<Damped, Fresh>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
     distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
     distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
   }
@@ -405,10 +421,10 @@ __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDist
                                                                const S* r, S* o) {
   distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
 }
-template <bool Damped, class S>
+template <bool Damped, bool Fresh, class S>
 __attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistanceT<S>& b, Index begin, Index end,
                                                                 const S* r, S* o, const S* x) {
-  distance_xpbd_blocks_rows<Damped>(b, begin, end, r, o, x);
+  distance_xpbd_blocks_rows<Damped, Fresh>(b, begin, end, r, o, x);
 }
 #endif
 
@@ -431,18 +447,19 @@ inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index
 }
 
 // XPBD over the independent constraints [begin, end) of one colour: the blocks, with AVX2 gathers
-// and scatters where the processor has them.
-template <class S>
+// and scatters where the processor has them. Fresh: the multipliers are +0 (see distance_xpbd).
+template <bool Fresh, class S>
 inline void distance_xpbd_range(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
 #if defined(CSB_DISTANCE_AVX2)
   if (kernels_use_avx2())
-    return b.damped ? distance_xpbd_blocks_avx2<true>(b, begin, end, r, o, x)
-                    : distance_xpbd_blocks_avx2<false>(b, begin, end, r, o, x);
+    return b.damped ? distance_xpbd_blocks_avx2<true, Fresh>(b, begin, end, r, o, x)
+                    : distance_xpbd_blocks_avx2<false, Fresh>(b, begin, end, r, o, x);
 #elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-  return b.damped ? distance_xpbd_blocks_rows<true>(b, begin, end, r, o, x)
-                  : distance_xpbd_blocks_rows<false>(b, begin, end, r, o, x);
+  return b.damped ? distance_xpbd_blocks_rows<true, Fresh>(b, begin, end, r, o, x)
+                  : distance_xpbd_blocks_rows<false, Fresh>(b, begin, end, r, o, x);
 #endif
-  b.damped ? distance_xpbd_blocks<true>(b, begin, end, r, o, x) : distance_xpbd_blocks<false>(b, begin, end, r, o, x);
+  b.damped ? distance_xpbd_blocks<true, Fresh>(b, begin, end, r, o, x)
+           : distance_xpbd_blocks<false, Fresh>(b, begin, end, r, o, x);
 }
 
 // Dihedral bending: csb/solver/coloured_bending.hpp (SIMD blocks, polynomial atan2).

@@ -88,12 +88,12 @@ void PbdStepper::prepare(const Model& model) {
 }
 
 
-void PbdStepper::zero_coloured_multipliers(int share, int shares, bool bending) {
-  for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.volume.lambda, &coloured_.attachments.lambda,
-                               &lambda_.balloon})
+void PbdStepper::zero_coloured_multipliers(int share, int shares, bool all) {
+  for (std::vector<Real>* l : {&coloured_.volume.lambda, &coloured_.attachments.lambda, &lambda_.balloon})
     zero_share(*l, share, shares);
-  if (bending)
-    for (std::vector<Real>* l : {&coloured_.bending.lambda, &coloured_.bending.pair_lambda}) zero_share(*l, share, shares);
+  if (all)
+    for (std::vector<Real>* l : {&coloured_.distance.lambda, &coloured_.bending.lambda, &coloured_.bending.pair_lambda})
+      zero_share(*l, share, shares);
   for (std::vector<Real>& l : lambda_.family) zero_share(l, share, shares);
 }
 
