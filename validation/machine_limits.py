@@ -105,8 +105,12 @@ def profile(n: int, out: Path) -> str:
     perf = shutil.which("perf")
     if not perf:
         return "no profile: perf is not on PATH (Debian: apt-get install linux-perf)"
-    for lib in ROOT.glob("build/*/src/csb/libcsb.so"):  # the unstripped library, for the names
-        subprocess.run([perf, "buildid-cache", "-a", str(lib)], capture_output=True)
+    # The unstripped library of the build tree, for the names: added to perf's build-id cache, or
+    # put in place of the installed (stripped) file an earlier `perf record` cached under the same
+    # build-id (-u replaces only such an entry).
+    for lib in ROOT.glob("build/*/src/csb/libcsb.so"):
+        for flag in ("-a", "-u"):
+            subprocess.run([perf, "buildid-cache", flag, str(lib)], capture_output=True)
     text = []
     for precision in ("float64", "float32"):
         with tempfile.TemporaryDirectory() as tmp:
