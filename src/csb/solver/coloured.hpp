@@ -67,10 +67,12 @@ struct ColouredFourT {
   std::vector<S> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
   // A coefficient every element of the batch shares (the usual case: one material): a block's
   // worth of copies (kSameCopies) that the blocked kernels read in place of the batch's array,
-  // which then stays out of the memory a sweep streams (8 B an element each); empty when the
-  // elements differ. Kept with the arrays they copy (build_coloured, narrowed).
+  // which then stays out of the memory a sweep streams (8 B an element each in double); empty
+  // when the elements differ. Kept with the arrays they copy (build_coloured, narrowed).
   std::vector<S> k_same, alpha_same, pair_alpha_same;
 };
+
+using ColouredFour = ColouredFourT<Real>;
 
 // The copies a ColouredFourT::*_same holds: one block of the blocked kernels (kBendingBlock).
 constexpr Index kSameCopies = 48;
@@ -84,7 +86,6 @@ std::vector<S> same_copies(const std::vector<S>& v) {
     if (std::memcmp(&e, &v[0], sizeof(S)) != 0) return {};
   return std::vector<S>(kSameCopies, v[0]);
 }
-using ColouredFour = ColouredFourT<Real>;
 
 struct ColouredAttachments {
   std::vector<Index> i;

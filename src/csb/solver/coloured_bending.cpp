@@ -38,7 +38,8 @@ CSB_ATAN2_INLINE void blocks_portable(ColouredFourT<S>& b, bool xpbd, bool fresh
     if (!xpbd)
       bending_block<false, false, S, false>(b, c0, m, r, o, x);
     else if (b.damped)
-      fresh ? bending_block<true, true, S, true>(b, c0, m, r, o, x) : bending_block<true, true, S, false>(b, c0, m, r, o, x);
+      fresh ? bending_block<true, true, S, true>(b, c0, m, r, o, x)
+            : bending_block<true, true, S, false>(b, c0, m, r, o, x);
     else
       fresh ? bending_block<true, false, S, true>(b, c0, m, r, o, x)
             : bending_block<true, false, S, false>(b, c0, m, r, o, x);
