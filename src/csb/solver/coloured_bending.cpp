@@ -2,9 +2,9 @@
 //
 // The three loops of bending_block (geometry, angle, multiplier) are ~150 flops, six divisions
 // and a square root per constraint in SIMD lanes: two lanes of doubles with SSE2, the portable
-// x86-64 baseline, four with AVX2 and AVX-512. The portable build compiles them three times
-// and picks the best copy the processor runs once (GCC's __builtin_cpu_supports); a native
-// build (CSB_NATIVE) compiles one copy for its own machine. None enables FMA contraction
+// x86-64 baseline, four with AVX2, four or eight with AVX-512. The portable build compiles them
+// three times and picks the best copy the processor runs once (GCC's __builtin_cpu_supports); a
+// native build (CSB_NATIVE) compiles one copy for its own machine. None enables FMA contraction
 // (-ffp-contract=off), and IEEE +, -, *, /, sqrt and selects give the same bits in any lane
 // width, so all copies give the same results (tests/test_bending_simd.py compares them bit for
 // bit).
@@ -230,9 +230,10 @@ __attribute__((target("avx2"))) void blocks_avx2(ColouredFour& b, bool xpbd, boo
 #endif
 
 #if CSB_BENDING_AVX2
-// The same code compiled for AVX-512 (F, VL, DQ, BW): still four lanes (the 256-bit registers;
-// 512-bit ones were no faster on the Zen 4 this was measured on, which splits them in two), but
-// 32 registers instead of 16 and mask registers for the selects. Bending: 14.6 → 13.3 ns per
+// The same code compiled for AVX-512 (F, VL, DQ, BW): GCC runs some of its loops in 512-bit
+// registers (eight doubles, sixteen floats) and the rest in 256-bit ones, with 32 registers
+// instead of 16 and mask registers for the selects (the Zen 4 this was measured on splits a
+// 512-bit operation in two, so the registers and masks are the gain). Bending: 14.6 → 13.3 ns per
 // projection. The distance blocks were slower so (3.94 → 4.25 ns) and keep the AVX2 copy
 // (papers/benchmarks.md).
 __attribute__((target("avx2,avx512f,avx512vl,avx512dq,avx512bw"))) void blocks_avx512(
