@@ -141,8 +141,8 @@ CSB_ATAN2_INLINE void bending_compute(BendingBlock<Xpbd, Damped, T>& t, Coloured
     if (!b.pair_rest.empty()) {
       // The distance constraints on the elements' edges (a, b) first (XPBD, as distance_xpbd:
       // d = a - b, n = d/|d|, Δλ = (-(|d| - rest) - α̃ λ - γ n·((a - x_a) - (b - x_b))) / ((1 + γ)
-      // Σw + α̃), Δa = +ca Δλ n, Δb = -cb Δλ n; ca = cb = 0 and no multiplier step for an element
-      // without one), into the block's positions of a and b.
+      // Σw + α̃), Δa = +w_a Δλ n, Δb = -w_b Δλ n; an element without one has 1/denominator 0, so
+      // Δλ = ±0 and no step), into the block's positions of a and b.
       const T* rest = b.pair_rest.data() + c0;
       const T* alpha = coefficients(b.pair_alpha_same, b.pair_alpha, c0);
       const T* gamma = b.pair_gamma.data() + c0;
