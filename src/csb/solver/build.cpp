@@ -181,9 +181,9 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
       }
     }
     f.damped = f.damped || any_damping(f.pair_gamma);
-    f.k_same = same_copies(f.k);
-    f.alpha_same = same_copies(f.alpha);
-    f.pair_alpha_same = same_copies(f.pair_alpha);
+    f.k_same = same_copies(f.k, kBendingBlock);  // a block's worth: the kernels read them per block
+    f.alpha_same = same_copies(f.alpha, kBendingBlock);
+    f.pair_alpha_same = same_copies(f.pair_alpha, kBendingBlock);
   }
   four(cb.volume, model.volume.particles, model.volume.rest_volume, model.volume.colours, k_volume_, a_volume_, g_volume_);
   {

@@ -66,7 +66,7 @@ struct ColouredFourT {
   std::vector<S> pair_rest, pair_ca, pair_cb;
   std::vector<S> pair_alpha, pair_gamma, pair_inv_den, pair_lambda;
   // A coefficient every element of the batch shares (the usual case: one material): a block's
-  // worth of copies (kSameCopies) that the blocked kernels read in place of the batch's array,
+  // worth of copies (kBendingBlock) that the blocked kernels read in place of the batch's array,
   // which then stays out of the memory a sweep streams (8 B an element each in double); empty
   // when the elements differ. Kept with the arrays they copy (build_coloured, narrowed).
   std::vector<S> k_same, alpha_same, pair_alpha_same;
@@ -74,17 +74,14 @@ struct ColouredFourT {
 
 using ColouredFour = ColouredFourT<Real>;
 
-// The copies a ColouredFourT::*_same holds: one block of the blocked kernels (kBendingBlock).
-constexpr Index kSameCopies = 48;
-
-// kSameCopies copies of v's value when v is not empty and its values are all alike (bit for
-// bit), else empty (ColouredFourT::k_same and the others).
+// `copies` copies of v's value when v is not empty and its values are all alike (bit for bit),
+// else empty (ColouredFourT::k_same and the others).
 template <class S>
-std::vector<S> same_copies(const std::vector<S>& v) {
+std::vector<S> same_copies(const std::vector<S>& v, Index copies) {
   if (v.empty()) return {};
   for (const S& e : v)
     if (std::memcmp(&e, &v[0], sizeof(S)) != 0) return {};
-  return std::vector<S>(kSameCopies, v[0]);
+  return std::vector<S>(static_cast<std::size_t>(copies), v[0]);
 }
 
 struct ColouredAttachments {

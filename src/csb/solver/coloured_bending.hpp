@@ -67,7 +67,6 @@ CSB_ATAN2_INLINE T xpbd_distance_step(T dx, T dy, T dz, T ux, T uy, T uz, T rest
 // 1.05-1.10 at 256², 128 1.07-1.08 at 64². The SSE2 and AVX2 copies do not care (1.00). The
 // block size changes no result: every constraint is computed alike in any lane and block.
 constexpr Index kBendingBlock = 48;
-static_assert(kBendingBlock <= kSameCopies, "a block reads at most kSameCopies shared coefficients");
 
 // Where a block of constraints c0 + [0, kBendingBlock) reads a coefficient: the batch's shared
 // copies when its elements all have the same (ColouredFourT::k_same and the others), else their
