@@ -118,14 +118,27 @@ CSB_AVX2_INLINE void blocks_rows(ColouredFour& b, bool xpbd, bool fresh, Index b
   }
 }
 
+// The new coordinates p + ws g of eight (four) constraints' particles, lane by lane (bending_scatter's
+// operations).
+CSB_AVX2_INLINE __m256 moved(const float* p, const float* g, __m256 ws) {
+  return _mm256_add_ps(_mm256_load_ps(p), _mm256_mul_ps(ws, _mm256_load_ps(g)));
+}
+CSB_AVX2_INLINE __m128 moved(const float* p, const float* g, __m128 ws) {
+  return _mm_add_ps(_mm_load_ps(p), _mm_mul_ps(ws, _mm_load_ps(g)));
+}
+
 // Single precision (the single-precision step, Gauss-Seidel: o = r): eight constraints gathered at
 // a time in 256-bit registers (then four, in 128-bit ones), the new positions P + (S w_s) ∇_s C
-// (bending_scatter's operations) computed in SIMD lanes and stored eight (four) constraints at a
-// time; a block's last m % 4 constraints one at a time.
-template <bool Xpbd, bool Damped, bool Fresh>
-CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index m, const float* r, float* o,
+// (bending_scatter's operations) computed in SIMD lanes as they are stored, eight (four)
+// constraints at a time (a pass of its own over the block, writing them into G first, cost 7 % of
+// the kernel's time); a block's last m % 4 constraints one at a time. Full: m is kBendingBlock, a
+// constant the compiler sizes the loops by (no remainder code: 2 % here; the double blocks did
+// not gain).
+template <bool Xpbd, bool Damped, bool Fresh, bool Full>
+CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index block_size, const float* r, float* o,
                                        const float* x) {
   using namespace avx2;
+  const Index m = Full ? kBendingBlock : block_size;
   constexpr Index S = kStride<float>;
   BendingBlock<Xpbd, Damped, float> t;
   const Index m8 = m - m % 8, m4 = m - m % 4;
@@ -179,32 +192,39 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
   }
   bending_gather(t, b, c0, m4, m, r, x);
   bending_compute<Xpbd, Damped, float, Fresh>(t, b, c0, m);
-  for (int s = 0; s < 4; ++s)
-    for (int e = 0; e < 3; ++e) {
-      float* g = t.G[3 * s + e];
-      const float* pe = t.P[3 * s + e];
-      const float* ws = t.W[s];
-#pragma omp simd
-      for (Index k = 0; k < m4; ++k) g[k] = pe[k] + (t.S[k] * ws[k]) * g[k];
-    }
   for (Index k = 0; k < m8; k += 8) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
                            S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
-      store8(o, at, _mm256_load_ps(&t.G[3 * s][k]), _mm256_load_ps(&t.G[3 * s + 1][k]),
-             _mm256_load_ps(&t.G[3 * s + 2][k]));
+      const __m256 ws = _mm256_mul_ps(_mm256_load_ps(&t.S[k]), _mm256_load_ps(&t.W[s][k]));
+      store8(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
+             moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws));
     }
   }
   for (Index k = m8; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const Index at[4] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s]};
-      store_rows(o, at, _mm_load_ps(&t.G[3 * s][k]), _mm_load_ps(&t.G[3 * s + 1][k]),
-                 _mm_load_ps(&t.G[3 * s + 2][k]));
+      const __m128 ws = _mm_mul_ps(_mm_load_ps(&t.S[k]), _mm_load_ps(&t.W[s][k]));
+      store_rows(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
+                 moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws));
     }
   }
   bending_scatter(t, b, c0, m4, m, true, o);
+}
+
+template <bool Full>
+CSB_AVX2_INLINE void block_single(ColouredFourT<float>& b, bool xpbd, bool fresh, Index c0, Index m, const float* r,
+                                  float* o, const float* x) {
+  if (!xpbd)
+    block_rows_single<false, false, false, Full>(b, c0, m, r, o, x);
+  else if (b.damped)
+    fresh ? block_rows_single<true, true, true, Full>(b, c0, m, r, o, x)
+          : block_rows_single<true, true, false, Full>(b, c0, m, r, o, x);
+  else
+    fresh ? block_rows_single<true, false, true, Full>(b, c0, m, r, o, x)
+          : block_rows_single<true, false, false, Full>(b, c0, m, r, o, x);
 }
 
 CSB_AVX2_INLINE void blocks_rows_single(ColouredFourT<float>& b, bool xpbd, bool fresh, Index begin, Index end,
@@ -212,14 +232,10 @@ CSB_AVX2_INLINE void blocks_rows_single(ColouredFourT<float>& b, bool xpbd, bool
   if (o != r) return blocks_portable(b, xpbd, fresh, begin, end, r, o, x);
   for (Index c0 = begin; c0 < end; c0 += kBendingBlock) {
     const Index m = std::min(kBendingBlock, end - c0);
-    if (!xpbd)
-      block_rows_single<false, false, false>(b, c0, m, r, o, x);
-    else if (b.damped)
-      fresh ? block_rows_single<true, true, true>(b, c0, m, r, o, x)
-            : block_rows_single<true, true, false>(b, c0, m, r, o, x);
+    if (m == kBendingBlock)
+      block_single<true>(b, xpbd, fresh, c0, m, r, o, x);
     else
-      fresh ? block_rows_single<true, false, true>(b, c0, m, r, o, x)
-            : block_rows_single<true, false, false>(b, c0, m, r, o, x);
+      block_single<false>(b, xpbd, fresh, c0, m, r, o, x);
   }
 }
 
