@@ -112,7 +112,7 @@ def test_precision_tables_time_both_precisions_of_each_method():
             assert 0 < f64 < 1e3 and 0 < f32 < 1e3
             assert r[method + "_speedup"] == pytest.approx(f64 / f32)
     assert "XPBD 64/32" in format_precision_table(rows)
-    kernels = precision_rates(n=8, sweeps=2, rounds=1)
+    kernels = precision_rates(sizes=(8,), sweeps=2, rounds=1)
     assert [(r["kind"], r["method"]) for r in kernels] == [("distance", "pbd"), ("distance", "xpbd"),
                                                            ("bending", "pbd"), ("bending", "xpbd")]
     for r in kernels:

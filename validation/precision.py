@@ -86,7 +86,7 @@ def main() -> None:
         write_csv(out / f"precision_{name}.csv", accuracy[name])
     speed = precision_table(sizes=(64, 128) if args.quick else (64, 128, 256), rounds=3 if args.quick else 7)
     write_csv(out / "precision_speed.csv", [{k: v for k, v in r.items() if not k.endswith("_spread")} for r in speed])
-    kernels = precision_rates(rounds=3 if args.quick else 7)
+    kernels = precision_rates(sizes=(128,) if args.quick else (128, 256), rounds=3 if args.quick else 7)
     write_csv(out / "precision_kernels.csv", [{k: v for k, v in r.items() if not k.endswith("_spread")}
                                               for r in kernels])
 

@@ -344,43 +344,49 @@ def format_precision_table(rows: Sequence[dict]) -> str:
     return "\n".join(lines)
 
 
-def precision_rates(n: int = 128, *, sweeps: int = 10, rounds: int = 7, threads: int = 1) -> list[dict]:
+def precision_rates(sizes: Sequence[int] = (128, 256), *, sweeps: int = 10, rounds: int = 7,
+                    threads: int = 1) -> list[dict]:
     """The distance and bending kernels in double and single precision: ns per projection of each
-    type (a cloth of that type only, one sub-step of `sweeps` coloured Gauss-Seidel sweeps, so that
-    predict and update are a few per cent), PBD and XPBD, float64 and float32 taking turns within
-    each round; medians, min-max and the speed-up float64 / float32."""
+    type (an n x n cloth of that type only, one sub-step of `sweeps` coloured Gauss-Seidel sweeps, so
+    that predict and update are a few per cent), PBD and XPBD, float64 and float32 taking turns
+    within each round; medians, min-max and the speed-up float64 / float32. At 128 x 128 the
+    positions fit a core's L2 cache in either precision (384 and 256 KiB); at 256 x 256 the double
+    ones (1.5 MiB) do not, the float ones (1 MiB) nearly."""
     rows = []
-    for kind in ("distance", "bending"):
-        model = cloth_simulation(n, iterations=sweeps, constraints="stretch" if kind == "distance" else "bending").model
-        for method in ("pbd", "xpbd"):
-            runs = {}
-            for precision in ("float64", "float32"):
-                stepper = _core.PbdStepper(method=method, dt=1 / 60, iterations=sweeps, threads=threads,
-                                           precision=precision)
-                state = model.initial_state()
-                stepper.step(model, state, 2)
-                runs[precision] = (stepper, state, [])
-            for r in range(rounds):
-                for precision in (("float64", "float32") if r % 2 == 0 else ("float32", "float64")):
-                    stepper, state, times = runs[precision]
-                    times += time_steps(stepper, model, state, steps=3, rounds=1, warmup=0)
-            per_step = runs["float64"][0].projections_per_step(model)
-            row = dict(kind=kind, method=method, constraints=model.num_constraints,
-                       threads=runs["float64"][0].threads_used)
-            for precision, (_, _, times) in runs.items():
-                row[precision] = 1e6 * statistics.median(times) / per_step
-                row[precision + "_spread"] = (1e6 * min(times) / per_step, 1e6 * max(times) / per_step)
-            row["speedup"] = row["float64"] / row["float32"]
-            rows.append(row)
+    for n in sizes:
+        for kind in ("distance", "bending"):
+            model = cloth_simulation(n, iterations=sweeps,
+                                     constraints="stretch" if kind == "distance" else "bending").model
+            for method in ("pbd", "xpbd"):
+                runs = {}
+                for precision in ("float64", "float32"):
+                    stepper = _core.PbdStepper(method=method, dt=1 / 60, iterations=sweeps, threads=threads,
+                                               precision=precision)
+                    state = model.initial_state()
+                    stepper.step(model, state, 2)
+                    runs[precision] = (stepper, state, [])
+                for r in range(rounds):
+                    for precision in (("float64", "float32") if r % 2 == 0 else ("float32", "float64")):
+                        stepper, state, times = runs[precision]
+                        times += time_steps(stepper, model, state, steps=3, rounds=1, warmup=0)
+                per_step = runs["float64"][0].projections_per_step(model)
+                row = dict(n=n, kind=kind, method=method, constraints=model.num_constraints,
+                           threads=runs["float64"][0].threads_used)
+                for precision, (_, _, times) in runs.items():
+                    row[precision] = 1e6 * statistics.median(times) / per_step
+                    row[precision + "_spread"] = (1e6 * min(times) / per_step, 1e6 * max(times) / per_step)
+                row["speedup"] = row["float64"] / row["float32"]
+                rows.append(row)
     return rows
 
 
 def format_precision_rates(rows: Sequence[dict]) -> str:
-    head = (f"{'type':>9} {'method':>6} {'threads':>7} {'constraints':>11} {'f64 ns':>7} {'(min-max)':>13} "
-            f"{'f32 ns':>7} {'(min-max)':>13} {'64/32':>6}")
+    head = (f"{'cloth':>9} {'type':>9} {'method':>6} {'threads':>7} {'constraints':>11} {'f64 ns':>7} "
+            f"{'(min-max)':>13} {'f32 ns':>7} {'(min-max)':>13} {'64/32':>6}")
     lines = [head, "-" * len(head)]
     for r in rows:
-        lines.append(f"{r['kind']:>9} {r['method']:>6} {r['threads']:>7} {r['constraints']:>11} {r['float64']:>7.2f} "
+        lines.append(f"{r['n']:>4}x{r['n']:<4} {r['kind']:>9} {r['method']:>6} {r['threads']:>7} "
+                     f"{r['constraints']:>11} {r['float64']:>7.2f} "
                      f"{'({:.2f}-{:.2f})'.format(*r['float64_spread']):>13} {r['float32']:>7.2f} "
                      f"{'({:.2f}-{:.2f})'.format(*r['float32_spread']):>13} {r['speedup']:>6.2f}")
     return "\n".join(lines)
@@ -697,8 +703,8 @@ def cost_tables(parts: Sequence[str] = COST_PARTS, *, rounds: int = 5,
               "four taking turns within each round")
         out["precision"] = precision_table(rounds=rounds)
         print(format_precision_table(out["precision"]))
-        print("\nThe distance and bending kernels in each precision: a 128 x 128 cloth of one constraint type, one "
-              "sub-step of 10 coloured Gauss-Seidel sweeps, one thread, float64 and float32 taking turns")
+        print("\nThe distance and bending kernels in each precision: 128 x 128 and 256 x 256 cloths of one constraint "
+              "type, one sub-step of 10 coloured Gauss-Seidel sweeps, one thread, float64 and float32 taking turns")
         out["precision-kernels"] = precision_rates(rounds=rounds)
         print(format_precision_rates(out["precision-kernels"]))
     if "types" in parts:
