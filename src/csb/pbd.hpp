@@ -407,11 +407,14 @@ class PbdStepper : public Integrator {
   ColouredBatches coloured_;             // the batches in colour order (coloured ordering)
   // Precision::Single: the distance and bending batches rounded to float (coloured_'s own are
   // then released), and during a step the particles' positions x, velocities v (Verlet: previous
-  // positions), predictions p and per-sub-step accelerations (h g; Verlet h² g) in float.
+  // positions), predictions p and per-sub-step accelerations (h g; Verlet h² g) in float. w: each
+  // particle's inverse mass as the bending batch has it, kept in the pads of x and p (and of
+  // Verlet's previous positions; the velocities' and accelerations' pads are 0, so that every
+  // prediction and update leaves them so): the bending kernels read it with the particle.
   struct {
     ColouredDistanceT<float> distance;
     ColouredFourT<float> bending;
-    std::vector<float> x, v, p, accel;
+    std::vector<float> x, v, p, accel, w;
   } single_;
   struct {
     std::vector<Index> distance, bending, volume, attachment;

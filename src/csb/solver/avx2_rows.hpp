@@ -97,10 +97,17 @@ CSB_AVX2_INLINE void store_rows(Real* o, const Index at[4], __m256d x, __m256d y
   _mm_storeh_pd(o + at[3] + 2, z23);
 }
 
-// Single precision, four particles in 128-bit registers. Positions are x, y, z and a pad of 0
-// per particle (kStride<float> = 4, solver/coloured.hpp): a particle is one 128-bit load, and one
-// 128-bit store writes it back with its pad still 0.
+// Single precision, four particles in 128-bit registers. Positions are x, y, z and a pad per
+// particle (kStride<float> = 4, solver/coloured.hpp; the single-precision step keeps the
+// particle's inverse mass there): a particle is one 128-bit load, and one 128-bit store writes it
+// back with its pad.
 CSB_AVX2_INLINE __m128 load_xyz(const float* p) { return _mm_loadu_ps(p); }
+
+// Rows x, y, z and pad of four [x, y, z, pad] vectors (lane l from v_l).
+CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z, __m128& w) {
+  _MM_TRANSPOSE4_PS(v0, v1, v2, v3);
+  x = v0, y = v1, z = v2, w = v3;
+}
 
 // Rows x, y, z of four [x, y, z, ·] vectors (lane l from v_l).
 CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z) {
@@ -113,9 +120,9 @@ CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x,
   z = _mm_movelh_ps(t2, t3);
 }
 
-// The four [x, y, z, 0] vectors of rows x, y, z.
-CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 v[4]) {
-  v[0] = x, v[1] = y, v[2] = z, v[3] = _mm_setzero_ps();
+// The four [x, y, z, w] vectors of rows x, y, z and w (the pads).
+CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 w, __m128 v[4]) {
+  v[0] = x, v[1] = y, v[2] = z, v[3] = w;
   _MM_TRANSPOSE4_PS(v[0], v[1], v[2], v[3]);
 }
 
@@ -130,14 +137,14 @@ CSB_AVX2_INLINE void rows4(const float* q, __m128& a, __m128& b, __m128& c, __m1
 template <bool Subtract = false>
 CSB_AVX2_INLINE void add_rows(float* o, const Index at[4], __m128 dx, __m128 dy, __m128 dz) {
   __m128 d[4];
-  particles(dx, dy, dz, d);
+  particles(dx, dy, dz, _mm_setzero_ps(), d);  // the pad + 0: unchanged
   for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], update<Subtract>(_mm_loadu_ps(o + at[l]), d[l]));
 }
 
-// Lane l of the rows (x, y, z) written to the particle at o + at[l], its pad 0.
-CSB_AVX2_INLINE void store_rows(float* o, const Index at[4], __m128 x, __m128 y, __m128 z) {
+// Lane l of the rows (x, y, z, pad) written to the particle at o + at[l].
+CSB_AVX2_INLINE void store_rows(float* o, const Index at[4], __m128 x, __m128 y, __m128 z, __m128 w) {
   __m128 v[4];
-  particles(x, y, z, v);
+  particles(x, y, z, w, v);
   for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], v[l]);
 }
 
@@ -149,14 +156,19 @@ CSB_AVX2_INLINE __m256 load_pair(const float* a, const float* b) {
   return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(a)), _mm_loadu_ps(b), 1);
 }
 
-CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x, __m256& y, __m256& z) {
+// Rows x, y, z and the pads w of the four [x, y, z, w] register pairs (lane l from v_l); Pad: w
+// too (one more shuffle).
+template <bool Pad = false>
+CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x, __m256& y, __m256& z,
+                           __m256* w = nullptr) {
   const __m256 t0 = _mm256_unpacklo_ps(v0, v1);  // x0 x1 y0 y1 | x4 x5 y4 y5
   const __m256 t1 = _mm256_unpacklo_ps(v2, v3);  // x2 x3 y2 y3 | x6 x7 y6 y7
-  const __m256 t2 = _mm256_unpackhi_ps(v0, v1);  // z0 z1 ·  ·  | z4 z5 ·  ·
-  const __m256 t3 = _mm256_unpackhi_ps(v2, v3);  // z2 z3 ·  ·  | z6 z7 ·  ·
+  const __m256 t2 = _mm256_unpackhi_ps(v0, v1);  // z0 z1 w0 w1 | z4 z5 w4 w5
+  const __m256 t3 = _mm256_unpackhi_ps(v2, v3);  // z2 z3 w2 w3 | z6 z7 w6 w7
   x = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));
   y = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));
   z = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));
+  if constexpr (Pad) *w = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));
 }
 
 // Rows x, y, z of the eight particles at o + at[l].
@@ -164,24 +176,28 @@ CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m25
   rows8(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
         load_pair(o + at[3], o + at[7]), x, y, z);
 }
+// The same and their pads, w.
+CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z, __m256& w) {
+  rows8<true>(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
+              load_pair(o + at[3], o + at[7]), x, y, z, &w);
+}
 
-// The [x, y, z, 0] vectors of rows x, y, z: v[l] holds particles l and l + 4.
-CSB_AVX2_INLINE void particles8(__m256 x, __m256 y, __m256 z, __m256 v[4]) {
-  const __m256 zero = _mm256_setzero_ps();
-  const __m256 t0 = _mm256_unpacklo_ps(x, y);     // x0 y0 x1 y1 | x4 y4 x5 y5
-  const __m256 t1 = _mm256_unpackhi_ps(x, y);     // x2 y2 x3 y3 | x6 y6 x7 y7
-  const __m256 t2 = _mm256_unpacklo_ps(z, zero);  // z0 0  z1 0  | z4 0  z5 0
-  const __m256 t3 = _mm256_unpackhi_ps(z, zero);  // z2 0  z3 0  | z6 0  z7 0
+// The [x, y, z, w] vectors of rows x, y, z and pads w: v[l] holds particles l and l + 4.
+CSB_AVX2_INLINE void particles8(__m256 x, __m256 y, __m256 z, __m256 w, __m256 v[4]) {
+  const __m256 t0 = _mm256_unpacklo_ps(x, y);  // x0 y0 x1 y1 | x4 y4 x5 y5
+  const __m256 t1 = _mm256_unpackhi_ps(x, y);  // x2 y2 x3 y3 | x6 y6 x7 y7
+  const __m256 t2 = _mm256_unpacklo_ps(z, w);  // z0 w0 z1 w1 | z4 w4 z5 w5
+  const __m256 t3 = _mm256_unpackhi_ps(z, w);  // z2 w2 z3 w3 | z6 w6 z7 w7
   v[0] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(1, 0, 1, 0));
   v[1] = _mm256_shuffle_ps(t0, t2, _MM_SHUFFLE(3, 2, 3, 2));
   v[2] = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(1, 0, 1, 0));
   v[3] = _mm256_shuffle_ps(t1, t3, _MM_SHUFFLE(3, 2, 3, 2));
 }
 
-// Lane l of the rows (x, y, z) written to the particle at o + at[l], its pad 0.
-CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m256 z) {
+// Lane l of the rows (x, y, z, pad) written to the particle at o + at[l].
+CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m256 z, __m256 w) {
   __m256 v[4];
-  particles8(x, y, z, v);
+  particles8(x, y, z, w, v);
   for (int l = 0; l < 4; ++l) {
     _mm_storeu_ps(o + at[l], _mm256_castps256_ps128(v[l]));
     _mm_storeu_ps(o + at[l + 4], _mm256_extractf128_ps(v[l], 1));
@@ -192,7 +208,7 @@ CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m
 template <bool Subtract = false>
 CSB_AVX2_INLINE void add8(float* o, const Index at[8], __m256 dx, __m256 dy, __m256 dz) {
   __m256 d[4];
-  particles8(dx, dy, dz, d);
+  particles8(dx, dy, dz, _mm256_setzero_ps(), d);  // the pad + 0: unchanged
   for (int l = 0; l < 4; ++l) {
     const __m256 sum = update<Subtract>(load_pair(o + at[l], o + at[l + 4]), d[l]);
     _mm_storeu_ps(o + at[l], _mm256_castps256_ps128(sum));

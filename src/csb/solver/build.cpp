@@ -247,9 +247,12 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     cb.bending = {};
     // What a prediction adds, h g (Verlet: h² g), 0 where w = 0: fixed for the model.
     const Real h = substep_size(), step = settings_.front_end == FrontEnd::Verlet ? h * h : h;
-    for (Index i = 0; i < model.num_particles(); ++i)
+    single_.w.resize(static_cast<std::size_t>(model.num_particles()));
+    for (Index i = 0; i < model.num_particles(); ++i) {
       for (int e = 0; e < 3; ++e)
         single_.accel[kStride<float> * i + e] = static_cast<float>(w[i] > 0 ? step * settings_.gravity[e] : 0);
+      single_.w[i] = static_cast<float>(w[i]);  // as narrowed rounds the bending batch's w
+    }
   }
   cb.model_id = model.id;
 }

@@ -369,7 +369,9 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
 // Precision::Single: `count` sub-steps of a step (at most kFusedSubsteps, so that a step of very
 // many can be interrupted between them) in one fork of the team, in float. The state is
 // rounded to float (positions, and velocities or Verlet's previous positions: each particle's x,
-// y, z and a pad of 0, kStride<float> apart; h g per particle is the model's, set when built),
+// y, z and a pad, kStride<float> apart, the pad its inverse mass w, 0 for velocities; h g per
+// particle is the model's, set when built, its pad 0, so that every prediction and update gives
+// the pads of x and p w again, w + h 0 or w + keep (w - w) + 0, and those of v 0),
 // then per sub-step the prediction, `iterations` coloured Gauss-Seidel sweeps of the float
 // batches (the kernels of the double sweep, instantiated for float: twice the SIMD lanes, half
 // the bytes) and the update. When every constraint lies in a part or an interface (no rest
@@ -417,8 +419,8 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
     share.split(n, [&](Index begin, Index end) {
-      narrow_positions(state.x.data(), x, begin, end);
-      narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end);
+      narrow_positions(state.x.data(), x, begin, end, single_.w.data());
+      narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end, verlet ? single_.w.data() : nullptr);
       predict(kStride<float> * begin, kStride<float> * end);
     });
     for (int sub = 0; sub < substeps; ++sub) {

@@ -27,7 +27,8 @@ namespace csb {
 
 // Where particle i's coordinates start in the solver's positions: double x, y, z per particle,
 // 3 apart (the state's own layout); float x, y, z and a pad, 4 apart: one 128-bit load or store a
-// particle (the single-precision step keeps the pads at 0).
+// particle (the single-precision step keeps the particle's inverse mass in the pads of positions
+// and predictions, 0 in those of velocities).
 template <class S>
 constexpr Index kStride = std::is_same_v<S, float> ? 4 : 3;
 

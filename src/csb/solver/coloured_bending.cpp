@@ -128,7 +128,9 @@ CSB_AVX2_INLINE __m128 moved(const float* p, const float* g, __m128 ws) {
 }
 
 // Single precision (the single-precision step, Gauss-Seidel: o = r): eight constraints gathered at
-// a time in 256-bit registers (then four, in 128-bit ones), the new positions P + (S w_s) ∇_s C
+// a time in 256-bit registers (then four, in 128-bit ones), each particle's inverse mass w with it
+// (the step keeps it in the position's pad: the batch's own w, 16 B a constraint, is not
+// streamed; 3-5 % of the kernel's time at 256²), the new positions P + (S w_s) ∇_s C
 // (bending_scatter's operations) computed in SIMD lanes as they are stored, eight (four)
 // constraints at a time (a pass of its own over the block, writing them into G first, cost 7 % of
 // the kernel's time); a block's last m % 4 constraints one at a time. Full: m is kBendingBlock, a
@@ -147,11 +149,12 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
     for (int s = 0; s < 4; ++s) {
       const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
                            S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
-      __m256 ex, ey, ez;
-      gather8(r, at, ex, ey, ez);
+      __m256 ex, ey, ez, ew;
+      gather8(r, at, ex, ey, ez, ew);
       _mm256_store_ps(&t.P[3 * s][k], ex);
       _mm256_store_ps(&t.P[3 * s + 1][k], ey);
       _mm256_store_ps(&t.P[3 * s + 2][k], ez);
+      _mm256_store_ps(&t.W[s][k], ew);
       if constexpr (Damped) {
         gather8(x, at, ex, ey, ez);
         _mm256_store_ps(&t.X[3 * s][k], ex);
@@ -169,11 +172,12 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
         v[l] = load_xyz(r + i);
         if constexpr (Damped) d[l] = load_xyz(x + i);
       }
-      __m128 ex, ey, ez;
-      rows(v[0], v[1], v[2], v[3], ex, ey, ez);
+      __m128 ex, ey, ez, ew;
+      rows(v[0], v[1], v[2], v[3], ex, ey, ez, ew);
       _mm_store_ps(&t.P[3 * s][k], ex);
       _mm_store_ps(&t.P[3 * s + 1][k], ey);
       _mm_store_ps(&t.P[3 * s + 2][k], ez);
+      _mm_store_ps(&t.W[s][k], ew);
       if constexpr (Damped) {
         rows(d[0], d[1], d[2], d[3], ex, ey, ez);
         _mm_store_ps(&t.X[3 * s][k], ex);
@@ -182,14 +186,6 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
       }
     }
   }
-  for (Index k = 0; k < m4; k += 4) {
-    __m128 wa, wb, wc, wd;
-    rows4(b.w[c0 + k].data(), wa, wb, wc, wd);
-    _mm_store_ps(&t.W[0][k], wa);
-    _mm_store_ps(&t.W[1][k], wb);
-    _mm_store_ps(&t.W[2][k], wc);
-    _mm_store_ps(&t.W[3][k], wd);
-  }
   bending_gather(t, b, c0, m4, m, r, x);
   bending_compute<Xpbd, Damped, float, Fresh>(t, b, c0, m);
   for (Index k = 0; k < m8; k += 8) {
@@ -197,18 +193,18 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
     for (int s = 0; s < 4; ++s) {
       const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
                            S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
-      const __m256 ws = _mm256_mul_ps(_mm256_load_ps(&t.S[k]), _mm256_load_ps(&t.W[s][k]));
+      const __m256 w = _mm256_load_ps(&t.W[s][k]), ws = _mm256_mul_ps(_mm256_load_ps(&t.S[k]), w);
       store8(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
-             moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws));
+             moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws), w);
     }
   }
   for (Index k = m8; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const Index at[4] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s]};
-      const __m128 ws = _mm_mul_ps(_mm_load_ps(&t.S[k]), _mm_load_ps(&t.W[s][k]));
+      const __m128 w = _mm_load_ps(&t.W[s][k]), ws = _mm_mul_ps(_mm_load_ps(&t.S[k]), w);
       store_rows(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
-                 moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws));
+                 moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws), w);
     }
   }
   bending_scatter(t, b, c0, m4, m, true, o);

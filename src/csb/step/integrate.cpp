@@ -168,22 +168,32 @@ void stepper_detail::advance_single(float* x, float* v, float* p, const float* a
 
 namespace {
 
-// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z, 0 (4 apart), rounded to
+// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z, pad (4 apart), rounded to
 // nearest, and back (exact). The AVX2 copies move a particle as one conversion and a masked load
 // of three doubles, or a 128-bit and a 64-bit store (a masked store is slow on some processors):
 // the same values.
-void narrow_base(const Real* in, float* out, Index begin, Index end) {
-  for (Index i = begin; i < end; ++i)
+void narrow_base(const Real* in, float* out, Index begin, Index end, const float* pad) {
+  for (Index i = begin; i < end; ++i) {
     for (int e = 0; e < 3; ++e) out[4 * i + e] = static_cast<float>(in[3 * i + e]);
+    out[4 * i + 3] = pad ? pad[i] : 0.0f;
+  }
 }
 void widen_base(const float* in, Real* out, Index begin, Index end) {
   for (Index i = begin; i < end; ++i)
     for (int e = 0; e < 3; ++e) out[3 * i + e] = in[4 * i + e];
 }
 #if CSB_HAS_AVX2_ROWS
-__attribute__((target("avx2"))) void narrow_avx2(const Real* in, float* out, Index begin, Index end) {
+__attribute__((target("avx2"))) void narrow_avx2(const Real* in, float* out, Index begin, Index end,
+                                                 const float* pad) {
   const __m256i xyz = _mm256_setr_epi64x(-1, -1, -1, 0);
-  for (Index i = begin; i < end; ++i) _mm_storeu_ps(out + 4 * i, _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)));
+  if (!pad) {
+    for (Index i = begin; i < end; ++i)
+      _mm_storeu_ps(out + 4 * i, _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)));
+    return;
+  }
+  for (Index i = begin; i < end; ++i)
+    _mm_storeu_ps(out + 4 * i,
+                  _mm_blend_ps(_mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)), _mm_set1_ps(pad[i]), 0b1000));
 }
 __attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Index begin, Index end) {
   for (Index i = begin; i < end; ++i) {
@@ -196,11 +206,11 @@ __attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Inde
 
 }  // namespace
 
-void stepper_detail::narrow_positions(const Real* in, float* out, Index begin, Index end) {
+void stepper_detail::narrow_positions(const Real* in, float* out, Index begin, Index end, const float* pad) {
 #if CSB_HAS_AVX2_ROWS
-  if (kernels_use_avx2()) return narrow_avx2(in, out, begin, end);
+  if (kernels_use_avx2()) return narrow_avx2(in, out, begin, end, pad);
 #endif
-  narrow_base(in, out, begin, end);
+  narrow_base(in, out, begin, end, pad);
 }
 
 void stepper_detail::widen_positions(const float* in, Real* out, Index begin, Index end) {

@@ -100,9 +100,9 @@ void zero_group(const Colouring& c, Index g, std::vector<S>& lambda) {
 void advance_single(float* x, float* v, float* p, const float* a, float h, float keep, bool verlet, Index k0,
                     Index k1);
 
-// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z (4 apart, the pads left
-// as they are), rounded to nearest; and back, exactly (step/integrate.cpp).
-void narrow_positions(const Real* in, float* out, Index begin, Index end);
+// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z and a pad (4 apart),
+// rounded to nearest, the pad pad[i] (null: 0); and back, exactly (step/integrate.cpp).
+void narrow_positions(const Real* in, float* out, Index begin, Index end, const float* pad);
 void widen_positions(const float* in, Real* out, Index begin, Index end);
 
 template <class T>
