@@ -126,11 +126,6 @@ CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 w, __m128 v[
   _MM_TRANSPOSE4_PS(v[0], v[1], v[2], v[3]);
 }
 
-// Rows of four consecutive [a, b, c, d] quadruples at q (16 floats): a, b, c, d of each.
-CSB_AVX2_INLINE void rows4(const float* q, __m128& a, __m128& b, __m128& c, __m128& d) {
-  a = _mm_loadu_ps(q), b = _mm_loadu_ps(q + 4), c = _mm_loadu_ps(q + 8), d = _mm_loadu_ps(q + 12);
-  _MM_TRANSPOSE4_PS(a, b, c, d);
-}
 
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].

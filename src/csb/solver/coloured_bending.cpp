@@ -129,13 +129,13 @@ CSB_AVX2_INLINE __m128 moved(const float* p, const float* g, __m128 ws) {
 
 // Single precision (the single-precision step, Gauss-Seidel: o = r): eight constraints gathered at
 // a time in 256-bit registers (then four, in 128-bit ones), each particle's inverse mass w with it
-// (the step keeps it in the position's pad: the batch's own w, 16 B a constraint, is not
-// streamed; 3-5 % of the kernel's time at 256²), the new positions P + (S w_s) ∇_s C
-// (bending_scatter's operations) computed in SIMD lanes as they are stored, eight (four)
-// constraints at a time (a pass of its own over the block, writing them into G first, cost 7 % of
-// the kernel's time); a block's last m % 4 constraints one at a time. Full: m is kBendingBlock, a
-// constant the compiler sizes the loops by (no remainder code: 2 % here; the double blocks did
-// not gain).
+// (the step keeps it in the position's pad: the batch's own w, 16 B a constraint, is neither
+// streamed nor transposed; about 5 % of the kernel's time at 128², 15 % at 256²), the new
+// positions P + (S w_s) ∇_s C (bending_scatter's operations) computed in SIMD lanes as they are
+// stored, eight (four) constraints at a time (a pass of its own over the block, writing them into
+// G first, cost 7 % of the kernel's time); a block's last m % 4 constraints one at a time, with
+// the batch's w. Full: m is kBendingBlock, a constant the compiler sizes the loops by (no
+// remainder code: 2 % here; the double blocks did not gain).
 template <bool Xpbd, bool Damped, bool Fresh, bool Full>
 CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index block_size, const float* r, float* o,
                                        const float* x) {
