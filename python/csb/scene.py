@@ -72,7 +72,7 @@ class SolverSpec:
     ordering: str = "coloured"      # or "sequential" (the batches as built, one thread)
     threads: int = 0                # threads per colour; 0: the free cores (the result does not depend on it)
     max_speed: float = 0.0          # m/s, the divergence guard; 0: automatic (the model's size per sub-step, ...), inf: off
-    precision: str = "float64"      # the solver's scalar; "float32": distance and bending with pins, no contacts or grabs
+    precision: str = "float64"      # the solver's scalar; "float32": distance and bending with pins and kinematic grabs, no contacts
     # Any other method's own settings ([solver.settings]; csb.method_info(method).settings lists them).
     settings: tuple[tuple[str, Any], ...] = ()
 

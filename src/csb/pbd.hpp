@@ -104,9 +104,9 @@ struct PbdSettings {
   // positions) and predictions and the distance and bending constraints' data in float, twice
   // the SIMD lanes and half the bytes; the state is rounded to float at the step's start and
   // widened back at its end (deterministic within each precision). Single runs the coloured
-  // Gauss-Seidel sweep of a step without contacts, grabs or Müller damping, on models of distance
-  // and bending constraints and pins; other models and settings are refused with what stands in
-  // the way.
+  // Gauss-Seidel sweep of a step without contacts, compliant grabs or Müller damping, on models of
+  // distance and bending constraints and pins, with kinematic grabs; other models and settings
+  // are refused with what stands in the way.
   Precision precision = Precision::Double;
 };
 

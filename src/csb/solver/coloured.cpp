@@ -394,7 +394,20 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   float* a = single_.accel.data();
   bad_.assign(static_cast<std::size_t>(std::max(threads, 1)), -1);
   const Index parts = model.num_parts;
-  const bool in_tasks = coloured_.rest_empty;
+  // Kinematic grabs (check_single refuses compliant ones): each sub-step's predictions of the held
+  // particles (w = 0 in the batches and pads while held) are put at the hand, apply_grab_targets'
+  // straight line, after every thread's prediction and before the sweeps. With grabs the update
+  // and prediction are split by particle (not in the parts' tasks), so that one thread can place
+  // the hands between them and the sweeps.
+  const bool held = !grabs_.empty();
+  const bool in_tasks = coloured_.rest_empty && !held;
+  const auto hold = [&](int sub) {
+    const Real fraction = Real(first + sub + 1) / settings_.substeps;
+    for (const Grab& g : grabs_) {
+      const Vec3 at = fraction >= 1 ? g.target : Vec3(g.from + fraction * (g.target - g.from));
+      for (int e = 0; e < 3; ++e) p[kStride<float> * g.particle + e] = static_cast<float>(at[e]);
+    }
+  };
   // (XPBD's multipliers need not be set to zero: a sub-step's first sweep writes them without
   // reading them, see sweep_coloured.)
   // p from x and v (Euler: v += a first) for coordinates [k0, k1).
@@ -423,6 +436,7 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
       narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end, verlet ? single_.w.data() : nullptr);
       predict(kStride<float> * begin, kStride<float> * end);
     });
+    if (held) share.single([&] { hold(0); });
     for (int sub = 0; sub < substeps; ++sub) {
       for (int it = 0; it < iterations; ++it) {
         // In tasks: the group's multipliers zeroed, and (after the first sub-step) the part's
@@ -453,6 +467,7 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
           if (!std::isfinite(xi[0]) || !std::isfinite(xi[1]) || !std::isfinite(xi[2])) bad_[t] = i;
         }
       });
+      if (held && !last) share.single([&] { hold(sub + 1); });
     }
     for (const Index b : bad_)
       if (b >= 0) return;  // every thread sees the same bad_ after the last barrier

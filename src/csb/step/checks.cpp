@@ -182,8 +182,8 @@ void PbdStepper::fail_non_finite(State& state, int sub, Index i, Real h) {
 }
 
 // Precision::Single covers the coloured Gauss-Seidel sweep of distance and bending constraints
-// with pins, in a step without contacts, grabs or moving colliders: what else the model or the
-// stepper holds is named.
+// with pins and kinematic grabs, in a step without contacts, compliant grabs or moving colliders:
+// what else the model or the stepper holds is named.
 void PbdStepper::check_single(const Model& model) const {
   std::vector<std::string> what;
   const auto count = [&](Index k, const char* name) {
@@ -197,12 +197,15 @@ void PbdStepper::check_single(const Model& model) const {
   count(family, "constraints of families (tethers, ...)");
   count(static_cast<Index>(model.colliders.size()), "colliders");
   if (!self_.empty()) what.push_back("self-collision");
-  count(static_cast<Index>(grabs_.size()), "grabs");
+  Index compliant = 0;
+  for (const Grab& g : grabs_) compliant += g.compliance > 0;
+  count(compliant, "compliant grabs (compliance > 0)");
   if (what.empty()) return;
   std::string list;
   for (std::size_t k = 0; k < what.size(); ++k) list += (k ? ", " : "") + what[k];
-  throw InvalidArgument("precision 'float32' runs distance and bending constraints and pins without contacts or "
-                        "grabs; this model and stepper have " + list + ": use precision 'float64'");
+  throw InvalidArgument("precision 'float32' runs distance and bending constraints, pins and kinematic grabs "
+                        "(compliance 0) without contacts; this model and stepper have " + list +
+                        ": use precision 'float64'");
 }
 
 // The request before any work: the state matches the model, steps >= 0 and within a year's work
