@@ -192,8 +192,8 @@ def test_float32_refuses_a_model_with_what_it_does_not_run_naming_it():
 
 
 def dragged(model, precision: str, *, substeps: int = 10, threads: int = 1, steps: int = 30):
-    """The cloth with its far edge's middle particle held by a kinematic grab whose hand moves up
-    1 cm and back 0.5 cm a step; the state and the hand's last position."""
+    """The cloth with its far edge's middle particle held by a kinematic grab whose hand moves 1 cm
+    up (y) and 0.5 cm along z a step; the state, the particle and the hand's last position."""
     state = model.initial_state()
     stepper = csb.PbdStepper(method="xpbd", substeps=substeps, iterations=1, threads=threads, precision=precision)
     i = int(np.argmin(np.linalg.norm(np.asarray(state.x) - [0.0, 1.0, 0.5], axis=1)))

@@ -139,6 +139,9 @@ struct Grab {
   Vec3 from = Vec3::Zero();    // m, where the hand was at the end of the previous step
   Real compliance = 0;         // m/N
   bool pinned = false;         // the model pins the particle: released, it stops where it is
+  // Where the hand is `fraction` of the way through the step, on the straight line from `from`
+  // (1 and beyond: exactly at `target`).
+  Vec3 at(Real fraction) const { return fraction >= 1 ? target : Vec3(from + fraction * (target - from)); }
 };
 
 // What the collision detection of the last sub-step found.

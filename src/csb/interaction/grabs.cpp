@@ -60,7 +60,7 @@ void PbdStepper::release(int handle) {
 void PbdStepper::apply_grab_targets(Real fraction) {
   grab_fraction_ = fraction;
   for (const Grab& g : grabs_)
-    if (g.compliance == 0) p_.col(g.particle) = fraction >= 1 ? g.target : Vec3(g.from + fraction * (g.target - g.from));
+    if (g.compliance == 0) p_.col(g.particle) = g.at(fraction);
   std::fill(grab_lambda_.begin(), grab_lambda_.end(), 0.0);
 }
 

@@ -103,21 +103,22 @@ CSB_AVX2_INLINE void store_rows(Real* o, const Index at[4], __m256d x, __m256d y
 // back with its pad.
 CSB_AVX2_INLINE __m128 load_xyz(const float* p) { return _mm_loadu_ps(p); }
 
-// Rows x, y, z and pad of four [x, y, z, pad] vectors (lane l from v_l).
+// Rows x, y, z and pads w of four [x, y, z, w] vectors (lane l from v_l).
 CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z, __m128& w) {
-  _MM_TRANSPOSE4_PS(v0, v1, v2, v3);
-  x = v0, y = v1, z = v2, w = v3;
-}
-
-// Rows x, y, z of four [x, y, z, ·] vectors (lane l from v_l).
-CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z) {
   const __m128 t0 = _mm_unpacklo_ps(v0, v1);  // x0 x1 y0 y1
   const __m128 t1 = _mm_unpacklo_ps(v2, v3);  // x2 x3 y2 y3
-  const __m128 t2 = _mm_unpackhi_ps(v0, v1);  // z0 z1 ·  ·
-  const __m128 t3 = _mm_unpackhi_ps(v2, v3);  // z2 z3 ·  ·
+  const __m128 t2 = _mm_unpackhi_ps(v0, v1);  // z0 z1 w0 w1
+  const __m128 t3 = _mm_unpackhi_ps(v2, v3);  // z2 z3 w2 w3
   x = _mm_movelh_ps(t0, t1);
   y = _mm_movehl_ps(t1, t0);
   z = _mm_movelh_ps(t2, t3);
+  w = _mm_movehl_ps(t3, t2);
+}
+
+// The same without the pads (the compiler drops their shuffle).
+CSB_AVX2_INLINE void rows(__m128 v0, __m128 v1, __m128 v2, __m128 v3, __m128& x, __m128& y, __m128& z) {
+  __m128 w;
+  rows(v0, v1, v2, v3, x, y, z, w);
 }
 
 // The four [x, y, z, w] vectors of rows x, y, z and w (the pads).
@@ -151,11 +152,10 @@ CSB_AVX2_INLINE __m256 load_pair(const float* a, const float* b) {
   return _mm256_insertf128_ps(_mm256_castps128_ps256(_mm_loadu_ps(a)), _mm_loadu_ps(b), 1);
 }
 
-// Rows x, y, z and the pads w of the four [x, y, z, w] register pairs (lane l from v_l); Pad: w
-// too (one more shuffle).
-template <bool Pad = false>
+// Rows x, y, z and the pads w of the four [x, y, z, w] register pairs (lane l from v_l); a caller
+// that does not use w leaves its shuffle to the compiler to drop.
 CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x, __m256& y, __m256& z,
-                           __m256* w = nullptr) {
+                           __m256& w) {
   const __m256 t0 = _mm256_unpacklo_ps(v0, v1);  // x0 x1 y0 y1 | x4 x5 y4 y5
   const __m256 t1 = _mm256_unpacklo_ps(v2, v3);  // x2 x3 y2 y3 | x6 x7 y6 y7
   const __m256 t2 = _mm256_unpackhi_ps(v0, v1);  // z0 z1 w0 w1 | z4 z5 w4 w5
@@ -163,18 +163,18 @@ CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x
   x = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(1, 0, 1, 0));
   y = _mm256_shuffle_ps(t0, t1, _MM_SHUFFLE(3, 2, 3, 2));
   z = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(1, 0, 1, 0));
-  if constexpr (Pad) *w = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));
+  w = _mm256_shuffle_ps(t2, t3, _MM_SHUFFLE(3, 2, 3, 2));
 }
 
-// Rows x, y, z of the eight particles at o + at[l].
-CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z) {
-  rows8(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
-        load_pair(o + at[3], o + at[7]), x, y, z);
-}
-// The same and their pads, w.
+// Rows x, y, z and pads w of the eight particles at o + at[l].
 CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z, __m256& w) {
-  rows8<true>(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
-              load_pair(o + at[3], o + at[7]), x, y, z, &w);
+  rows8(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
+        load_pair(o + at[3], o + at[7]), x, y, z, w);
+}
+// The same without the pads.
+CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z) {
+  __m256 w;
+  gather8(o, at, x, y, z, w);
 }
 
 // The [x, y, z, w] vectors of rows x, y, z and pads w: v[l] holds particles l and l + 4.

@@ -404,7 +404,7 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   const auto hold = [&](int sub) {
     const Real fraction = Real(first + sub + 1) / settings_.substeps;
     for (const Grab& g : grabs_) {
-      const Vec3 at = fraction >= 1 ? g.target : Vec3(g.from + fraction * (g.target - g.from));
+      const Vec3 at = g.at(fraction);
       for (int e = 0; e < 3; ++e) p[kStride<float> * g.particle + e] = static_cast<float>(at[e]);
     }
   };

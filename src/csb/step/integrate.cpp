@@ -186,14 +186,11 @@ void widen_base(const float* in, Real* out, Index begin, Index end) {
 __attribute__((target("avx2"))) void narrow_avx2(const Real* in, float* out, Index begin, Index end,
                                                  const float* pad) {
   const __m256i xyz = _mm256_setr_epi64x(-1, -1, -1, 0);
-  if (!pad) {
-    for (Index i = begin; i < end; ++i)
-      _mm_storeu_ps(out + 4 * i, _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)));
-    return;
+  for (Index i = begin; i < end; ++i) {
+    __m128 v = _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz));  // x, y, z, 0
+    if (pad) v = _mm_blend_ps(v, _mm_set1_ps(pad[i]), 0b1000);
+    _mm_storeu_ps(out + 4 * i, v);
   }
-  for (Index i = begin; i < end; ++i)
-    _mm_storeu_ps(out + 4 * i,
-                  _mm_blend_ps(_mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz)), _mm_set1_ps(pad[i]), 0b1000));
 }
 __attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Index begin, Index end) {
   for (Index i = begin; i < end; ++i) {
