@@ -405,52 +405,70 @@ void SelfCollision::find_patches(Group& g) {
 // loop (else loop is left as it was).
 bool SelfCollision::disc_boundary(const Triangle* tri, Index size, std::vector<std::array<Index, 2>>& loop,
                                   DiscScratch& s) {
-  auto& directed = s.directed;
-  auto& boundary = s.boundary;
+  // The vertices numbered locally, and each one's directed edges by counting: linear in the
+  // triangles (a vertex has a few). Sorting the edges instead took the step where the 40 x 40
+  // cape first folds (the unions its search meets there each tested) from 0.8 to 5.1 ms; it now
+  // takes 1.7.
+  auto& local = s.local;
   auto& vertices = s.vertices;
-  directed.clear();
   vertices.clear();
   for (Index i = 0; i < size; ++i)
-    for (int e = 0; e < 3; ++e) {
-      directed.push_back({tri[i][e], tri[i][(e + 1) % 3]});
-      vertices.push_back(tri[i][e]);
+    for (const Index v : tri[i]) {
+      if (static_cast<std::size_t>(v) >= local.size()) local.resize(static_cast<std::size_t>(v) + 1, -1);
+      if (local[v] < 0) local[v] = static_cast<Index>(vertices.size()), vertices.push_back(v);
     }
-  std::sort(directed.begin(), directed.end());
-  std::sort(vertices.begin(), vertices.end());
-  const Index V = static_cast<Index>(std::unique(vertices.begin(), vertices.end()) - vertices.begin());
-  bool disc = std::adjacent_find(directed.begin(), directed.end()) == directed.end();
-  boundary.clear();
-  Index interior = 0;  // directed edges whose reverse is in the set: each interior edge twice
-  for (const auto& d : directed) {
-    if (std::binary_search(directed.begin(), directed.end(), std::array<Index, 2>{d[1], d[0]}))
-      ++interior;
-    else
-      boundary.push_back(d);  // sorted by start vertex
-  }
-  const Index E = interior / 2 + static_cast<Index>(boundary.size());
-  disc = disc && !boundary.empty() && V - E + size == 1;
-  // One loop: each boundary vertex starts one boundary edge, and following them from the first
-  // edge returns to it after visiting them all, not before (two loops of one length would
-  // otherwise pass).
-  for (std::size_t i = 1; disc && i < boundary.size(); ++i) disc = boundary[i][0] != boundary[i - 1][0];
+  const Index V = static_cast<Index>(vertices.size());
+  auto& start = s.start;
+  auto& out = s.out;
+  start.assign(static_cast<std::size_t>(V) + 2, 0);
+  for (Index i = 0; i < size; ++i)
+    for (const Index v : tri[i]) ++start[local[v] + 2];
+  for (Index v = 0; v < V; ++v) start[v + 2] += start[v + 1];
+  out.resize(3 * static_cast<std::size_t>(size));
+  for (Index i = 0; i < size; ++i)
+    for (int e = 0; e < 3; ++e) out[start[local[tri[i][e]] + 1]++] = local[tri[i][(e + 1) % 3]];
+  // start[v] .. start[v + 1] now holds v's ends. No directed edge twice; a directed edge whose
+  // reverse is in the set is interior (each interior edge counted twice), else on the boundary,
+  // and each boundary vertex starts one boundary edge (next).
+  auto& next = s.next;
+  next.assign(V, -1);
+  bool disc = true;
+  Index interior = 0, boundary = 0;
+  for (Index a = 0; a < V && disc; ++a)
+    for (Index k = start[a]; k < start[a + 1]; ++k) {
+      const Index b = out[k];
+      for (Index j = start[a]; j < k; ++j) disc = disc && out[j] != b;
+      bool reverse = false;
+      for (Index j = start[b]; j < start[b + 1]; ++j) reverse = reverse || out[j] == a;
+      if (reverse) {
+        ++interior;
+      } else {
+        disc = disc && next[a] < 0;
+        next[a] = b, ++boundary;
+      }
+    }
+  for (const Index v : vertices) local[v] = -1;
+  const Index E = interior / 2 + boundary;
+  disc = disc && boundary > 0 && V - E + size == 1;
   if (!disc) return false;
-  const std::size_t start = loop.size();
-  std::array<Index, 2> at = boundary[0];
-  for (std::size_t n = 0; n < boundary.size(); ++n) {
-    loop.push_back(at);
-    const auto next = std::lower_bound(boundary.begin(), boundary.end(), std::array<Index, 2>{at[1], -1});
-    if (next == boundary.end() || (*next)[0] != at[1]) {
-      disc = false;
-      break;
-    }
-    at = *next;
-    if (at == boundary[0] && n + 1 < boundary.size()) {
+  // One loop: following the boundary edges from the one whose start is the least particle returns
+  // to it after visiting them all, not before (two loops of one length would otherwise pass).
+  // Each edge is directed as in its triangle.
+  Index first = -1;
+  for (Index v = 0; v < V; ++v)
+    if (next[v] >= 0 && (first < 0 || vertices[v] < vertices[first])) first = v;
+  const std::size_t at_start = loop.size();
+  Index at = first;
+  for (Index n = 0; n < boundary; ++n) {
+    loop.push_back({vertices[at], vertices[next[at]]});
+    at = next[at];
+    if (next[at] < 0 || (at == first && n + 1 < boundary)) {
       disc = false;
       break;
     }
   }
-  disc = disc && at == boundary[0];
-  if (!disc) loop.resize(start);
+  disc = disc && at == first;
+  if (!disc) loop.resize(at_start);
   return disc;
 }
 

@@ -207,9 +207,11 @@ class SelfCollision {
     Vec3& axis;
     Group::Carried& carry;
   };
+  // disc_boundary's working arrays: local, by particle, its index among the patch's vertices (-1
+  // outside a call); by local vertex, its particle, its directed edges' ends (out[start[v] ..
+  // start[v + 1])) and its boundary edge's end.
   struct DiscScratch {
-    std::vector<std::array<Index, 2>> directed, boundary;
-    std::vector<Index> vertices;
+    std::vector<Index> local, vertices, start, out, next;
   };
   void find_candidates(const Model& model, Group& g, const Positions& x, const Positions& p, const Real* w,
                        int substeps);
