@@ -255,6 +255,7 @@ class SelfCollision {
   std::vector<Vec3> box_lo_, box_hi_;    // m, the triangles' boxes
   std::vector<Vec3> edge_lo_, edge_hi_;  // m, the edges' boxes
   Positions end_p_;                      // m, the last sub-step certification's end positions
+  std::vector<Real> move2_;              // m², by particle, |p - x|² of the sub-step being certified
   std::vector<Real> across_x_, across_p_;  // m, a large node's particles across its axis (certify_node)
   std::vector<std::array<Index, 3>> node_pairs_;  // the traversal's stack: two nodes and their pair's patch
   std::vector<std::uint8_t> stopped_;    // per particle: stopped by the fail-safe this sub-step
