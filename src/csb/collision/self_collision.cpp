@@ -40,7 +40,10 @@
 #if defined(__SSE2__)
 #include <emmintrin.h>
 #endif
-#if defined(__GNUC__) && defined(__x86_64__)
+// The portable x86-64 build (SSE2) carries AVX2 copies of the per-sub-step passes below, taken
+// where the processor has AVX2 (kernels_use_avx2) and giving the same bits.
+#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
+#define CSB_SELF_AVX2 1
 #include <immintrin.h>
 #endif
 
@@ -86,14 +89,13 @@ inline __attribute__((always_inline)) bool within_body(const Real* __restrict y,
   }
   return true;
 }
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
-#define CSB_WITHIN_AVX2 1
+#if defined(CSB_SELF_AVX2)
 __attribute__((target("avx2"))) bool within_avx2(const Real* y, const Real* lo, const Real* hi, Index n) {
   return within_body(y, lo, hi, n);
 }
 #endif
 bool within(const Real* y, const Real* lo, const Real* hi, Index n) {
-#if defined(CSB_WITHIN_AVX2)
+#if defined(CSB_SELF_AVX2)
   if (kernels_use_avx2()) return within_avx2(y, lo, hi, n);
 #endif
   return within_body(y, lo, hi, n);
@@ -176,8 +178,7 @@ inline __attribute__((always_inline)) bool areas_above_body(const std::array<Ind
   return all[0] != 0;
 }
 
-#if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
-#define CSB_ACROSS_AVX2 1
+#if defined(CSB_SELF_AVX2)
 // AVX2 forms of the two above, to the same bits. A root like the 40 x 40 cape's (1,600 particles,
 // 3,042 triangles), certified on every sub-step, took 2.1 and 5.5 thousand cycles against 3.2 and
 // 10.5 (a micro-benchmark of the two loops), and the cape's median step with self-collision went
@@ -244,14 +245,14 @@ __attribute__((target("avx2"))) bool areas_above_avx2(const std::array<Index, 3>
 #endif
 
 void project_across(const Real* y, Index n, const Vec3& U, const Vec3& W, Real* out) {
-#if defined(CSB_ACROSS_AVX2)
+#if defined(CSB_SELF_AVX2)
   if (kernels_use_avx2()) return project_across_avx2(y, n, U, W, out);
 #endif
   project_across_body(y, n, U, W, out);
 }
 
 bool areas_above(const std::array<Index, 3>* across, Index size, const Real* P, Real scale, Real need, Real& least) {
-#if defined(CSB_ACROSS_AVX2)
+#if defined(CSB_SELF_AVX2)
   if (kernels_use_avx2()) return areas_above_avx2(across, size, P, scale, need, least);
 #endif
   return areas_above_body(across, size, P, scale, need, least);
@@ -282,7 +283,7 @@ bool swept_boxes_overlap_body(const Positions& x, const Positions& p, const std:
   return boxes_overlap(lo_a, hi_a, lo_b, hi_b);
 }
 
-#if defined(CSB_ACROSS_AVX2)
+#if defined(CSB_SELF_AVX2)
 // The same in AVX2 lanes, a particle's three coordinates and a zero in one register: the same
 // answer (each min and max taken as Eigen's, the operand order kept for NaN; the zero lanes never
 // decide). The check runs on every candidate pair on every sub-step, 6,000-15,000 pairs where the
@@ -326,7 +327,7 @@ __attribute__((target("avx2"))) bool swept_boxes_overlap_avx2(const Real* x, con
 template <std::size_t NA, std::size_t NB>
 bool swept_boxes_overlap(const Positions& x, const Positions& p, const std::array<Index, NA>& a,
                          const std::array<Index, NB>& b, Real pad, bool avx2) {
-#if defined(CSB_ACROSS_AVX2)
+#if defined(CSB_SELF_AVX2)
   if (avx2) return swept_boxes_overlap_avx2(x.data(), p.data(), a, b, pad);
 #endif
   (void)avx2;
@@ -584,9 +585,9 @@ void SelfCollision::find_patches(Group& g) {
 bool SelfCollision::disc_boundary(const Triangle* tri, Index size, std::vector<std::array<Index, 2>>& loop,
                                   DiscScratch& s) {
   // The vertices numbered locally, and each one's directed edges by counting: linear in the
-  // triangles (a vertex has a few). Sorting the edges instead took the step where the 40 x 40
-  // cape first folds (the unions its search meets there each tested) from 0.8 to 5.1 ms; it now
-  // takes 1.7.
+  // triangles (a vertex has a few). Sorting the edges instead, the step where the 40 x 40 cape
+  // first folds (the unions its search meets there each tested) took 5.1 ms against 0.8 for a
+  // step without the fold; it now takes 1.7.
   auto& local = s.local;
   auto& vertices = s.vertices;
   vertices.clear();
