@@ -756,7 +756,7 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
   // cape's frames 75-90) and took the full test instead, at twice the cost. With the patch's own,
   // the full tests' triangles on those frames fell from 1.8 to 1.1 million, and the nodes' and
   // unions' certifications from 86 to 52 million cycles.
-  const bool carry = sub_step && g.carried && v.carry.at + 1 == g.serial;
+  const bool carry = sub_step && g.carried && v.carry.at + 1 == g.serial;  // (re-read in the loop below)
   Real step2 = g.step2;
   if (carry && !(v.across && size >= g.count)) {
     // Six running maximums (two triangles' three corners), not one chain of dependent maximums: a
@@ -911,7 +911,10 @@ bool SelfCollision::certify_patch(Group& g, const PatchView& v, const Positions&
   for (;;) {
     const Real margin = 1e-9 * box2 * V.norm();
     if (!(margin > 0)) return false;  // NaN, or a collapsed patch
-    if (((carry && carried_star(margin)) || star(margin)) && ((carry && carried_normals(margin)) || normals(margin))) {
+    // (A renewed axis clears carry.at: what was carried holds for the old axis only.)
+    const bool carried = carry && v.carry.at + 1 == g.serial;
+    if (((carried && carried_star(margin)) || star(margin)) &&
+        ((carried && carried_normals(margin)) || normals(margin))) {
       if (sub_step) v.carry = {g.serial, least_end, least_boundary, origin};
       return true;
     }

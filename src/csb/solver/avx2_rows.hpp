@@ -127,8 +127,6 @@ CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 w, __m128 v[
   _MM_TRANSPOSE4_PS(v[0], v[1], v[2], v[3]);
 }
 
-
-
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
 template <bool Subtract = false>
 CSB_AVX2_INLINE void add_rows(float* o, const Index at[4], __m128 dx, __m128 dy, __m128 dz) {
