@@ -410,31 +410,12 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   };
   // (XPBD's multipliers need not be set to zero: a sub-step's first sweep writes them without
   // reading them, see sweep_coloured.)
-  // p from x and v (Euler: v += a first) for coordinates [k0, k1).
-  const auto predict = [&](Index k0, Index k1) {
-    for (Index k = k0; k < k1; ++k) {
-      if (verlet) {
-        p[k] = x[k] + keep * (x[k] - v[k]) + a[k];
-      } else {
-        v[k] = v[k] + a[k];
-        p[k] = x[k] + hf * v[k];
-      }
-    }
-  };
-  // (12)-(15) for coordinates [k0, k1): v = (p - x)/h (Verlet: the previous positions), x = p.
-  const auto update = [&](Index k0, Index k1) {
-    for (Index k = k0; k < k1; ++k) {
-      const float pk = p[k], xk = x[k];
-      v[k] = verlet ? xk : (pk - xk) / hf;
-      x[k] = pk;
-    }
-  };
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
     share.split(n, [&](Index begin, Index end) {
       narrow_positions(state.x.data(), x, begin, end, single_.w.data());
       narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end, verlet ? single_.w.data() : nullptr);
-      predict(kStride<float> * begin, kStride<float> * end);
+      predict_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
     });
     if (held) share.single([&] { hold(0); });
     for (int sub = 0; sub < substeps; ++sub) {
@@ -461,11 +442,8 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
           advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
           return;
         }
-        update(kStride<float> * begin, kStride<float> * end);
-        for (Index i = begin; i < end && bad_[t] < 0; ++i) {
-          const float* xi = x + kStride<float> * i;
-          if (!std::isfinite(xi[0]) || !std::isfinite(xi[1]) || !std::isfinite(xi[2])) bad_[t] = i;
-        }
+        const Index bad = update_single(x, v, p, hf, verlet, begin, end);
+        if (bad_[t] < 0) bad_[t] = bad;
       });
       if (held && !last) share.single([&] { hold(sub + 1); });
     }

@@ -7,6 +7,10 @@
 #include "csb/solver/coloured_bending.hpp"
 #include <Eigen/Eigenvalues>
 
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+
 namespace csb {
 
 using detail::str;
@@ -84,6 +88,51 @@ inline __attribute__((always_inline)) void advance_verlet_body(S* __restrict x, 
     p[k] = pk + keep * (pk - xk) + a[k];
   }
 }
+// The single-precision step's first prediction (predict_range's operations in float, the
+// gravity in a: Euler v = v + a, p = x + h v; Verlet p = x + keep (x - x*) + a) and last update
+// (Euler v = (p - x)/h, x = p; Verlet x* = x, x = p) for coordinates [k0, k1).
+template <class S>
+inline __attribute__((always_inline)) void predict_euler_body(const S* __restrict x, S* __restrict v,
+                                                              S* __restrict p, const S* __restrict a, S h, Index k0,
+                                                              Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    v[k] = v[k] + a[k];
+    p[k] = x[k] + h * v[k];
+  }
+}
+template <class S>
+inline __attribute__((always_inline)) void predict_verlet_body(const S* __restrict x, const S* __restrict xp,
+                                                               S* __restrict p, const S* __restrict a, S keep,
+                                                               Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) p[k] = x[k] + keep * (x[k] - xp[k]) + a[k];
+}
+template <class S>
+inline __attribute__((always_inline)) void update_body(S* __restrict x, S* __restrict v, const S* __restrict p, S h,
+                                                       bool verlet, Index k0, Index k1) {
+  if (verlet) {
+    for (Index k = k0; k < k1; ++k) {
+      v[k] = x[k];
+      x[k] = p[k];
+    }
+  } else {
+    for (Index k = k0; k < k1; ++k) {
+      v[k] = (p[k] - x[k]) / h;
+      x[k] = p[k];
+    }
+  }
+}
+// Whether some x, y or z of the float particles [begin, end) is not finite (its exponent all
+// ones); the pads are not looked at.
+inline __attribute__((always_inline)) bool any_non_finite_body(const float* x, Index begin, Index end) {
+  const std::uint32_t exponent = 0x7f800000u;
+  std::uint32_t bad = 0;
+  for (Index i = begin; i < end; ++i) {
+    std::uint32_t u[3];
+    std::memcpy(u, x + 4 * i, sizeof u);
+    bad |= ((u[0] & exponent) == exponent) | ((u[1] & exponent) == exponent) | ((u[2] & exponent) == exponent);
+  }
+  return bad != 0;
+}
 // (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p.
 inline __attribute__((always_inline)) void commit_euler_body(Real* __restrict x, Real* __restrict v,
                                                              const Real* __restrict p, Real h, Index k0, Index k1) {
@@ -103,6 +152,14 @@ template <class S>
 void advance_verlet_base(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
+void predict_single_base(const float* x, float* v, float* p, const float* a, float h, float keep, bool verlet,
+                         Index k0, Index k1) {
+  verlet ? predict_verlet_body(x, v, p, a, keep, k0, k1) : predict_euler_body(x, v, p, a, h, k0, k1);
+}
+void update_single_base(float* x, float* v, const float* p, float h, bool verlet, Index k0, Index k1) {
+  update_body(x, v, p, h, verlet, k0, k1);
+}
+bool any_non_finite_base(const float* x, Index begin, Index end) { return any_non_finite_body(x, begin, end); }
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
 // Four lanes instead of SSE2's two (the division dominates): taken with the AVX2 kernels.
 #define CSB_ADVANCE_AVX2 1
@@ -116,6 +173,17 @@ __attribute__((target("avx2"))) void commit_euler_avx2(Real* x, Real* v, const R
 template <class S>
 __attribute__((target("avx2"))) void advance_verlet_avx2(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
+}
+__attribute__((target("avx2"))) void predict_single_avx2(const float* x, float* v, float* p, const float* a, float h,
+                                                         float keep, bool verlet, Index k0, Index k1) {
+  verlet ? predict_verlet_body(x, v, p, a, keep, k0, k1) : predict_euler_body(x, v, p, a, h, k0, k1);
+}
+__attribute__((target("avx2"))) void update_single_avx2(float* x, float* v, const float* p, float h, bool verlet,
+                                                        Index k0, Index k1) {
+  update_body(x, v, p, h, verlet, k0, k1);
+}
+__attribute__((target("avx2"))) bool any_non_finite_avx2(const float* x, Index begin, Index end) {
+  return any_non_finite_body(x, begin, end);
 }
 #endif
 
@@ -163,6 +231,35 @@ void stepper_detail::advance_single(float* x, float* v, float* p, const float* a
   }
 #endif
   verlet ? advance_verlet_base(x, v, p, a, keep, k0, k1) : advance_euler_base(x, v, p, a, h, k0, k1);
+}
+
+
+void stepper_detail::predict_single(const float* x, float* v, float* p, const float* a, float h, float keep,
+                                    bool verlet, Index k0, Index k1) {
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) return predict_single_avx2(x, v, p, a, h, keep, verlet, k0, k1);
+#endif
+  predict_single_base(x, v, p, a, h, keep, verlet, k0, k1);
+}
+
+
+Index stepper_detail::update_single(float* x, float* v, const float* p, float h, bool verlet, Index begin,
+                                    Index end) {
+  bool bad;
+#if defined(CSB_ADVANCE_AVX2)
+  if (kernels_use_avx2()) {
+    update_single_avx2(x, v, p, h, verlet, 4 * begin, 4 * end);
+    bad = any_non_finite_avx2(x, begin, end);
+  } else
+#endif
+  {
+    update_single_base(x, v, p, h, verlet, 4 * begin, 4 * end);
+    bad = any_non_finite_base(x, begin, end);
+  }
+  if (!bad) return -1;
+  for (Index i = begin; i < end; ++i)
+    if (!std::isfinite(x[4 * i]) || !std::isfinite(x[4 * i + 1]) || !std::isfinite(x[4 * i + 2])) return i;
+  return -1;
 }
 
 
