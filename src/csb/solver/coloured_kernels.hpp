@@ -377,121 +377,12 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
   }
 }
 
-// Single precision with Gauss-Seidel (o = r): eight constraints at a time gathered, projected and
-// written back in 256-bit registers. The blocks above leave a projection's particles in memory
-// between their three passes, and the scatter loads each particle again to add its correction.
-// Here the gathered rows (with the pads) become the new positions, p_i - c_i s d and p_j + c_j s
-// d, and go back as rows: no second load, no block arrays. The value gathered is the one the
-// scatter would load (no other constraint of the colour moves the particle), and the arithmetic
-// is the blocks', operation for operation (no FMA, selects that treat NaN as C's do): the same
-// bits. (Two or four groups of eight gathered before any is written ran no faster.)
-namespace f32 {
-
-using namespace avx2;
-
-// The senses of constraints c + [0, 8) as floats (-1, 0, +1).
-CSB_AVX2_INLINE __m256 senses8(const std::int8_t* sense) {
-  return _mm256_cvtepi32_ps(_mm256_cvtepi8_epi32(_mm_loadl_epi64(reinterpret_cast<const __m128i*>(sense))));
-}
-// a > 0 ? t : f, lane by lane (false for NaN, as C's >).
-CSB_AVX2_INLINE __m256 positive(__m256 a) { return _mm256_cmp_ps(a, _mm256_setzero_ps(), _CMP_GT_OQ); }
-CSB_AVX2_INLINE __m256 select(__m256 mask, __m256 t, __m256 f) { return _mm256_blendv_ps(f, t, mask); }
-// std::max(a, 0) and std::min(a, 0), which are (a < 0 ? 0 : a) and (0 < a ? 0 : a): maxps and minps
-// take their second operand when their comparison fails, so a NaN stays NaN and -0 stays -0.
-CSB_AVX2_INLINE __m256 max0(__m256 a) { return _mm256_max_ps(_mm256_setzero_ps(), a); }
-CSB_AVX2_INLINE __m256 min0(__m256 a) { return _mm256_min_ps(_mm256_setzero_ps(), a); }
-
-// The particles of constraints c + [0, 8): their offsets, rows and pads.
-struct Eight {
-  Index at_i[8], at_j[8];
-  __m256 ix, iy, iz, iw, jx, jy, jz, jw;
-  CSB_AVX2_INLINE Eight(const ColouredDistanceT<float>& b, Index c, const float* p) {
-    for (int l = 0; l < 8; ++l) at_i[l] = 4 * b.i[c + l], at_j[l] = 4 * b.j[c + l];
-    gather8(p, at_i, ix, iy, iz, iw);
-    gather8(p, at_j, jx, jy, jz, jw);
-  }
-  // p_i + di v (Subtract: - di v) and p_j - dj v (+ dj v) written back with their pads.
-  template <bool Subtract>
-  CSB_AVX2_INLINE void write(float* p, __m256 di, __m256 dj, __m256 vx, __m256 vy, __m256 vz) const {
-    store8(p, at_i, update<Subtract>(ix, di * vx), update<Subtract>(iy, di * vy), update<Subtract>(iz, di * vz), iw);
-    store8(p, at_j, update<!Subtract>(jx, dj * vx), update<!Subtract>(jy, dj * vy), update<!Subtract>(jz, dj * vz),
-           jw);
-  }
-};
-
-// distance_pbd_block_s and distance_scatter<false> of constraints c + [0, 8).
-template <bool Approx>
-CSB_AVX2_INLINE void distance_pbd8(const ColouredDistanceT<float>& b, Index c, float* p) {
-  const Eight e(b, c, p);
-  const __m256 dx = e.ix - e.jx, dy = e.iy - e.jy, dz = e.iz - e.jz;
-  const __m256 dd = dx * dx + dy * dy + dz * dz;
-  const __m256 rest = _mm256_loadu_ps(b.rest.data() + c);
-  const __m256 sn = senses8(b.sense.data() + c);
-  const __m256 zero = _mm256_setzero_ps(), one = _mm256_set1_ps(1);
-  __m256 s;
-  if constexpr (Approx) {
-    const __m256 r2 = rest * rest;
-    const __m256 cj = (dd - r2) / (_mm256_set1_ps(2) * rest);
-    const __m256 violation = cj - sn * max0(sn * cj);
-    const __m256 den = dd + r2;
-    s = _mm256_and_ps(_mm256_cmp_ps(violation, zero, _CMP_NEQ_UQ), dd - r2) / select(positive(den), den, one);
-  } else {
-    const __m256 len = _mm256_sqrt_ps(dd);
-    const __m256 cl = len - rest;
-    const __m256 violation = cl - sn * max0(sn * cl);
-    const __m256 pos = positive(len);
-    s = _mm256_and_ps(pos, violation) / select(pos, len, one);
-  }
-  e.write<true>(p, _mm256_loadu_ps(b.ci.data() + c) * s, _mm256_loadu_ps(b.cj.data() + c) * s, dx, dy, dz);
-}
-
-// distance_xpbd_block_s and distance_scatter<true> of constraints c + [0, 8) (x: the positions at
-// the sub-step's start, read when Damped).
-template <bool Damped, bool Fresh>
-CSB_AVX2_INLINE void distance_xpbd8(ColouredDistanceT<float>& b, Index c, float* p, const float* x) {
-  const Eight e(b, c, p);
-  const __m256 dx = e.ix - e.jx, dy = e.iy - e.jy, dz = e.iz - e.jz;
-  const __m256 zero = _mm256_setzero_ps();
-  const __m256 len = _mm256_sqrt_ps(dx * dx + dy * dy + dz * dz);
-  const __m256 pos = positive(len);
-  const __m256 inv_len = _mm256_and_ps(pos, _mm256_set1_ps(1)) / select(pos, len, _mm256_set1_ps(1));
-  const __m256 nx = dx * inv_len, ny = dy * inv_len, nz = dz * inv_len;
-  const __m256 l = Fresh ? zero : _mm256_loadu_ps(b.lambda.data() + c);
-  __m256 num = _mm256_xor_ps(len - _mm256_loadu_ps(b.rest.data() + c), _mm256_set1_ps(-0.0f));  // -cl
-  if constexpr (!Fresh) num = num - _mm256_loadu_ps(b.alpha.data() + c) * l;
-  if constexpr (Damped) {
-    __m256 sx, sy, sz, tx, ty, tz;
-    gather8(x, e.at_i, sx, sy, sz);
-    gather8(x, e.at_j, tx, ty, tz);
-    const __m256 ux = (e.ix - sx) - (e.jx - tx), uy = (e.iy - sy) - (e.jy - ty), uz = (e.iz - sz) - (e.jz - tz);
-    const __m256 along = nx * ux + ny * uy + nz * uz;
-    const __m256 gamma = _mm256_loadu_ps(b.gamma.data() + c);
-    const __m256 moved = _mm256_andnot_ps(_mm256_cmp_ps(gamma, zero, _CMP_EQ_OQ), along);
-    num = num - gamma * moved;
-  }
-  __m256 dl = num * _mm256_loadu_ps(b.inv_den.data() + c);
-  const __m256 sn = senses8(b.sense.data() + c);
-  const __m256 next = l + dl;
-  const __m256 clamped = select(positive(sn), max0(next), min0(next));
-  dl = select(_mm256_cmp_ps(sn, zero, _CMP_EQ_OQ), dl, clamped - l);
-  dl = _mm256_and_ps(pos, dl);
-  _mm256_storeu_ps(b.lambda.data() + c, l + dl);
-  e.write<false>(p, _mm256_loadu_ps(b.ci.data() + c) * dl, _mm256_loadu_ps(b.cj.data() + c) * dl, nx, ny, nz);
-}
-
-}  // namespace f32
-
 // The blocks with AVX2 gathers and scatters (distance_gather_rows, distance_scatter_rows: four
 // doubles or eight floats at a time), the rest of a block one at a time; the arithmetic in SIMD
 // lanes. Per constraint the operations of the portable blocks, so the same bits.
 template <bool Approx, class S>
 CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r,
                                               S* o) {
-  if constexpr (std::is_same_v<S, float>) {
-    if (r == o) {  // Gauss-Seidel: eight at a time in registers, the last few in a block
-      for (; begin + 8 <= end; begin += 8) f32::distance_pbd8<Approx>(b, begin, o);
-    }
-  }
   constexpr Index B = kDistanceBlock;
   alignas(64) S dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
@@ -508,11 +399,6 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Ind
 template <bool Damped, bool Fresh, class S>
 CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                                const S* x) {
-  if constexpr (std::is_same_v<S, float>) {
-    if (r == o) {  // Gauss-Seidel: eight at a time in registers, the last few in a block
-      for (; begin + 8 <= end; begin += 8) f32::distance_xpbd8<Damped, Fresh>(b, begin, o, x);
-    }
-  }
   constexpr Index B = kDistanceBlock;
   alignas(64) S dx[B], dy[B], dz[B], s[B];
   alignas(64) S ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
