@@ -106,19 +106,23 @@ inline __attribute__((always_inline)) void predict_verlet_body(const S* __restri
                                                                Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) p[k] = x[k] + keep * (x[k] - xp[k]) + a[k];
 }
+// (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p (S: double, or float for
+// the single-precision step's last update).
+template <class S>
+inline __attribute__((always_inline)) void commit_euler_body(S* __restrict x, S* __restrict v,
+                                                             const S* __restrict p, S h, Index k0, Index k1) {
+  for (Index k = k0; k < k1; ++k) {
+    v[k] = (p[k] - x[k]) / h;
+    x[k] = p[k];
+  }
+}
 template <class S>
 inline __attribute__((always_inline)) void update_body(S* __restrict x, S* __restrict v, const S* __restrict p, S h,
                                                        bool verlet, Index k0, Index k1) {
-  if (verlet) {
-    for (Index k = k0; k < k1; ++k) {
-      v[k] = x[k];
-      x[k] = p[k];
-    }
-  } else {
-    for (Index k = k0; k < k1; ++k) {
-      v[k] = (p[k] - x[k]) / h;
-      x[k] = p[k];
-    }
+  if (!verlet) return commit_euler_body(x, v, p, h, k0, k1);
+  for (Index k = k0; k < k1; ++k) {
+    v[k] = x[k];
+    x[k] = p[k];
   }
 }
 // Whether some x, y or z of the float particles [begin, end) is not finite (its exponent all
@@ -132,14 +136,6 @@ inline __attribute__((always_inline)) bool any_non_finite_body(const float* x, I
     bad |= ((u[0] & exponent) == exponent) | ((u[1] & exponent) == exponent) | ((u[2] & exponent) == exponent);
   }
   return bad != 0;
-}
-// (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p.
-inline __attribute__((always_inline)) void commit_euler_body(Real* __restrict x, Real* __restrict v,
-                                                             const Real* __restrict p, Real h, Index k0, Index k1) {
-  for (Index k = k0; k < k1; ++k) {
-    v[k] = (p[k] - x[k]) / h;
-    x[k] = p[k];
-  }
 }
 void commit_euler_base(Real* x, Real* v, const Real* p, Real h, Index k0, Index k1) {
   commit_euler_body(x, v, p, h, k0, k1);
