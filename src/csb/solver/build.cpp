@@ -5,6 +5,9 @@
 #include "csb/step/internal.hpp"
 #include "csb/solver/coloured_bending.hpp"
 
+#include <limits>
+#include <string>
+
 namespace csb {
 
 using detail::str;
@@ -34,6 +37,11 @@ std::size_t ColouredBatches::bytes() const {
 
 
 void PbdStepper::build_coloured(const Model& model, const Real* w) {
+  // The batches hold particle offsets (ColouredDistanceT::i), kStride<float> = 4 times an index.
+  constexpr Index most = std::numeric_limits<Index>::max() / kStride<float>;
+  if (model.num_particles() > most)
+    throw InvalidArgument("the model has " + std::to_string(model.num_particles()) +
+                          " particles; the coloured solver addresses at most " + std::to_string(most));
   ColouredBatches& cb = coloured_;
   const bool xpbd = settings_.method == Method::Xpbd;
   const auto fill = [xpbd](std::vector<Real>& out, const std::vector<Real>& from, const std::vector<Index>& order) {
@@ -110,8 +118,8 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = order[c], i = b.particles[o][0], j = b.particles[o][1];
       const Real wsum = w[i] + w[j];
-      d.i[c] = i;
-      d.j[c] = j;
+      d.i[c] = kStride<Real> * i;
+      d.j[c] = kStride<Real> * j;
       d.rest[c] = b.rest_length[o];
       d.sense[c] = b.sense[o];
       if (xpbd) {

@@ -37,6 +37,9 @@ constexpr Index kStride = std::is_same_v<S, float> ? 4 : 3;
 // single-precision step.
 template <class S>
 struct ColouredDistanceT {
+  // Where the constraint's particles start in the solver's positions, kStride<S> times their
+  // index: a kernel's load or store of a particle takes its address from the batch as it is (a
+  // shift and a sign extension fewer a particle than from the index).
   std::vector<Index> i, j;
   std::vector<S> rest;               // m
   std::vector<std::int8_t> sense;
@@ -96,8 +99,13 @@ struct ColouredAttachments {
 template <class To, class From>
 ColouredDistanceT<To> narrowed(const ColouredDistanceT<From>& d) {
   const auto cast = [](const std::vector<From>& v) { return std::vector<To>(v.begin(), v.end()); };
-  return {d.i, d.j, cast(d.rest), d.sense, cast(d.ci), cast(d.cj), cast(d.alpha), cast(d.gamma), cast(d.inv_den),
-          cast(d.lambda), d.damped};
+  const auto offsets = [](const std::vector<Index>& at) {
+    std::vector<Index> out(at.size());
+    for (std::size_t c = 0; c < at.size(); ++c) out[c] = at[c] / kStride<From> * kStride<To>;
+    return out;
+  };
+  return {offsets(d.i), offsets(d.j), cast(d.rest), d.sense, cast(d.ci), cast(d.cj), cast(d.alpha),
+          cast(d.gamma), cast(d.inv_den), cast(d.lambda), d.damped};
 }
 template <class To, class From>
 ColouredFourT<To> narrowed(const ColouredFourT<From>& f) {

@@ -30,7 +30,7 @@ using namespace stepper_detail;
 // approximation, s = (d·d - r²)/(d·d + r²); c = k w/(w_i + w_j) precomputed.
 template <bool Approx, class S>
 CSB_INLINE void distance_pbd(const ColouredDistanceT<S>& b, Index c, const S* r, S* o) {
-  const Index i = kStride<S> * b.i[c], j = kStride<S> * b.j[c];
+  const Index i = b.i[c], j = b.j[c];
   const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const S dd = dx * dx + dy * dy + dz * dz;
   const S rest = b.rest[c];
@@ -106,7 +106,7 @@ template <class S>
 CSB_INLINE void distance_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r, S* dx,
                                 S* dy, S* dz) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
+    const Index i = b.i[c0 + k], j = b.j[c0 + k];
     dx[k] = r[i] - r[j];
     dy[k] = r[i + 1] - r[j + 1];
     dz[k] = r[i + 2] - r[j + 2];
@@ -119,7 +119,7 @@ template <bool Xpbd, class S>
 CSB_INLINE void distance_scatter(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* s,
                                  const S* vx, const S* vy, const S* vz, S* o) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
+    const Index i = b.i[c0 + k], j = b.j[c0 + k];
     const S si = b.ci[c0 + k] * s[k], sj = b.cj[c0 + k] * s[k];
     if constexpr (Xpbd) {
       o[i] += si * vx[k], o[i + 1] += si * vy[k], o[i + 2] += si * vz[k];
@@ -158,8 +158,8 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, 
     const __m256d sk = _mm256_load_pd(s + k);
     const __m256d x = _mm256_load_pd(vx + k), y = _mm256_load_pd(vy + k), z = _mm256_load_pd(vz + k);
     const __m256d si = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), sj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
-    const Index at_i[4] = {3 * bi[k], 3 * bi[k + 1], 3 * bi[k + 2], 3 * bi[k + 3]};
-    const Index at_j[4] = {3 * bj[k], 3 * bj[k + 1], 3 * bj[k + 2], 3 * bj[k + 3]};
+    const Index* at_i = bi + k;
+    const Index* at_j = bj + k;
     add_rows<!Xpbd>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
     add_rows<Xpbd>(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
   }
@@ -176,11 +176,11 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistance& b, Index c0, I
   for (Index k = 0; k < m4; k += 4) {
     __m256d d[4], u[4];
     for (int l = 0; l < 4; ++l) {
-      const __m256d pi = load_xyz(r + 3 * bi[k + l]), pj = load_xyz(r + 3 * bj[k + l]);
+      const __m256d pi = load_xyz(r + bi[k + l]), pj = load_xyz(r + bj[k + l]);
       d[l] = _mm256_sub_pd(pi, pj);
       if constexpr (Damped)
-        u[l] = _mm256_sub_pd(_mm256_sub_pd(pi, load_xyz(x + 3 * bi[k + l])),
-                             _mm256_sub_pd(pj, load_xyz(x + 3 * bj[k + l])));
+        u[l] = _mm256_sub_pd(_mm256_sub_pd(pi, load_xyz(x + bi[k + l])),
+                             _mm256_sub_pd(pj, load_xyz(x + bj[k + l])));
     }
     __m256d rx, ry, rz;
     rows(d[0], d[1], d[2], d[3], rx, ry, rz);
@@ -208,7 +208,7 @@ template <bool Relaxed = false, class S, bool Fresh = false>
 CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o, const S* x,
                               const Real* relax = nullptr) {
   static_assert(!(Relaxed && Fresh));
-  const Index i = kStride<S> * b.i[c], j = kStride<S> * b.j[c];
+  const Index i = b.i[c], j = b.j[c];
   const S dx = r[i] - r[j], dy = r[i + 1] - r[j + 1], dz = r[i + 2] - r[j + 2];
   const S len = std::sqrt(dx * dx + dy * dy + dz * dz);
   const S inv_len = S(len > 0 ? 1 : 0) / (len > 0 ? len : S(1));
@@ -227,7 +227,7 @@ CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o
   const S clamped = sense > 0 ? std::max(next, S(0)) : std::min(next, S(0));
   dl = sense == 0 ? dl : clamped - lambda;
   dl = len > 0 ? dl : S(0);
-  if constexpr (Relaxed) dl *= std::min(relax[b.i[c]], relax[b.j[c]]);
+  if constexpr (Relaxed) dl *= std::min(relax[i / kStride<S>], relax[j / kStride<S>]);
   b.lambda[c] = lambda + dl;
   const S di = b.ci[c] * dl, dj = b.cj[c] * dl;
   o[i] += di * nx;
@@ -277,7 +277,7 @@ template <class S>
 CSB_INLINE void distance_motion_gather(const ColouredDistanceT<S>& b, Index c0, Index k0, Index m, const S* r,
                                        const S* x, S* ux, S* uy, S* uz) {
   for (Index k = k0; k < m; ++k) {
-    const Index i = kStride<S> * b.i[c0 + k], j = kStride<S> * b.j[c0 + k];
+    const Index i = b.i[c0 + k], j = b.j[c0 + k];
     ux[k] = (r[i] - x[i]) - (r[j] - x[j]);
     uy[k] = (r[i + 1] - x[i + 1]) - (r[j + 1] - x[j + 1]);
     uz[k] = (r[i + 2] - x[i + 2]) - (r[j + 2] - x[j + 2]);
@@ -308,24 +308,26 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, In
   using namespace avx2;
   const Index* bi = b.i.data() + c0;
   const Index* bj = b.j.data() + c0;
+  const float* ci = b.ci.data() + c0;
+  const float* cj = b.cj.data() + c0;
   const Index m8 = m4 - m4 % 8;
   for (Index k = 0; k < m8; k += 8) {
     const __m256 sk = _mm256_load_ps(s + k);
     const __m256 x = _mm256_load_ps(vx + k), y = _mm256_load_ps(vy + k), z = _mm256_load_ps(vz + k);
-    const __m256 si = _mm256_mul_ps(_mm256_loadu_ps(b.ci.data() + c0 + k), sk);
-    const __m256 sj = _mm256_mul_ps(_mm256_loadu_ps(b.cj.data() + c0 + k), sk);
-    Index at_i[8], at_j[8];
-    for (int l = 0; l < 8; ++l) at_i[l] = 4 * bi[k + l], at_j[l] = 4 * bj[k + l];
+    const __m256 si = _mm256_mul_ps(_mm256_loadu_ps(ci + k), sk);
+    const __m256 sj = _mm256_mul_ps(_mm256_loadu_ps(cj + k), sk);
+    const Index* at_i = bi + k;
+    const Index* at_j = bj + k;
     add8<!Xpbd>(o, at_i, _mm256_mul_ps(si, x), _mm256_mul_ps(si, y), _mm256_mul_ps(si, z));
     add8<Xpbd>(o, at_j, _mm256_mul_ps(sj, x), _mm256_mul_ps(sj, y), _mm256_mul_ps(sj, z));
   }
   for (Index k = m8; k < m4; k += 4) {
     const __m128 sk = _mm_load_ps(s + k);
     const __m128 x = _mm_load_ps(vx + k), y = _mm_load_ps(vy + k), z = _mm_load_ps(vz + k);
-    const __m128 si = _mm_mul_ps(_mm_loadu_ps(b.ci.data() + c0 + k), sk);
-    const __m128 sj = _mm_mul_ps(_mm_loadu_ps(b.cj.data() + c0 + k), sk);
-    const Index at_i[4] = {4 * bi[k], 4 * bi[k + 1], 4 * bi[k + 2], 4 * bi[k + 3]};
-    const Index at_j[4] = {4 * bj[k], 4 * bj[k + 1], 4 * bj[k + 2], 4 * bj[k + 3]};
+    const __m128 si = _mm_mul_ps(_mm_loadu_ps(ci + k), sk);
+    const __m128 sj = _mm_mul_ps(_mm_loadu_ps(cj + k), sk);
+    const Index* at_i = bi + k;
+    const Index* at_j = bj + k;
     add_rows<!Xpbd>(o, at_i, _mm_mul_ps(si, x), _mm_mul_ps(si, y), _mm_mul_ps(si, z));
     add_rows<Xpbd>(o, at_j, _mm_mul_ps(sj, x), _mm_mul_ps(sj, y), _mm_mul_ps(sj, z));
   }
@@ -342,8 +344,8 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
   const Index* bj = b.j.data() + c0;
   const Index m8 = m4 - m4 % 8;
   for (Index k = 0; k < m8; k += 8) {
-    Index at_i[8], at_j[8];
-    for (int l = 0; l < 8; ++l) at_i[l] = 4 * bi[k + l], at_j[l] = 4 * bj[k + l];
+    const Index* at_i = bi + k;
+    const Index* at_j = bj + k;
     __m256 ix, iy, iz, jx, jy, jz;
     gather8(r, at_i, ix, iy, iz);
     gather8(r, at_j, jx, jy, jz);
@@ -362,10 +364,10 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
   for (Index k = m8; k < m4; k += 4) {
     __m128 d[4], u[4];
     for (int l = 0; l < 4; ++l) {
-      const __m128 pi = load_xyz(r + 4 * bi[k + l]), pj = load_xyz(r + 4 * bj[k + l]);
+      const __m128 pi = load_xyz(r + bi[k + l]), pj = load_xyz(r + bj[k + l]);
       d[l] = _mm_sub_ps(pi, pj);
       if constexpr (Damped)
-        u[l] = _mm_sub_ps(_mm_sub_ps(pi, load_xyz(x + 4 * bi[k + l])), _mm_sub_ps(pj, load_xyz(x + 4 * bj[k + l])));
+        u[l] = _mm_sub_ps(_mm_sub_ps(pi, load_xyz(x + bi[k + l])), _mm_sub_ps(pj, load_xyz(x + bj[k + l])));
     }
     __m128 rx, ry, rz;
     rows(d[0], d[1], d[2], d[3], rx, ry, rz);
