@@ -115,6 +115,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     fill(d.gamma, g_distance_, order);
     d.damped = any_damping(d.gamma);
     d.lambda.assign(xpbd ? m : 0, 0);
+    d.bilateral = true;
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = order[c], i = b.particles[o][0], j = b.particles[o][1];
       const Real wsum = w[i] + w[j];
@@ -122,6 +123,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
       d.j[c] = kStride<Real> * j;
       d.rest[c] = b.rest_length[o];
       d.sense[c] = b.sense[o];
+      d.bilateral = d.bilateral && b.sense[o] == 0;
       if (xpbd) {
         d.ci[c] = w[i];
         d.cj[c] = w[j];

@@ -47,6 +47,7 @@ struct ColouredDistanceT {
   std::vector<S> alpha, gamma, inv_den;  // XPBD: α̃, γ, 1/((1 + γ)(w_i + w_j) + α̃) (0: not projected)
   std::vector<S> lambda;             // XPBD
   bool damped = false;               // XPBD: some γ is not +0 (else the kernels skip the damping term)
+  bool bilateral = false;            // every sense is 0 (the blocked kernels then read none)
 };
 using ColouredDistance = ColouredDistanceT<Real>;
 
@@ -105,7 +106,7 @@ ColouredDistanceT<To> narrowed(const ColouredDistanceT<From>& d) {
     return out;
   };
   return {offsets(d.i), offsets(d.j), cast(d.rest), d.sense, cast(d.ci), cast(d.cj), cast(d.alpha),
-          cast(d.gamma), cast(d.inv_den), cast(d.lambda), d.damped};
+          cast(d.gamma), cast(d.inv_den), cast(d.lambda), d.damped, d.bilateral};
 }
 template <class To, class From>
 ColouredFourT<To> narrowed(const ColouredFourT<From>& f) {

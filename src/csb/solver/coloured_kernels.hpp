@@ -75,27 +75,40 @@ CSB_INLINE void senses(const ColouredDistanceT<S>& b, Index c0, Index m, S* out)
   for (Index k = 0; k < m; ++k) out[k] = sense[k];
 }
 
-// s of constraints c0 + [0, m) from their d = p_i - p_j.
-template <bool Approx, class S>
+// The violation C of a constraint of sense sn from its bilateral value c (constraints/distance.hpp):
+// c - sn max(sn c, 0). Bilateral: the batch's constraints are all bilateral (sn = 0,
+// ColouredDistanceT::bilateral), and C is c itself: the same value, since c - 0 max(0 c, 0) is c
+// for every c but -0 (and NaN), and c, a length less a rest length, is never -0.
+template <bool Bilateral, class S>
+CSB_INLINE S violation_of(S c, S sn) {
+  if constexpr (Bilateral)
+    return c;
+  else
+    return c - sn * std::max(sn * c, S(0));
+}
+
+// s of constraints c0 + [0, m) from their d = p_i - p_j (Bilateral: see violation_of; the senses
+// are not read).
+template <bool Approx, bool Bilateral, class S>
 CSB_INLINE void distance_pbd_block_s(const ColouredDistanceT<S>& b, Index c0, Index m, const S* dx, const S* dy,
                                      const S* dz, S* s) {
   const S* rest = b.rest.data() + c0;
-  alignas(64) S sense[kDistanceBlock];
-  senses(b, c0, m, sense);
+  alignas(64) S sense[Bilateral ? 1 : kDistanceBlock];
+  if constexpr (!Bilateral) senses(b, c0, m, sense);
 #pragma omp simd
   for (Index k = 0; k < m; ++k) {
     const S dd = dx[k] * dx[k] + dy[k] * dy[k] + dz[k] * dz[k];
-    const S sn = sense[k];
+    const S sn = Bilateral ? S(0) : sense[k];
     if constexpr (Approx) {
       const S r2 = rest[k] * rest[k];
       const S cj = (dd - r2) / (2 * rest[k]);
-      const S violation = cj - sn * std::max(sn * cj, S(0));
+      const S violation = violation_of<Bilateral>(cj, sn);
       const S den = dd + r2;
       s[k] = (violation != 0 ? dd - r2 : S(0)) / (den > 0 ? den : S(1));
     } else {
       const S len = std::sqrt(dd);
       const S cl = len - rest[k];
-      const S violation = cl - sn * std::max(sn * cl, S(0));
+      const S violation = violation_of<Bilateral>(cl, sn);
       s[k] = (len > 0 ? violation : S(0)) / (len > 0 ? len : S(1));
     }
   }
@@ -131,14 +144,14 @@ CSB_INLINE void distance_scatter(const ColouredDistanceT<S>& b, Index c0, Index 
   }
 }
 
-template <bool Approx, class S>
+template <bool Approx, bool Bilateral, class S>
 CSB_INLINE void distance_pbd_blocks(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o) {
   constexpr Index B = kDistanceBlock;
   alignas(64) S dx[B], dy[B], dz[B], s[B];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
-    distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
+    distance_pbd_block_s<Approx, Bilateral>(b, c0, m, dx, dy, dz, s);
     distance_scatter<false>(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
@@ -244,12 +257,12 @@ CSB_INLINE void distance_xpbd(ColouredDistanceT<S>& b, Index c, const S* r, S* o
 // motion since the sub-step's start, u = (p_i - x_i) - (p_j - x_j); without it every γ is +0,
 // γ moved is +0, and its subtraction changes no value. Fresh: the multipliers are +0 (see
 // distance_xpbd).
-template <bool Damped, bool Fresh, class S>
+template <bool Damped, bool Fresh, bool Bilateral, class S>
 CSB_INLINE void distance_xpbd_block_s(ColouredDistanceT<S>& b, Index c0, Index m, S* dx, S* dy, S* dz,
                                       const S* ux, const S* uy, const S* uz, S* s) {
   const S* rest = b.rest.data() + c0;
-  alignas(64) S sense[kDistanceBlock];
-  senses(b, c0, m, sense);
+  alignas(64) S sense[Bilateral ? 1 : kDistanceBlock];
+  if constexpr (!Bilateral) senses(b, c0, m, sense);
   const S* alpha = b.alpha.data() + c0;
   const S* gamma = b.gamma.data() + c0;
   const S* inv_den = b.inv_den.data() + c0;
@@ -261,10 +274,12 @@ CSB_INLINE void distance_xpbd_block_s(ColouredDistanceT<S>& b, Index c0, Index m
     S dl = xpbd_distance_step<Damped, S, Fresh>(dx[k], dy[k], dz[k], Damped ? ux[k] : S(0), Damped ? uy[k] : S(0),
                                                 Damped ? uz[k] : S(0), rest[k], Fresh ? S(0) : alpha[k], gamma[k],
                                                 inv_den[k], l, nx, ny, nz, len);
-    const S sn = sense[k];
-    const S next = l + dl;
-    const S clamped = sn > 0 ? std::max(next, S(0)) : std::min(next, S(0));
-    dl = sn == 0 ? dl : clamped - l;
+    if constexpr (!Bilateral) {  // a bilateral constraint's Δλ is not clamped
+      const S sn = sense[k];
+      const S next = l + dl;
+      const S clamped = sn > 0 ? std::max(next, S(0)) : std::min(next, S(0));
+      dl = sn == 0 ? dl : clamped - l;
+    }
     dl = len > 0 ? dl : S(0);
     lambda[k] = l + dl;
     s[k] = dl;
@@ -284,7 +299,7 @@ CSB_INLINE void distance_motion_gather(const ColouredDistanceT<S>& b, Index c0, 
   }
 }
 
-template <bool Damped, bool Fresh, class S>
+template <bool Damped, bool Fresh, bool Bilateral, class S>
 CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                      const S* x) {
   constexpr Index B = kDistanceBlock;
@@ -294,7 +309,7 @@ CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index
     const Index m = std::min(B, end - c0);
     distance_gather(b, c0, 0, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, 0, m, r, x, ux, uy, uz);
-    distance_xpbd_block_s<Damped, Fresh>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_xpbd_block_s<Damped, Fresh, Bilateral>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
     distance_scatter<true>(b, c0, 0, m, s, dx, dy, dz, o);
   }
 }
@@ -382,7 +397,7 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
 // The blocks with AVX2 gathers and scatters (distance_gather_rows, distance_scatter_rows: four
 // doubles or eight floats at a time), the rest of a block one at a time; the arithmetic in SIMD
 // lanes. Per constraint the operations of the portable blocks, so the same bits.
-template <bool Approx, class S>
+template <bool Approx, bool Bilateral, class S>
 CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Index begin, Index end, const S* r,
                                               S* o) {
   constexpr Index B = kDistanceBlock;
@@ -392,13 +407,13 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Ind
     distance_gather_rows<false>(b, c0, m4, r, static_cast<const S*>(nullptr), dx, dy, dz, static_cast<S*>(nullptr),
                                 static_cast<S*>(nullptr), static_cast<S*>(nullptr));
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
-    distance_pbd_block_s<Approx>(b, c0, m, dx, dy, dz, s);
+    distance_pbd_block_s<Approx, Bilateral>(b, c0, m, dx, dy, dz, s);
     distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
     distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
 
-template <bool Damped, bool Fresh, class S>
+template <bool Damped, bool Fresh, bool Bilateral, class S>
 CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                                const S* x) {
   constexpr Index B = kDistanceBlock;
@@ -409,7 +424,7 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index be
     distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
-    distance_xpbd_block_s<Damped, Fresh>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
+    distance_xpbd_block_s<Damped, Fresh, Bilateral>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
     distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
     distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
   }
@@ -418,15 +433,15 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index be
 #if defined(CSB_DISTANCE_AVX2)
 // The row blocks compiled for AVX2 in the portable build, taken when the processor has it (see
 // coloured_bending.cpp).
-template <bool Approx, class S>
+template <bool Approx, bool Bilateral, class S>
 __attribute__((target("avx2"))) void distance_pbd_blocks_avx2(const ColouredDistanceT<S>& b, Index begin, Index end,
                                                                const S* r, S* o) {
-  distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
+  distance_pbd_blocks_rows<Approx, Bilateral>(b, begin, end, r, o);
 }
-template <bool Damped, bool Fresh, class S>
+template <bool Damped, bool Fresh, bool Bilateral, class S>
 __attribute__((target("avx2"))) void distance_xpbd_blocks_avx2(ColouredDistanceT<S>& b, Index begin, Index end,
                                                                 const S* r, S* o, const S* x) {
-  distance_xpbd_blocks_rows<Damped, Fresh>(b, begin, end, r, o, x);
+  distance_xpbd_blocks_rows<Damped, Fresh, Bilateral>(b, begin, end, r, o, x);
 }
 #endif
 
@@ -440,11 +455,15 @@ inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index
     for (Index c = begin; c < end; ++c) distance_pbd<true>(b, c, r, o);
   } else {
 #if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2()) return distance_pbd_blocks_avx2<Approx>(b, begin, end, r, o);
+    if (kernels_use_avx2())
+      return b.bilateral ? distance_pbd_blocks_avx2<Approx, true>(b, begin, end, r, o)
+                         : distance_pbd_blocks_avx2<Approx, false>(b, begin, end, r, o);
 #elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-    return distance_pbd_blocks_rows<Approx>(b, begin, end, r, o);
+    return b.bilateral ? distance_pbd_blocks_rows<Approx, true>(b, begin, end, r, o)
+                       : distance_pbd_blocks_rows<Approx, false>(b, begin, end, r, o);
 #endif
-    distance_pbd_blocks<Approx>(b, begin, end, r, o);
+    b.bilateral ? distance_pbd_blocks<Approx, true>(b, begin, end, r, o)
+                : distance_pbd_blocks<Approx, false>(b, begin, end, r, o);
   }
 }
 
@@ -452,16 +471,21 @@ inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index
 // and scatters where the processor has them. Fresh: the multipliers are +0 (see distance_xpbd).
 template <bool Fresh, class S>
 inline void distance_xpbd_range(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o, const S* x) {
+  const auto run = [&](auto damped, auto bilateral) {
+    constexpr bool D = decltype(damped)::value, L = decltype(bilateral)::value;
 #if defined(CSB_DISTANCE_AVX2)
-  if (kernels_use_avx2())
-    return b.damped ? distance_xpbd_blocks_avx2<true, Fresh>(b, begin, end, r, o, x)
-                    : distance_xpbd_blocks_avx2<false, Fresh>(b, begin, end, r, o, x);
+    if (kernels_use_avx2()) return distance_xpbd_blocks_avx2<D, Fresh, L>(b, begin, end, r, o, x);
 #elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-  return b.damped ? distance_xpbd_blocks_rows<true, Fresh>(b, begin, end, r, o, x)
-                  : distance_xpbd_blocks_rows<false, Fresh>(b, begin, end, r, o, x);
+    return distance_xpbd_blocks_rows<D, Fresh, L>(b, begin, end, r, o, x);
 #endif
-  b.damped ? distance_xpbd_blocks<true, Fresh>(b, begin, end, r, o, x)
-           : distance_xpbd_blocks<false, Fresh>(b, begin, end, r, o, x);
+    distance_xpbd_blocks<D, Fresh, L>(b, begin, end, r, o, x);
+  };
+  using Yes = std::true_type;
+  using No = std::false_type;
+  if (b.damped)
+    b.bilateral ? run(Yes{}, Yes{}) : run(Yes{}, No{});
+  else
+    b.bilateral ? run(No{}, Yes{}) : run(No{}, No{});
 }
 
 // Dihedral bending: csb/solver/coloured_bending.hpp (SIMD blocks, polynomial atan2).
