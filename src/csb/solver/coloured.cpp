@@ -413,9 +413,8 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   team_.get().run(threads, spin_, [&](int t) {
     Share share{team_.get(), t};
     share.split(n, [&](Index begin, Index end) {
-      narrow_positions(state.x.data(), x, begin, end, single_.w.data());
-      narrow_positions(verlet ? x_prev_.data() : state.v.data(), v, begin, end, verlet ? single_.w.data() : nullptr);
-      predict_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
+      start_single(state.x.data(), verlet ? x_prev_.data() : state.v.data(), single_.w.data(), x, v, p, a, hf, keep,
+                   verlet, begin, end);
     });
     if (held) share.single([&] { hold(0); });
     for (int sub = 0; sub < substeps; ++sub) {

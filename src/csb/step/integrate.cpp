@@ -148,10 +148,6 @@ template <class S>
 void advance_verlet_base(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
-void predict_single_base(const float* x, float* v, float* p, const float* a, float h, float keep, bool verlet,
-                         Index k0, Index k1) {
-  verlet ? predict_verlet_body(x, v, p, a, keep, k0, k1) : predict_euler_body(x, v, p, a, h, k0, k1);
-}
 void update_single_base(float* x, float* v, const float* p, float h, bool verlet, Index k0, Index k1) {
   update_body(x, v, p, h, verlet, k0, k1);
 }
@@ -170,16 +166,24 @@ template <class S>
 __attribute__((target("avx2"))) void advance_verlet_avx2(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
-__attribute__((target("avx2"))) void predict_single_avx2(const float* x, float* v, float* p, const float* a, float h,
-                                                         float keep, bool verlet, Index k0, Index k1) {
-  verlet ? predict_verlet_body(x, v, p, a, keep, k0, k1) : predict_euler_body(x, v, p, a, h, k0, k1);
-}
-__attribute__((target("avx2"))) void update_single_avx2(float* x, float* v, const float* p, float h, bool verlet,
-                                                        Index k0, Index k1) {
-  update_body(x, v, p, h, verlet, k0, k1);
-}
-__attribute__((target("avx2"))) bool any_non_finite_avx2(const float* x, Index begin, Index end) {
-  return any_non_finite_body(x, begin, end);
+// update_body and any_non_finite_body in one pass, two particles a 256-bit register (the same
+// operations, so the same values).
+template <bool Verlet>
+__attribute__((target("avx2"))) bool update_single_avx2(float* x, float* v, const float* p, float h, Index begin,
+                                                        Index end) {
+  const __m256 hv = _mm256_set1_ps(h);
+  const __m256i exponent = _mm256_set1_epi32(0x7f800000), xyz = _mm256_setr_epi32(-1, -1, -1, 0, -1, -1, -1, 0);
+  __m256i bad = _mm256_setzero_si256();
+  Index i = begin;
+  for (; i + 2 <= end; i += 2) {
+    const __m256 pk = _mm256_loadu_ps(p + 4 * i), xk = _mm256_loadu_ps(x + 4 * i);
+    _mm256_storeu_ps(v + 4 * i, Verlet ? xk : _mm256_div_ps(_mm256_sub_ps(pk, xk), hv));
+    _mm256_storeu_ps(x + 4 * i, pk);
+    const __m256i e = _mm256_and_si256(_mm256_castps_si256(pk), exponent);
+    bad = _mm256_or_si256(bad, _mm256_and_si256(_mm256_cmpeq_epi32(e, exponent), xyz));
+  }
+  update_body(x, v, p, h, Verlet, 4 * i, 4 * end);
+  return !_mm256_testz_si256(bad, bad) || any_non_finite_body(x, i, end);
 }
 #endif
 
@@ -230,23 +234,13 @@ void stepper_detail::advance_single(float* x, float* v, float* p, const float* a
 }
 
 
-void stepper_detail::predict_single(const float* x, float* v, float* p, const float* a, float h, float keep,
-                                    bool verlet, Index k0, Index k1) {
-#if defined(CSB_ADVANCE_AVX2)
-  if (kernels_use_avx2()) return predict_single_avx2(x, v, p, a, h, keep, verlet, k0, k1);
-#endif
-  predict_single_base(x, v, p, a, h, keep, verlet, k0, k1);
-}
-
-
 Index stepper_detail::update_single(float* x, float* v, const float* p, float h, bool verlet, Index begin,
                                     Index end) {
   bool bad;
 #if defined(CSB_ADVANCE_AVX2)
-  if (kernels_use_avx2()) {
-    update_single_avx2(x, v, p, h, verlet, 4 * begin, 4 * end);
-    bad = any_non_finite_avx2(x, begin, end);
-  } else
+  if (kernels_use_avx2())
+    bad = verlet ? update_single_avx2<true>(x, v, p, h, begin, end) : update_single_avx2<false>(x, v, p, h, begin, end);
+  else
 #endif
   {
     update_single_base(x, v, p, h, verlet, 4 * begin, 4 * end);
@@ -262,9 +256,8 @@ Index stepper_detail::update_single(float* x, float* v, const float* p, float h,
 namespace {
 
 // Particles [begin, end) of double x, y, z (3 apart) into float x, y, z, pad (4 apart), rounded to
-// nearest, and back (exact). The AVX2 copies move a particle as one conversion and a masked load
-// of three doubles, or a 128-bit and a 64-bit store (a masked store is slow on some processors):
-// the same values.
+// nearest, and back (exact). The AVX2 copy of the way back moves a particle as one conversion, a
+// 128-bit and a 64-bit store (a masked store is slow on some processors): the same values.
 void narrow_base(const Real* in, float* out, Index begin, Index end, const float* pad) {
   for (Index i = begin; i < end; ++i) {
     for (int e = 0; e < 3; ++e) out[4 * i + e] = static_cast<float>(in[3 * i + e]);
@@ -276,13 +269,31 @@ void widen_base(const float* in, Real* out, Index begin, Index end) {
     for (int e = 0; e < 3; ++e) out[3 * i + e] = in[4 * i + e];
 }
 #if CSB_HAS_AVX2_ROWS
-__attribute__((target("avx2"))) void narrow_avx2(const Real* in, float* out, Index begin, Index end,
-                                                 const float* pad) {
+// narrow_base of the positions (padded with w) and of the velocities (padded with 0; Verlet's
+// previous positions with w) and the first prediction (predict_euler_body, predict_verlet_body)
+// in one pass, a particle a 128-bit register: a particle's three doubles one masked load and one
+// conversion, then the prediction's operations: the same values as the three passes.
+template <bool Verlet>
+__attribute__((target("avx2"))) void start_single_avx2(const Real* xd, const Real* vd, const float* w, float* x,
+                                                       float* v, float* p, const float* a, float h, float keep,
+                                                       Index begin, Index end) {
   const __m256i xyz = _mm256_setr_epi64x(-1, -1, -1, 0);
+  const __m128 hv = _mm_set1_ps(h), kv = _mm_set1_ps(keep);
   for (Index i = begin; i < end; ++i) {
-    __m128 v = _mm256_cvtpd_ps(_mm256_maskload_pd(in + 3 * i, xyz));  // x, y, z, 0
-    if (pad) v = _mm_blend_ps(v, _mm_set1_ps(pad[i]), 0b1000);
-    _mm_storeu_ps(out + 4 * i, v);
+    const __m128 wi = _mm_set1_ps(w[i]);
+    const __m128 xi = _mm_blend_ps(_mm256_cvtpd_ps(_mm256_maskload_pd(xd + 3 * i, xyz)), wi, 0b1000);
+    __m128 vi = _mm256_cvtpd_ps(_mm256_maskload_pd(vd + 3 * i, xyz));  // pad 0
+    const __m128 ai = _mm_loadu_ps(a + 4 * i);
+    _mm_storeu_ps(x + 4 * i, xi);
+    if constexpr (Verlet) {
+      vi = _mm_blend_ps(vi, wi, 0b1000);
+      _mm_storeu_ps(v + 4 * i, vi);
+      _mm_storeu_ps(p + 4 * i, _mm_add_ps(_mm_add_ps(xi, _mm_mul_ps(kv, _mm_sub_ps(xi, vi))), ai));
+    } else {
+      vi = _mm_add_ps(vi, ai);
+      _mm_storeu_ps(v + 4 * i, vi);
+      _mm_storeu_ps(p + 4 * i, _mm_add_ps(xi, _mm_mul_ps(hv, vi)));
+    }
   }
 }
 __attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Index begin, Index end) {
@@ -296,11 +307,17 @@ __attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Inde
 
 }  // namespace
 
-void stepper_detail::narrow_positions(const Real* in, float* out, Index begin, Index end, const float* pad) {
+void stepper_detail::start_single(const Real* xd, const Real* vd, const float* w, float* x, float* v, float* p,
+                                  const float* a, float h, float keep, bool verlet, Index begin, Index end) {
 #if CSB_HAS_AVX2_ROWS
-  if (kernels_use_avx2()) return narrow_avx2(in, out, begin, end, pad);
+  if (kernels_use_avx2())
+    return verlet ? start_single_avx2<true>(xd, vd, w, x, v, p, a, h, keep, begin, end)
+                  : start_single_avx2<false>(xd, vd, w, x, v, p, a, h, keep, begin, end);
 #endif
-  narrow_base(in, out, begin, end, pad);
+  narrow_base(xd, x, begin, end, w);
+  narrow_base(vd, v, begin, end, verlet ? w : nullptr);
+  verlet ? predict_verlet_body(x, v, p, a, keep, 4 * begin, 4 * end)
+         : predict_euler_body(x, v, p, a, h, 4 * begin, 4 * end);
 }
 
 void stepper_detail::widen_positions(const float* in, Real* out, Index begin, Index end) {

@@ -100,18 +100,17 @@ void zero_group(const Colouring& c, Index g, std::vector<S>& lambda) {
 void advance_single(float* x, float* v, float* p, const float* a, float h, float keep, bool verlet, Index k0,
                     Index k1);
 
-// The single-precision step's first prediction (Euler v = v + a, p = x + h v; Verlet, v the
-// previous positions: p = x + keep (x - v) + a) for coordinates [k0, k1); and its last update
-// (Euler v = (p - x)/h, x = p; Verlet v = x, x = p) for particles [begin, end), returning the
-// first whose new position is not finite, or -1. In AVX2 lanes where the processor has them
+// The single-precision step's start for particles [begin, end): the double positions xd and
+// velocities vd (Verlet: previous positions) rounded to nearest into float x and v (x, y, z and
+// a pad, 4 apart; the pads w[i], and 0 for Euler's velocities), then the first prediction (Euler
+// v = v + a, p = x + h v; Verlet p = x + keep (x - v) + a); in one pass where the processor has
+// AVX2. Its last update (Euler v = (p - x)/h, x = p; Verlet v = x, x = p) for particles
+// [begin, end), returning the first whose new position is not finite, or -1 (with AVX2 the
+// update and the finiteness test one pass). And the floats back into doubles, exactly
 // (step/integrate.cpp).
-void predict_single(const float* x, float* v, float* p, const float* a, float h, float keep, bool verlet, Index k0,
-                    Index k1);
+void start_single(const Real* xd, const Real* vd, const float* w, float* x, float* v, float* p, const float* a,
+                  float h, float keep, bool verlet, Index begin, Index end);
 Index update_single(float* x, float* v, const float* p, float h, bool verlet, Index begin, Index end);
-
-// Particles [begin, end) of double x, y, z (3 apart) into float x, y, z and a pad (4 apart),
-// rounded to nearest, the pad pad[i] (null: 0); and back, exactly (step/integrate.cpp).
-void narrow_positions(const Real* in, float* out, Index begin, Index end, const float* pad);
 void widen_positions(const float* in, Real* out, Index begin, Index end);
 
 template <class T>
