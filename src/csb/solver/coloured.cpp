@@ -378,9 +378,10 @@ void PbdStepper::project_coloured(const Model& model, const Positions& x_start, 
 // group), part g's task of a sub-step's first sweep updates and predicts its own particles and
 // each group's task zeroes its XPBD multipliers, as in the double fused step (two barriers a
 // sub-step); otherwise the update and prediction are split by particle between the threads. At
-// the end every new position is checked finite before the state takes them, widened to double
-// (exactly, so that rounding it again for the next sub-steps gives the same floats). The same
-// operations in the same order whatever the thread count and however a step is cut: the same bits.
+// the end every new position is checked finite, and only then does the last update write the
+// state, its float results widened to double (exactly, so that rounding them again for the next
+// sub-steps gives the same floats). The same operations in the same order whatever the thread
+// count and however a step is cut: the same bits.
 template <Method M>
 void PbdStepper::substeps_single(const Model& model, State& state, Real h, int first, int count) {
   const Index n = model.num_particles();
@@ -434,14 +435,14 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
       }
       const bool last = sub + 1 == substeps;
       if (in_tasks && !last) continue;
-      // (12)-(15) and the next sub-step's prediction in one pass, or (last sub-step) (12)-(15) and
-      // the finiteness check.
+      // (12)-(15) and the next sub-step's prediction in one pass, or (last sub-step) the check that
+      // every projected position is finite, before (12)-(15) write the state.
       share.split(n, [&](Index begin, Index end) {
         if (!last) {
           advance_single(x, v, p, a, hf, keep, verlet, kStride<float> * begin, kStride<float> * end);
           return;
         }
-        const Index bad = update_single(x, v, p, hf, verlet, begin, end);
+        const Index bad = first_non_finite_single(p, begin, end);
         if (bad_[t] < 0) bad_[t] = bad;
       });
       if (held && !last) share.single([&] { hold(sub + 1); });
@@ -449,8 +450,7 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
     for (const Index b : bad_)
       if (b >= 0) return;  // every thread sees the same bad_ after the last barrier
     share.split(n, [&](Index begin, Index end) {
-      widen_positions(x, state.x.data(), begin, end);
-      widen_positions(v, verlet ? x_prev_.data() : state.v.data(), begin, end);
+      finish_single(x, p, hf, verlet, state.x.data(), verlet ? x_prev_.data() : state.v.data(), begin, end);
     });
   });
   Index bad = -1;
@@ -459,7 +459,7 @@ void PbdStepper::substeps_single(const Model& model, State& state, Real h, int f
   if (bad >= 0) {
     if (verlet) state.v = (state.x - x_prev_) / h;
     std::ostringstream msg;
-    const float* xb = x + kStride<float> * bad;
+    const float* xb = p + kStride<float> * bad;
     msg << "step " << state.step << " (sub-steps " << first << "-" << first + count - 1 << ", t = " << state.t
         << " s, single precision): particle " << bad << " got a non-finite position (" << xb[0] << ", " << xb[1]
         << ", " << xb[2] << "); the state is left where sub-step " << first << " started";

@@ -148,9 +148,6 @@ template <class S>
 void advance_verlet_base(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
-void update_single_base(float* x, float* v, const float* p, float h, bool verlet, Index k0, Index k1) {
-  update_body(x, v, p, h, verlet, k0, k1);
-}
 bool any_non_finite_base(const float* x, Index begin, Index end) { return any_non_finite_body(x, begin, end); }
 #if defined(__GNUC__) && defined(__x86_64__) && !defined(__AVX2__)
 // Four lanes instead of SSE2's two (the division dominates): taken with the AVX2 kernels.
@@ -166,23 +163,15 @@ template <class S>
 __attribute__((target("avx2"))) void advance_verlet_avx2(S* x, S* xp, S* p, const S* a, S keep, Index k0, Index k1) {
   advance_verlet_body(x, xp, p, a, keep, k0, k1);
 }
-// update_body and any_non_finite_body in one pass, two particles a 256-bit register (the same
-// operations, so the same values).
-template <bool Verlet>
-__attribute__((target("avx2"))) bool update_single_avx2(float* x, float* v, const float* p, float h, Index begin,
-                                                        Index end) {
-  const __m256 hv = _mm256_set1_ps(h);
+// any_non_finite_body two particles a 256-bit register.
+__attribute__((target("avx2"))) bool any_non_finite_avx2(const float* x, Index begin, Index end) {
   const __m256i exponent = _mm256_set1_epi32(0x7f800000), xyz = _mm256_setr_epi32(-1, -1, -1, 0, -1, -1, -1, 0);
   __m256i bad = _mm256_setzero_si256();
   Index i = begin;
   for (; i + 2 <= end; i += 2) {
-    const __m256 pk = _mm256_loadu_ps(p + 4 * i), xk = _mm256_loadu_ps(x + 4 * i);
-    _mm256_storeu_ps(v + 4 * i, Verlet ? xk : _mm256_div_ps(_mm256_sub_ps(pk, xk), hv));
-    _mm256_storeu_ps(x + 4 * i, pk);
-    const __m256i e = _mm256_and_si256(_mm256_castps_si256(pk), exponent);
+    const __m256i e = _mm256_and_si256(_mm256_loadu_si256(reinterpret_cast<const __m256i*>(x + 4 * i)), exponent);
     bad = _mm256_or_si256(bad, _mm256_and_si256(_mm256_cmpeq_epi32(e, exponent), xyz));
   }
-  update_body(x, v, p, h, Verlet, 4 * i, 4 * end);
   return !_mm256_testz_si256(bad, bad) || any_non_finite_body(x, i, end);
 }
 #endif
@@ -234,18 +223,14 @@ void stepper_detail::advance_single(float* x, float* v, float* p, const float* a
 }
 
 
-Index stepper_detail::update_single(float* x, float* v, const float* p, float h, bool verlet, Index begin,
-                                    Index end) {
+Index stepper_detail::first_non_finite_single(const float* x, Index begin, Index end) {
   bool bad;
 #if defined(CSB_ADVANCE_AVX2)
   if (kernels_use_avx2())
-    bad = verlet ? update_single_avx2<true>(x, v, p, h, begin, end) : update_single_avx2<false>(x, v, p, h, begin, end);
+    bad = any_non_finite_avx2(x, begin, end);
   else
 #endif
-  {
-    update_single_base(x, v, p, h, verlet, 4 * begin, 4 * end);
     bad = any_non_finite_base(x, begin, end);
-  }
   if (!bad) return -1;
   for (Index i = begin; i < end; ++i)
     if (!std::isfinite(x[4 * i]) || !std::isfinite(x[4 * i + 1]) || !std::isfinite(x[4 * i + 2])) return i;
@@ -264,9 +249,17 @@ void narrow_base(const Real* in, float* out, Index begin, Index end, const float
     out[4 * i + 3] = pad ? pad[i] : 0.0f;
   }
 }
-void widen_base(const float* in, Real* out, Index begin, Index end) {
+// The single-precision step's last update (update_body's operations in float: Euler
+// v = (p - x)/h, x = p; Verlet x* = x, x = p) for particles [begin, end), its results widened
+// straight into the double state xd, vd (Verlet: the previous positions).
+template <bool Verlet>
+void finish_base(const float* x, const float* p, float h, Real* xd, Real* vd, Index begin, Index end) {
   for (Index i = begin; i < end; ++i)
-    for (int e = 0; e < 3; ++e) out[3 * i + e] = in[4 * i + e];
+    for (int e = 0; e < 3; ++e) {
+      const float pk = p[4 * i + e], xk = x[4 * i + e];
+      vd[3 * i + e] = Verlet ? xk : (pk - xk) / h;
+      xd[3 * i + e] = pk;
+    }
 }
 #if CSB_HAS_AVX2_ROWS
 // narrow_base of the positions (padded with w) and of the velocities (padded with 0; Verlet's
@@ -275,8 +268,8 @@ void widen_base(const float* in, Real* out, Index begin, Index end) {
 // conversion, then the prediction's operations: the same values as the three passes.
 template <bool Verlet>
 __attribute__((target("avx2"))) void start_single_avx2(const Real* xd, const Real* vd, const float* w, float* x,
-                                                       float* v, float* p, const float* a, float h, float keep,
-                                                       Index begin, Index end) {
+                                                       float* p, const float* a, float h, float keep, Index begin,
+                                                       Index end) {
   const __m256i xyz = _mm256_setr_epi64x(-1, -1, -1, 0);
   const __m128 hv = _mm_set1_ps(h), kv = _mm_set1_ps(keep);
   for (Index i = begin; i < end; ++i) {
@@ -287,20 +280,29 @@ __attribute__((target("avx2"))) void start_single_avx2(const Real* xd, const Rea
     _mm_storeu_ps(x + 4 * i, xi);
     if constexpr (Verlet) {
       vi = _mm_blend_ps(vi, wi, 0b1000);
-      _mm_storeu_ps(v + 4 * i, vi);
       _mm_storeu_ps(p + 4 * i, _mm_add_ps(_mm_add_ps(xi, _mm_mul_ps(kv, _mm_sub_ps(xi, vi))), ai));
     } else {
       vi = _mm_add_ps(vi, ai);
-      _mm_storeu_ps(v + 4 * i, vi);
       _mm_storeu_ps(p + 4 * i, _mm_add_ps(xi, _mm_mul_ps(hv, vi)));
     }
   }
 }
-__attribute__((target("avx2"))) void widen_avx2(const float* in, Real* out, Index begin, Index end) {
+// A float particle's x, y, z widened into three doubles at out: one conversion, a 128-bit and a
+// 64-bit store (a masked store is slow on some processors).
+CSB_AVX2_INLINE void store_widened(Real* out, __m128 v) {
+  const __m256d d = _mm256_cvtps_pd(v);
+  _mm_storeu_pd(out, _mm256_castpd256_pd128(d));
+  _mm_store_sd(out + 2, _mm256_extractf128_pd(d, 1));
+}
+// finish_base, a particle a 128-bit register.
+template <bool Verlet>
+__attribute__((target("avx2"))) void finish_avx2(const float* x, const float* p, float h, Real* xd, Real* vd,
+                                                 Index begin, Index end) {
+  const __m128 hv = _mm_set1_ps(h);
   for (Index i = begin; i < end; ++i) {
-    const __m256d d = _mm256_cvtps_pd(_mm_loadu_ps(in + 4 * i));
-    _mm_storeu_pd(out + 3 * i, _mm256_castpd256_pd128(d));
-    _mm_store_sd(out + 3 * i + 2, _mm256_extractf128_pd(d, 1));
+    const __m128 pk = _mm_loadu_ps(p + 4 * i), xk = _mm_loadu_ps(x + 4 * i);
+    store_widened(vd + 3 * i, Verlet ? xk : _mm_div_ps(_mm_sub_ps(pk, xk), hv));
+    store_widened(xd + 3 * i, pk);
   }
 }
 #endif
@@ -311,8 +313,8 @@ void stepper_detail::start_single(const Real* xd, const Real* vd, const float* w
                                   const float* a, float h, float keep, bool verlet, Index begin, Index end) {
 #if CSB_HAS_AVX2_ROWS
   if (kernels_use_avx2())
-    return verlet ? start_single_avx2<true>(xd, vd, w, x, v, p, a, h, keep, begin, end)
-                  : start_single_avx2<false>(xd, vd, w, x, v, p, a, h, keep, begin, end);
+    return verlet ? start_single_avx2<true>(xd, vd, w, x, p, a, h, keep, begin, end)
+                  : start_single_avx2<false>(xd, vd, w, x, p, a, h, keep, begin, end);
 #endif
   narrow_base(xd, x, begin, end, w);
   narrow_base(vd, v, begin, end, verlet ? w : nullptr);
@@ -320,11 +322,13 @@ void stepper_detail::start_single(const Real* xd, const Real* vd, const float* w
          : predict_euler_body(x, v, p, a, h, 4 * begin, 4 * end);
 }
 
-void stepper_detail::widen_positions(const float* in, Real* out, Index begin, Index end) {
+void stepper_detail::finish_single(const float* x, const float* p, float h, bool verlet, Real* xd, Real* vd,
+                                   Index begin, Index end) {
 #if CSB_HAS_AVX2_ROWS
-  if (kernels_use_avx2()) return widen_avx2(in, out, begin, end);
+  if (kernels_use_avx2())
+    return verlet ? finish_avx2<true>(x, p, h, xd, vd, begin, end) : finish_avx2<false>(x, p, h, xd, vd, begin, end);
 #endif
-  widen_base(in, out, begin, end);
+  verlet ? finish_base<true>(x, p, h, xd, vd, begin, end) : finish_base<false>(x, p, h, xd, vd, begin, end);
 }
 
 

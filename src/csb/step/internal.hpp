@@ -101,17 +101,17 @@ void advance_single(float* x, float* v, float* p, const float* a, float h, float
                     Index k1);
 
 // The single-precision step's start for particles [begin, end): the double positions xd and
-// velocities vd (Verlet: previous positions) rounded to nearest into float x and v (x, y, z and
-// a pad, 4 apart; the pads w[i], and 0 for Euler's velocities), then the first prediction (Euler
-// v = v + a, p = x + h v; Verlet p = x + keep (x - v) + a); in one pass where the processor has
-// AVX2. Its last update (Euler v = (p - x)/h, x = p; Verlet v = x, x = p) for particles
-// [begin, end), returning the first whose new position is not finite, or -1 (with AVX2 the
-// update and the finiteness test one pass). And the floats back into doubles, exactly
-// (step/integrate.cpp).
+// velocities vd (Verlet: previous positions) rounded to nearest into floats (x, y, z and a pad,
+// 4 apart; the pads w[i], and 0 for Euler's velocities), the positions into x, and the first
+// prediction into p (Euler p = x + h (v + a); Verlet p = x + keep (x - v) + a); in one pass where
+// the processor has AVX2 (v, scratch, then left unwritten). Its end: the first of particles
+// [begin, end) whose projected position p is not finite (the exponent all ones), or -1; then the
+// last update (Euler v = (p - x)/h, x = p; Verlet v = x, x = p) in float, its results widened
+// exactly straight into the double state xd, vd (step/integrate.cpp).
 void start_single(const Real* xd, const Real* vd, const float* w, float* x, float* v, float* p, const float* a,
                   float h, float keep, bool verlet, Index begin, Index end);
-Index update_single(float* x, float* v, const float* p, float h, bool verlet, Index begin, Index end);
-void widen_positions(const float* in, Real* out, Index begin, Index end);
+Index first_non_finite_single(const float* p, Index begin, Index end);
+void finish_single(const float* x, const float* p, float h, bool verlet, Real* xd, Real* vd, Index begin, Index end);
 
 template <class T>
 std::size_t capacity_bytes(const std::vector<T>& v) {
