@@ -316,15 +316,16 @@ CSB_INLINE void distance_xpbd_blocks(ColouredDistanceT<S>& b, Index begin, Index
 
 #if CSB_HAS_AVX2_ROWS
 // Single precision: distance_scatter_rows and distance_gather_rows eight constraints at a time in
-// 256-bit registers, then four in 128-bit ones (csb/avx2_rows.hpp).
+// 256-bit registers, then four in 128-bit ones (csb/avx2_rows.hpp). The shares c_i, c_j of
+// constraints c0 + [0, m4) at ci, cj: the batch's, or (XPBD, whose shares are w_i and w_j) the
+// inverse masses the gather took from the particles' pads.
 template <bool Xpbd>
 CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, Index c0, Index m4, const float* s,
-                                           const float* vx, const float* vy, const float* vz, float* o) {
+                                           const float* vx, const float* vy, const float* vz, float* o,
+                                           const float* ci, const float* cj) {
   using namespace avx2;
   const Index* bi = b.i.data() + c0;
   const Index* bj = b.j.data() + c0;
-  const float* ci = b.ci.data() + c0;
-  const float* cj = b.cj.data() + c0;
   const Index m8 = m4 - m4 % 8;
   for (Index k = 0; k < m8; k += 8) {
     const __m256 sk = _mm256_load_ps(s + k);
@@ -349,11 +350,12 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, In
 }
 
 // d = p_i - p_j (and, Damped, u = (p_i - x_i) - (p_j - x_j)) of constraints c0 + [0, m4) as rows,
-// eight at a time, then four.
-template <bool Damped>
+// eight at a time, then four; Pads: also the particles' pads (the single-precision step keeps
+// their inverse masses there) into wi, wj.
+template <bool Damped, bool Pads = false>
 CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Index c0, Index m4, const float* r,
                                           const float* x, float* dx, float* dy, float* dz, float* ux, float* uy,
-                                          float* uz) {
+                                          float* uz, float* wi = nullptr, float* wj = nullptr) {
   using namespace avx2;
   const Index* bi = b.i.data() + c0;
   const Index* bj = b.j.data() + c0;
@@ -361,9 +363,13 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
   for (Index k = 0; k < m8; k += 8) {
     const Index* at_i = bi + k;
     const Index* at_j = bj + k;
-    __m256 ix, iy, iz, jx, jy, jz;
-    gather8(r, at_i, ix, iy, iz);
-    gather8(r, at_j, jx, jy, jz);
+    __m256 ix, iy, iz, iw, jx, jy, jz, jw;
+    gather8(r, at_i, ix, iy, iz, iw);
+    gather8(r, at_j, jx, jy, jz, jw);
+    if constexpr (Pads) {
+      _mm256_store_ps(wi + k, iw);
+      _mm256_store_ps(wj + k, jw);
+    }
     _mm256_store_ps(dx + k, _mm256_sub_ps(ix, jx));
     _mm256_store_ps(dy + k, _mm256_sub_ps(iy, jy));
     _mm256_store_ps(dz + k, _mm256_sub_ps(iz, jz));
@@ -387,6 +393,8 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
     __m128 rx, ry, rz;
     rows(d[0], d[1], d[2], d[3], rx, ry, rz);
     _mm_store_ps(dx + k, rx), _mm_store_ps(dy + k, ry), _mm_store_ps(dz + k, rz);
+    if constexpr (Pads)
+      for (int l = 0; l < 4; ++l) wi[k + l] = r[bi[k + l] + 3], wj[k + l] = r[bj[k + l] + 3];
     if constexpr (Damped) {
       rows(u[0], u[1], u[2], u[3], rx, ry, rz);
       _mm_store_ps(ux + k, rx), _mm_store_ps(uy + k, ry), _mm_store_ps(uz + k, rz);
@@ -408,7 +416,10 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Ind
                                 static_cast<S*>(nullptr), static_cast<S*>(nullptr));
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     distance_pbd_block_s<Approx, Bilateral>(b, c0, m, dx, dy, dz, s);
-    distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
+    if constexpr (std::is_same_v<S, float>)
+      distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o, b.ci.data() + c0, b.cj.data() + c0);
+    else
+      distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
     distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
@@ -417,15 +428,23 @@ template <bool Damped, bool Fresh, bool Bilateral, class S>
 CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index begin, Index end, const S* r, S* o,
                                                const S* x) {
   constexpr Index B = kDistanceBlock;
+  constexpr bool single = std::is_same_v<S, float>;  // XPBD's shares w_i, w_j from the pads
   alignas(64) S dx[B], dy[B], dz[B], s[B];
   alignas(64) S ux[Damped ? B : 1], uy[Damped ? B : 1], uz[Damped ? B : 1];
+  alignas(64) S wi[single ? B : 1], wj[single ? B : 1];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0), m4 = m - m % 4;
-    distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
+    if constexpr (single)
+      distance_gather_rows<Damped, true>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz, wi, wj);
+    else
+      distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
     distance_xpbd_block_s<Damped, Fresh, Bilateral>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
-    distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
+    if constexpr (single)
+      distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o, wi, wj);
+    else
+      distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
     distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
