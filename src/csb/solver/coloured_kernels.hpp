@@ -78,7 +78,8 @@ CSB_INLINE void senses(const ColouredDistanceT<S>& b, Index c0, Index m, S* out)
 // The violation C of a constraint of sense sn from its bilateral value c (constraints/distance.hpp):
 // c - sn max(sn c, 0). Bilateral: the batch's constraints are all bilateral (sn = 0,
 // ColouredDistanceT::bilateral), and C is c itself: the same value, since c - 0 max(0 c, 0) is c
-// for every c but -0 (and NaN), and c, a length less a rest length, is never -0.
+// for every finite c but -0, which c (a length less a rest length, or Jakobsen's
+// (d·d - r²)/(2 r)) never is; a non-finite c gives a non-finite s either way.
 template <bool Bilateral, class S>
 CSB_INLINE S violation_of(S c, S sn) {
   if constexpr (Bilateral)
