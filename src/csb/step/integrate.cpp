@@ -89,8 +89,8 @@ inline __attribute__((always_inline)) void advance_verlet_body(S* __restrict x, 
   }
 }
 // The single-precision step's first prediction (predict_range's operations in float, the
-// gravity in a: Euler v = v + a, p = x + h v; Verlet p = x + keep (x - x*) + a) and last update
-// (Euler v = (p - x)/h, x = p; Verlet x* = x, x = p) for coordinates [k0, k1).
+// gravity in a: Euler v = v + a, p = x + h v; Verlet p = x + keep (x - x*) + a) for coordinates
+// [k0, k1): start_single without AVX2.
 template <class S>
 inline __attribute__((always_inline)) void predict_euler_body(const S* __restrict x, S* __restrict v,
                                                               S* __restrict p, const S* __restrict a, S h, Index k0,
@@ -106,22 +106,11 @@ inline __attribute__((always_inline)) void predict_verlet_body(const S* __restri
                                                                Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) p[k] = x[k] + keep * (x[k] - xp[k]) + a[k];
 }
-// (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p (S: double, or float for
-// the single-precision step's last update).
-template <class S>
-inline __attribute__((always_inline)) void commit_euler_body(S* __restrict x, S* __restrict v,
-                                                             const S* __restrict p, S h, Index k0, Index k1) {
+// (12)-(15) alone for coordinates [k0, k1): Euler v = (p - x)/h, x = p.
+inline __attribute__((always_inline)) void commit_euler_body(Real* __restrict x, Real* __restrict v,
+                                                             const Real* __restrict p, Real h, Index k0, Index k1) {
   for (Index k = k0; k < k1; ++k) {
     v[k] = (p[k] - x[k]) / h;
-    x[k] = p[k];
-  }
-}
-template <class S>
-inline __attribute__((always_inline)) void update_body(S* __restrict x, S* __restrict v, const S* __restrict p, S h,
-                                                       bool verlet, Index k0, Index k1) {
-  if (!verlet) return commit_euler_body(x, v, p, h, k0, k1);
-  for (Index k = k0; k < k1; ++k) {
-    v[k] = x[k];
     x[k] = p[k];
   }
 }
@@ -249,9 +238,9 @@ void narrow_base(const Real* in, float* out, Index begin, Index end, const float
     out[4 * i + 3] = pad ? pad[i] : 0.0f;
   }
 }
-// The single-precision step's last update (update_body's operations in float: Euler
-// v = (p - x)/h, x = p; Verlet x* = x, x = p) for particles [begin, end), its results widened
-// straight into the double state xd, vd (Verlet: the previous positions).
+// The single-precision step's last update (commit's operations in float: Euler v = (p - x)/h,
+// x = p; Verlet x* = x, x = p) for particles [begin, end), its results widened straight into the
+// double state xd, vd (Verlet: the previous positions).
 template <bool Verlet>
 void finish_base(const float* x, const float* p, float h, Real* xd, Real* vd, Index begin, Index end) {
   for (Index i = begin; i < end; ++i)
