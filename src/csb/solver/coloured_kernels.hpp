@@ -159,15 +159,14 @@ CSB_INLINE void distance_pbd_blocks(const ColouredDistanceT<S>& b, Index begin, 
 
 #if CSB_HAS_AVX2_ROWS
 // distance_scatter of constraints c0 + [0, m4), m4 a multiple of 4, four at a time in AVX2
-// registers (the same operations, so the same bits).
+// registers (the same operations, so the same bits); their shares c_i, c_j at ci, cj.
 template <bool Xpbd>
 CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, Index m4, const Real* s,
-                                           const Real* vx, const Real* vy, const Real* vz, Real* o) {
+                                           const Real* vx, const Real* vy, const Real* vz, Real* o, const Real* ci,
+                                           const Real* cj) {
   using namespace avx2;
   const Index* bi = b.i.data() + c0;
   const Index* bj = b.j.data() + c0;
-  const Real* ci = b.ci.data() + c0;
-  const Real* cj = b.cj.data() + c0;
   for (Index k = 0; k < m4; k += 4) {
     const __m256d sk = _mm256_load_pd(s + k);
     const __m256d x = _mm256_load_pd(vx + k), y = _mm256_load_pd(vy + k), z = _mm256_load_pd(vz + k);
@@ -417,10 +416,7 @@ CSB_AVX2_INLINE void distance_pbd_blocks_rows(const ColouredDistanceT<S>& b, Ind
                                 static_cast<S*>(nullptr), static_cast<S*>(nullptr));
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     distance_pbd_block_s<Approx, Bilateral>(b, c0, m, dx, dy, dz, s);
-    if constexpr (std::is_same_v<S, float>)
-      distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o, b.ci.data() + c0, b.cj.data() + c0);
-    else
-      distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter_rows<false>(b, c0, m4, s, dx, dy, dz, o, b.ci.data() + c0, b.cj.data() + c0);
     distance_scatter<false>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
@@ -442,10 +438,8 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index be
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
     distance_xpbd_block_s<Damped, Fresh, Bilateral>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
-    if constexpr (single)
-      distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o, wi, wj);
-    else
-      distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o);
+    distance_scatter_rows<true>(b, c0, m4, s, dx, dy, dz, o, single ? wi : b.ci.data() + c0,
+                                single ? wj : b.cj.data() + c0);
     distance_scatter<true>(b, c0, m4, m, s, dx, dy, dz, o);
   }
 }
@@ -474,16 +468,16 @@ inline void distance_pbd_range(const ColouredDistanceT<S>& b, Index begin, Index
 #pragma omp simd
     for (Index c = begin; c < end; ++c) distance_pbd<true>(b, c, r, o);
   } else {
+    const auto run = [&](auto bilateral) {
+      constexpr bool L = decltype(bilateral)::value;
 #if defined(CSB_DISTANCE_AVX2)
-    if (kernels_use_avx2())
-      return b.bilateral ? distance_pbd_blocks_avx2<Approx, true>(b, begin, end, r, o)
-                         : distance_pbd_blocks_avx2<Approx, false>(b, begin, end, r, o);
+      if (kernels_use_avx2()) return distance_pbd_blocks_avx2<Approx, L>(b, begin, end, r, o);
 #elif CSB_HAS_AVX2_ROWS && defined(__AVX2__)  // a native build for a processor with AVX2
-    return b.bilateral ? distance_pbd_blocks_rows<Approx, true>(b, begin, end, r, o)
-                       : distance_pbd_blocks_rows<Approx, false>(b, begin, end, r, o);
+      return distance_pbd_blocks_rows<Approx, L>(b, begin, end, r, o);
 #endif
-    b.bilateral ? distance_pbd_blocks<Approx, true>(b, begin, end, r, o)
-                : distance_pbd_blocks<Approx, false>(b, begin, end, r, o);
+      distance_pbd_blocks<Approx, L>(b, begin, end, r, o);
+    };
+    b.bilateral ? run(std::true_type{}) : run(std::false_type{});
   }
 }
 
