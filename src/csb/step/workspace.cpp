@@ -54,9 +54,12 @@ void PbdStepper::prepare(const Model& model) {
     }
   }
   const Index n = model.num_particles();
-  p_.resize(3, n);
+  // The predictions in the solver's precision: the double p_, or (float32) the float rows the
+  // single-precision sub-steps project; the other is empty.
+  const bool single = settings_.precision == Precision::Single;
+  p_.resize(3, single ? 0 : n);
   for (std::vector<float>* b : {&single_.x, &single_.v, &single_.p, &single_.accel})
-    b->assign(settings_.precision == Precision::Single ? kStride<float> * static_cast<std::size_t>(n) : 0, 0.0f);
+    b->assign(single ? kStride<float> * static_cast<std::size_t>(n) : 0, 0.0f);
   if (settings_.front_end == FrontEnd::Verlet) x_prev_.resize(3, n);
   Index largest_balloon = 0;
   for (Index b = 0; b < model.balloons.size(); ++b) largest_balloon = std::max(largest_balloon, model.balloons.num_particles(b));
