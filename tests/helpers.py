@@ -46,3 +46,11 @@ def cloth_over_sphere(n: int) -> csb.Model:
                bending_compliance=1.0, thickness=0.01)
     b.add_sphere(center=[0, -0.4, 0], radius=0.3, friction_static=0.4, friction_kinetic=0.3)
     return b.build()
+
+
+def copies_here() -> tuple[str, ...]:
+    """The copies of the blocked kernels this processor runs (portable x86-64 build), or
+    ("auto",) where there is one copy (a native build, other processors)."""
+    best = csb.kernels.kernel_isa("auto")
+    order = ("sse2", "avx2", "avx512")
+    return order[:order.index(best) + 1] if best in order else ("auto",)

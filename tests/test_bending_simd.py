@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import csb
+from helpers import copies_here
 
 K = csb.kernels
 EPS = np.finfo(float).eps
@@ -208,14 +209,6 @@ def test_dependent_quads_are_projected_in_order_like_the_reference(rng):
         *pts, _ = K.project_bending(*want[q], w[q], rest[c], 1.0)
         want[q] = pts
     assert np.abs(got - want).max() <= tolerance(X, want)
-
-
-def copies_here() -> tuple[str, ...]:
-    """The copies of the blocked kernels this processor runs (portable x86-64 build), or
-    ("auto",) where there is one copy (a native build, other processors)."""
-    best = K.kernel_isa("auto")
-    order = ("sse2", "avx2", "avx512")
-    return order[:order.index(best) + 1] if best in order else ("auto",)
 
 
 @pytest.fixture

@@ -338,7 +338,7 @@ def test_the_culling_gives_the_same_bits_with_the_sse2_avx2_and_avx512_copies():
     same pairs, so the benchmark's 40 x 40 cape through its fold (90 steps; it keeps candidate
     pairs from the 76th) ends bit for bit the same with every copy."""
     from csb.bench import cape
-    from test_bending_simd import copies_here
+    from helpers import copies_here
 
     isas = copies_here()
     if len(isas) < 2:
