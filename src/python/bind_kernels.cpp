@@ -198,6 +198,8 @@ void bind_kernels(py::module_& m) {
     for (const auto& q : b.q)
       for (Index i : q)
         if (i < 0 || i >= n) throw InvalidArgument("quads: index " + std::to_string(i) + " out of range");
+    for (auto& q : b.q)
+      for (Index& i : q) i *= kStride<Real>;  // the batches' offsets (ColouredFourT::q)
     const auto column = [m](py::handle h, const char* what) {
       const A a = A::ensure(h);
       if (!a || a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != m)

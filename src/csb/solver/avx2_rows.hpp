@@ -28,6 +28,14 @@
 
 namespace csb::avx2 {
 
+// A batch's particle offsets (ColouredDistanceT::i and j, ColouredFourT::q) as the copies here
+// address with them: they are >= 0 and fit 31 bits (build_coloured refuses larger models), so
+// read as unsigned 32-bit numbers they widen to 64-bit addresses with no sign extension, an
+// instruction fewer a particle loaded or stored. (An integer type and its unsigned counterpart
+// may alias: the batches' Index arrays are read in place.)
+using Offset = std::uint32_t;
+CSB_AVX2_INLINE const Offset* as_offsets(const Index* p) { return reinterpret_cast<const Offset*>(p); }
+
 // The particle at p as [x, y, z, 0], reading p[0..2] only.
 CSB_AVX2_INLINE __m256d load_xyz(const Real* p) {
   return _mm256_maskload_pd(p, _mm256_setr_epi64x(-1, -1, -1, 0));
@@ -67,8 +75,8 @@ CSB_AVX2_INLINE V update(V o, V d) {
 }
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
-template <bool Subtract = false>
-CSB_AVX2_INLINE void add_rows(Real* o, const Index at[4], __m256d dx, __m256d dy, __m256d dz) {
+template <bool Subtract = false, class Off>
+CSB_AVX2_INLINE void add_rows(Real* o, const Off at[4], __m256d dx, __m256d dy, __m256d dz) {
   const __m256d t0 = _mm256_unpacklo_pd(dx, dy);  // x0 y0 x2 y2
   const __m256d t1 = _mm256_unpackhi_pd(dx, dy);  // x1 y1 x3 y3
   const __m128d xy[4] = {_mm256_castpd256_pd128(t0), _mm256_castpd256_pd128(t1), _mm256_extractf128_pd(t0, 1),
@@ -83,7 +91,8 @@ CSB_AVX2_INLINE void add_rows(Real* o, const Index at[4], __m256d dx, __m256d dy
 }
 
 // Lane l of the rows (x, y, z) written to the particle at o + at[l] (its three doubles only).
-CSB_AVX2_INLINE void store_rows(Real* o, const Index at[4], __m256d x, __m256d y, __m256d z) {
+template <class Off>
+CSB_AVX2_INLINE void store_rows(Real* o, const Off at[4], __m256d x, __m256d y, __m256d z) {
   const __m256d t0 = _mm256_unpacklo_pd(x, y);  // x0 y0 x2 y2
   const __m256d t1 = _mm256_unpackhi_pd(x, y);  // x1 y1 x3 y3
   _mm_storeu_pd(o + at[0], _mm256_castpd256_pd128(t0));
@@ -128,15 +137,16 @@ CSB_AVX2_INLINE void particles(__m128 x, __m128 y, __m128 z, __m128 w, __m128 v[
 }
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
-template <bool Subtract = false>
-CSB_AVX2_INLINE void add_rows(float* o, const Index at[4], __m128 dx, __m128 dy, __m128 dz) {
+template <bool Subtract = false, class Off>
+CSB_AVX2_INLINE void add_rows(float* o, const Off at[4], __m128 dx, __m128 dy, __m128 dz) {
   __m128 d[4];
   particles(dx, dy, dz, _mm_setzero_ps(), d);  // the pad + 0: unchanged
   for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], update<Subtract>(_mm_loadu_ps(o + at[l]), d[l]));
 }
 
 // Lane l of the rows (x, y, z, pad) written to the particle at o + at[l].
-CSB_AVX2_INLINE void store_rows(float* o, const Index at[4], __m128 x, __m128 y, __m128 z, __m128 w) {
+template <class Off>
+CSB_AVX2_INLINE void store_rows(float* o, const Off at[4], __m128 x, __m128 y, __m128 z, __m128 w) {
   __m128 v[4];
   particles(x, y, z, w, v);
   for (int l = 0; l < 4; ++l) _mm_storeu_ps(o + at[l], v[l]);
@@ -165,12 +175,14 @@ CSB_AVX2_INLINE void rows8(__m256 v0, __m256 v1, __m256 v2, __m256 v3, __m256& x
 }
 
 // Rows x, y, z and pads w of the eight particles at o + at[l].
-CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z, __m256& w) {
+template <class Off>
+CSB_AVX2_INLINE void gather8(const float* o, const Off at[8], __m256& x, __m256& y, __m256& z, __m256& w) {
   rows8(load_pair(o + at[0], o + at[4]), load_pair(o + at[1], o + at[5]), load_pair(o + at[2], o + at[6]),
         load_pair(o + at[3], o + at[7]), x, y, z, w);
 }
 // The same without the pads.
-CSB_AVX2_INLINE void gather8(const float* o, const Index at[8], __m256& x, __m256& y, __m256& z) {
+template <class Off>
+CSB_AVX2_INLINE void gather8(const float* o, const Off at[8], __m256& x, __m256& y, __m256& z) {
   __m256 w;
   gather8(o, at, x, y, z, w);
 }
@@ -188,7 +200,8 @@ CSB_AVX2_INLINE void particles8(__m256 x, __m256 y, __m256 z, __m256 w, __m256 v
 }
 
 // Lane l of the rows (x, y, z, pad) written to the particle at o + at[l].
-CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m256 z, __m256 w) {
+template <class Off>
+CSB_AVX2_INLINE void store8(float* o, const Off at[8], __m256 x, __m256 y, __m256 z, __m256 w) {
   __m256 v[4];
   particles8(x, y, z, w, v);
   for (int l = 0; l < 4; ++l) {
@@ -198,8 +211,8 @@ CSB_AVX2_INLINE void store8(float* o, const Index at[8], __m256 x, __m256 y, __m
 }
 
 // Lane l of the rows (dx, dy, dz) added to (Subtract: taken from) the particle at o + at[l].
-template <bool Subtract = false>
-CSB_AVX2_INLINE void add8(float* o, const Index at[8], __m256 dx, __m256 dy, __m256 dz) {
+template <bool Subtract = false, class Off>
+CSB_AVX2_INLINE void add8(float* o, const Off at[8], __m256 dx, __m256 dy, __m256 dz) {
   __m256 d[4];
   particles8(dx, dy, dz, _mm256_setzero_ps(), d);  // the pad + 0: unchanged
   for (int l = 0; l < 4; ++l) {

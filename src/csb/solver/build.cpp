@@ -150,7 +150,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
     f.lambda.assign(xpbd ? m : 0, 0);
     for (std::size_t c = 0; c < m; ++c) {
       const Index o = order[c];
-      f.q[c] = particles[o];
+      for (int s = 0; s < 4; ++s) f.q[c][s] = kStride<Real> * particles[o][s];
       f.rest[c] = rest[o];
       for (int s = 0; s < 4; ++s) f.w[c][s] = w[particles[o][s]];
       if (!xpbd) f.k[c] = k[o];
@@ -183,7 +183,7 @@ void PbdStepper::build_coloured(const Model& model, const Real* w) {
       // the kernel takes d = a - b: PBD Δa = -ca s d, Δb = +cb s d, XPBD Δa = +ca Δλ n,
       // Δb = -cb Δλ n with n = d/|d| (the constraint's own orientation, d = p_i - p_j, gives
       // the same values: d, n and the damping's relative motion change sign exactly)
-      const bool forward = db.particles[o][0] == f.q[c][0];
+      const bool forward = kStride<Real> * db.particles[o][0] == f.q[c][0];
       f.pair_rest[c] = db.rest_length[o];
       if (!xpbd) {
         f.pair_ca[c] = forward ? ci : cj;

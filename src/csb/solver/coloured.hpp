@@ -54,7 +54,8 @@ using ColouredDistance = ColouredDistanceT<Real>;
 // Bending (a, b, c, d) or tet volume (p0, p1, p2, p3).
 template <class S>
 struct ColouredFourT {
-  std::vector<std::array<Index, 4>> q;
+  std::vector<std::array<Index, 4>> q;  // the particles' offsets, kStride<S> times their indices
+                                        // (as ColouredDistanceT::i)
   std::vector<S> rest;               // rad or m³
   std::vector<std::array<S, 4>> w;
   std::vector<S> k;                  // PBD, Jakobsen
@@ -114,7 +115,10 @@ ColouredFourT<To> narrowed(const ColouredFourT<From>& f) {
   std::vector<std::array<To, 4>> w(f.w.size());
   for (std::size_t c = 0; c < w.size(); ++c)
     for (int s = 0; s < 4; ++s) w[c][s] = static_cast<To>(f.w[c][s]);
-  return {f.q, cast(f.rest), std::move(w), cast(f.k), cast(f.alpha), cast(f.gamma), cast(f.lambda), f.damped,
+  std::vector<std::array<Index, 4>> q(f.q.size());
+  for (std::size_t c = 0; c < q.size(); ++c)
+    for (int s = 0; s < 4; ++s) q[c][s] = f.q[c][s] / kStride<From> * kStride<To>;
+  return {std::move(q), cast(f.rest), std::move(w), cast(f.k), cast(f.alpha), cast(f.gamma), cast(f.lambda), f.damped,
           cast(f.pair_rest), cast(f.pair_ca), cast(f.pair_cb), cast(f.pair_alpha), cast(f.pair_gamma),
           cast(f.pair_inv_den), cast(f.pair_lambda), cast(f.k_same), cast(f.alpha_same), cast(f.pair_alpha_same)};
 }

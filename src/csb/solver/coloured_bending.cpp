@@ -59,7 +59,7 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
     for (int s = 0; s < 4; ++s) {
       __m256d v[4], d[4];
       for (int l = 0; l < 4; ++l) {
-        const Index i = 3 * q[l][s];
+        const Offset i = Offset(q[l][s]);
         v[l] = load_xyz(r + i);
         if constexpr (Damped) d[l] = load_xyz(x + i);
       }
@@ -90,7 +90,7 @@ CSB_AVX2_INLINE void block_rows(ColouredFour& b, Index c0, Index m, const Real* 
     const __m256d S = _mm256_load_pd(&t.S[k]);
     for (int s = 0; s < 4; ++s) {
       const __m256d ws = _mm256_mul_pd(S, _mm256_load_pd(&t.W[s][k]));
-      const Index at[4] = {3 * q[0][s], 3 * q[1][s], 3 * q[2][s], 3 * q[3][s]};
+      const Offset at[4] = {Offset(q[0][s]), Offset(q[1][s]), Offset(q[2][s]), Offset(q[3][s])};
       const __m256d dx = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s][k])),
                     dy = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s + 1][k])),
                     dz = _mm256_mul_pd(ws, _mm256_load_pd(&t.G[3 * s + 2][k]));
@@ -141,14 +141,13 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
                                        const float* x) {
   using namespace avx2;
   const Index m = Full ? kBendingBlock : block_size;
-  constexpr Index S = kStride<float>;
   BendingBlock<Xpbd, Damped, float> t;
   const Index m8 = m - m % 8, m4 = m - m % 4;
   for (Index k = 0; k < m8; k += 8) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
-                           S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
+      const Offset at[8] = {Offset(q[0][s]), Offset(q[1][s]), Offset(q[2][s]), Offset(q[3][s]),
+                            Offset(q[4][s]), Offset(q[5][s]), Offset(q[6][s]), Offset(q[7][s])};
       __m256 ex, ey, ez, ew;
       gather8(r, at, ex, ey, ez, ew);
       _mm256_store_ps(&t.P[3 * s][k], ex);
@@ -168,7 +167,7 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
     for (int s = 0; s < 4; ++s) {
       __m128 v[4], d[4];
       for (int l = 0; l < 4; ++l) {
-        const Index i = S * q[l][s];
+        const Offset i = Offset(q[l][s]);
         v[l] = load_xyz(r + i);
         if constexpr (Damped) d[l] = load_xyz(x + i);
       }
@@ -191,8 +190,8 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
   for (Index k = 0; k < m8; k += 8) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Index at[8] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s],
-                           S * q[4][s], S * q[5][s], S * q[6][s], S * q[7][s]};
+      const Offset at[8] = {Offset(q[0][s]), Offset(q[1][s]), Offset(q[2][s]), Offset(q[3][s]),
+                            Offset(q[4][s]), Offset(q[5][s]), Offset(q[6][s]), Offset(q[7][s])};
       const __m256 w = _mm256_load_ps(&t.W[s][k]), ws = _mm256_mul_ps(_mm256_load_ps(&t.S[k]), w);
       store8(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
              moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws), w);
@@ -201,7 +200,7 @@ CSB_AVX2_INLINE void block_rows_single(ColouredFourT<float>& b, Index c0, Index 
   for (Index k = m8; k < m4; k += 4) {
     const auto* q = &b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Index at[4] = {S * q[0][s], S * q[1][s], S * q[2][s], S * q[3][s]};
+      const Offset at[4] = {Offset(q[0][s]), Offset(q[1][s]), Offset(q[2][s]), Offset(q[3][s])};
       const __m128 w = _mm_load_ps(&t.W[s][k]), ws = _mm_mul_ps(_mm_load_ps(&t.S[k]), w);
       store_rows(o, at, moved(&t.P[3 * s][k], &t.G[3 * s][k], ws), moved(&t.P[3 * s + 1][k], &t.G[3 * s + 1][k], ws),
                  moved(&t.P[3 * s + 2][k], &t.G[3 * s + 2][k], ws), w);

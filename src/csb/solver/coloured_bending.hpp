@@ -102,7 +102,7 @@ CSB_ATAN2_INLINE void bending_gather(BendingBlock<Xpbd, Damped, T>& t, const Col
     const auto& q = b.q[c0 + k];
     const auto& w = b.w[c0 + k];
     for (int s = 0; s < 4; ++s) {
-      const Index i = kStride<T> * q[s];
+      const Index i = q[s];
       t.P[3 * s][k] = r[i];
       t.P[3 * s + 1][k] = r[i + 1];
       t.P[3 * s + 2][k] = r[i + 2];
@@ -275,7 +275,7 @@ CSB_ATAN2_INLINE void bending_scatter(const BendingBlock<Xpbd, Damped, T>& t, co
     const auto& q = b.q[c0 + k];
     for (int s = 0; s < 4; ++s) {
       const T ws = t.S[k] * t.W[s][k];
-      const Index i = kStride<T> * q[s];
+      const Index i = q[s];
       for (int e = 0; e < 3; ++e)
         o[i + e] = (in_place ? t.P[3 * s + e][k] : o[i + e]) + ws * t.G[3 * s + e][k];
     }

@@ -11,6 +11,7 @@
 #include "csb/step/internal.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <type_traits>
 #include <utility>
@@ -165,14 +166,14 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, 
                                            const Real* vx, const Real* vy, const Real* vz, Real* o, const Real* ci,
                                            const Real* cj) {
   using namespace avx2;
-  const Index* bi = b.i.data() + c0;
-  const Index* bj = b.j.data() + c0;
+  const Offset* bi = as_offsets(b.i.data()) + c0;
+  const Offset* bj = as_offsets(b.j.data()) + c0;
   for (Index k = 0; k < m4; k += 4) {
     const __m256d sk = _mm256_load_pd(s + k);
     const __m256d x = _mm256_load_pd(vx + k), y = _mm256_load_pd(vy + k), z = _mm256_load_pd(vz + k);
     const __m256d si = _mm256_mul_pd(_mm256_loadu_pd(ci + k), sk), sj = _mm256_mul_pd(_mm256_loadu_pd(cj + k), sk);
-    const Index* at_i = bi + k;
-    const Index* at_j = bj + k;
+    const Offset* at_i = bi + k;
+    const Offset* at_j = bj + k;
     add_rows<!Xpbd>(o, at_i, _mm256_mul_pd(si, x), _mm256_mul_pd(si, y), _mm256_mul_pd(si, z));
     add_rows<Xpbd>(o, at_j, _mm256_mul_pd(sj, x), _mm256_mul_pd(sj, y), _mm256_mul_pd(sj, z));
   }
@@ -184,8 +185,8 @@ template <bool Damped>
 CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistance& b, Index c0, Index m4, const Real* r, const Real* x,
                                           Real* dx, Real* dy, Real* dz, Real* ux, Real* uy, Real* uz) {
   using namespace avx2;
-  const Index* bi = b.i.data() + c0;
-  const Index* bj = b.j.data() + c0;
+  const Offset* bi = as_offsets(b.i.data()) + c0;
+  const Offset* bj = as_offsets(b.j.data()) + c0;
   for (Index k = 0; k < m4; k += 4) {
     __m256d d[4], u[4];
     for (int l = 0; l < 4; ++l) {
@@ -324,16 +325,16 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, In
                                            const float* vx, const float* vy, const float* vz, float* o,
                                            const float* ci, const float* cj) {
   using namespace avx2;
-  const Index* bi = b.i.data() + c0;
-  const Index* bj = b.j.data() + c0;
+  const Offset* bi = as_offsets(b.i.data()) + c0;
+  const Offset* bj = as_offsets(b.j.data()) + c0;
   const Index m8 = m4 - m4 % 8;
   for (Index k = 0; k < m8; k += 8) {
     const __m256 sk = _mm256_load_ps(s + k);
     const __m256 x = _mm256_load_ps(vx + k), y = _mm256_load_ps(vy + k), z = _mm256_load_ps(vz + k);
     const __m256 si = _mm256_mul_ps(_mm256_loadu_ps(ci + k), sk);
     const __m256 sj = _mm256_mul_ps(_mm256_loadu_ps(cj + k), sk);
-    const Index* at_i = bi + k;
-    const Index* at_j = bj + k;
+    const Offset* at_i = bi + k;
+    const Offset* at_j = bj + k;
     add8<!Xpbd>(o, at_i, _mm256_mul_ps(si, x), _mm256_mul_ps(si, y), _mm256_mul_ps(si, z));
     add8<Xpbd>(o, at_j, _mm256_mul_ps(sj, x), _mm256_mul_ps(sj, y), _mm256_mul_ps(sj, z));
   }
@@ -342,8 +343,8 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistanceT<float>& b, In
     const __m128 x = _mm_load_ps(vx + k), y = _mm_load_ps(vy + k), z = _mm_load_ps(vz + k);
     const __m128 si = _mm_mul_ps(_mm_loadu_ps(ci + k), sk);
     const __m128 sj = _mm_mul_ps(_mm_loadu_ps(cj + k), sk);
-    const Index* at_i = bi + k;
-    const Index* at_j = bj + k;
+    const Offset* at_i = bi + k;
+    const Offset* at_j = bj + k;
     add_rows<!Xpbd>(o, at_i, _mm_mul_ps(si, x), _mm_mul_ps(si, y), _mm_mul_ps(si, z));
     add_rows<Xpbd>(o, at_j, _mm_mul_ps(sj, x), _mm_mul_ps(sj, y), _mm_mul_ps(sj, z));
   }
@@ -357,12 +358,12 @@ CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistanceT<float>& b, Ind
                                           const float* x, float* dx, float* dy, float* dz, float* ux, float* uy,
                                           float* uz, float* wi = nullptr, float* wj = nullptr) {
   using namespace avx2;
-  const Index* bi = b.i.data() + c0;
-  const Index* bj = b.j.data() + c0;
+  const Offset* bi = as_offsets(b.i.data()) + c0;
+  const Offset* bj = as_offsets(b.j.data()) + c0;
   const Index m8 = m4 - m4 % 8;
   for (Index k = 0; k < m8; k += 8) {
-    const Index* at_i = bi + k;
-    const Index* at_j = bj + k;
+    const Offset* at_i = bi + k;
+    const Offset* at_j = bj + k;
     __m256 ix, iy, iz, iw, jx, jy, jz, jw;
     gather8(r, at_i, ix, iy, iz, iw);
     gather8(r, at_j, jx, jy, jz, jw);
@@ -516,6 +517,11 @@ template <auto Kernel, class... Args>
   return Kernel(std::forward<Args>(args)...);
 }
 
+// The particles of a double batch's element from their offsets (ColouredFourT::q).
+inline std::array<Index, 4> particles_of(const std::array<Index, 4>& q) {
+  return {q[0] / kStride<Real>, q[1] / kStride<Real>, q[2] / kStride<Real>, q[3] / kStride<Real>};
+}
+
 // Tet volume: the kernels of constraints/volume.hpp, on local copies for Jacobi.
 // relax (XPBD with averaged Jacobi, else null): Δλ and the corrections scaled by the
 // constraint's relaxation (PbdStepper::set_relaxation).
@@ -527,19 +533,19 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
   Real* at[4];
   for (int s = 0; s < 4; ++s) {
     if constexpr (Jacobi) {
-      for (int e = 0; e < 3; ++e) local[s][e] = r[3 * q[s] + e];
+      for (int e = 0; e < 3; ++e) local[s][e] = r[q[s] + e];
       at[s] = local[s];
     } else {
-      at[s] = o + 3 * q[s];
+      at[s] = o + q[s];
     }
   }
   Real om = 1;
   if constexpr (M == Method::Xpbd) {
     const Real before = b.lambda[k];
-    flat<project_volume_xpbd>(at[0], at[1], at[2], at[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2], x + 3 * q[3], w[0],
-                              w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
+    flat<project_volume_xpbd>(at[0], at[1], at[2], at[3], x + q[0], x + q[1], x + q[2], x + q[3], w[0], w[1], w[2],
+                              w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
     if (Jacobi && relax) {
-      om = relaxation(relax, q);
+      om = relaxation(relax, particles_of(q));
       relax_multiplier(b.lambda[k], before, om);
     }
   } else {
@@ -547,7 +553,7 @@ CSB_INLINE void volume_one(ColouredFour& b, Index k, const Real* r, Real* o, con
   }
   if constexpr (Jacobi)
     for (int s = 0; s < 4; ++s)
-      for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
+      for (int e = 0; e < 3; ++e) o[q[s] + e] += om * (local[s][e] - r[q[s] + e]);
 }
 
 // Dihedral bending with XPBD and averaged Jacobi: the scalar kernel of constraints/bending.hpp
@@ -559,14 +565,14 @@ CSB_INLINE void bending_xpbd_relaxed(ColouredFour& b, Index k, const Real* r, Re
   const auto& w = b.w[k];
   Real local[4][3];
   for (int s = 0; s < 4; ++s)
-    for (int e = 0; e < 3; ++e) local[s][e] = r[3 * q[s] + e];
+    for (int e = 0; e < 3; ++e) local[s][e] = r[q[s] + e];
   const Real before = b.lambda[k];
-  flat<project_bending_xpbd>(local[0], local[1], local[2], local[3], x + 3 * q[0], x + 3 * q[1], x + 3 * q[2],
-                            x + 3 * q[3], w[0], w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
-  const Real om = relaxation(relax, q);
+  flat<project_bending_xpbd>(local[0], local[1], local[2], local[3], x + q[0], x + q[1], x + q[2], x + q[3], w[0],
+                            w[1], w[2], w[3], b.rest[k], b.alpha[k], b.gamma[k], b.lambda[k]);
+  const Real om = relaxation(relax, particles_of(q));
   relax_multiplier(b.lambda[k], before, om);
   for (int s = 0; s < 4; ++s)
-    for (int e = 0; e < 3; ++e) o[3 * q[s] + e] += om * (local[s][e] - r[3 * q[s] + e]);
+    for (int e = 0; e < 3; ++e) o[q[s] + e] += om * (local[s][e] - r[q[s] + e]);
 }
 
 template <Method M, bool Jacobi>
