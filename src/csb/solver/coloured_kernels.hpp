@@ -180,10 +180,13 @@ CSB_AVX2_INLINE void distance_scatter_rows(const ColouredDistance& b, Index c0, 
 }
 
 // d = p_i - p_j (and, Damped, u = (p_i - x_i) - (p_j - x_j)) of constraints c0 + [0, m4) as rows,
-// four at a time in AVX2 registers (csb/avx2_rows.hpp).
-template <bool Damped>
+// four at a time in AVX2 registers (csb/avx2_rows.hpp). (Pads: the float copy's; double positions
+// have none, so wi and wj are not written.)
+template <bool Damped, bool Pads = false>
 CSB_AVX2_INLINE void distance_gather_rows(const ColouredDistance& b, Index c0, Index m4, const Real* r, const Real* x,
-                                          Real* dx, Real* dy, Real* dz, Real* ux, Real* uy, Real* uz) {
+                                          Real* dx, Real* dy, Real* dz, Real* ux, Real* uy, Real* uz,
+                                          Real* /*wi*/ = nullptr, Real* /*wj*/ = nullptr) {
+  static_assert(!Pads, "double positions have no pads");
   using namespace avx2;
   const Offset* bi = as_offsets(b.i.data()) + c0;
   const Offset* bj = as_offsets(b.j.data()) + c0;
@@ -432,10 +435,7 @@ CSB_AVX2_INLINE void distance_xpbd_blocks_rows(ColouredDistanceT<S>& b, Index be
   alignas(64) S wi[single ? B : 1], wj[single ? B : 1];
   for (Index c0 = begin; c0 < end; c0 += B) {
     const Index m = std::min(B, end - c0), m4 = m - m % 4;
-    if constexpr (single)
-      distance_gather_rows<Damped, true>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz, wi, wj);
-    else
-      distance_gather_rows<Damped>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz);
+    distance_gather_rows<Damped, single>(b, c0, m4, r, x, dx, dy, dz, ux, uy, uz, wi, wj);
     distance_gather(b, c0, m4, m, r, dx, dy, dz);
     if constexpr (Damped) distance_motion_gather(b, c0, m4, m, r, x, ux, uy, uz);
     distance_xpbd_block_s<Damped, Fresh, Bilateral>(b, c0, m, dx, dy, dz, ux, uy, uz, s);
