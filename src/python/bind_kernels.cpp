@@ -1,8 +1,6 @@
 // csb._core.kernels: the constraint kernels on single constraints.
 #include "bindings.hpp"
 
-#include <limits>
-
 namespace csb::python {
 
 void bind_kernels(py::module_& m) {
@@ -200,9 +198,9 @@ void bind_kernels(py::module_& m) {
     for (const auto& q : b.q)
       for (Index i : q)
         if (i < 0 || i >= n) throw InvalidArgument("quads: index " + std::to_string(i) + " out of range");
-    if (n > std::numeric_limits<Index>::max() / kStride<float>)
+    if (n > kMostColouredParticles)
       throw InvalidArgument("points: " + std::to_string(n) + " of them; the coloured kernels address at most " +
-                            std::to_string(std::numeric_limits<Index>::max() / kStride<float>));
+                            std::to_string(kMostColouredParticles));
     for (auto& q : b.q)
       for (Index& i : q) i *= kStride<Real>;  // the batches' offsets (ColouredFourT::q)
     const auto column = [m](py::handle h, const char* what) {

@@ -38,10 +38,10 @@ std::size_t ColouredBatches::bytes() const {
 
 void PbdStepper::build_coloured(const Model& model, const Real* w) {
   // The batches hold particle offsets (ColouredDistanceT::i), kStride<float> = 4 times an index.
-  constexpr Index most = std::numeric_limits<Index>::max() / kStride<float>;
-  if (model.num_particles() > most)
+  if (model.num_particles() > kMostColouredParticles)
     throw InvalidArgument("the model has " + std::to_string(model.num_particles()) +
-                          " particles; the coloured solver addresses at most " + std::to_string(most));
+                          " particles; the coloured solver addresses at most " +
+                          std::to_string(kMostColouredParticles));
   ColouredBatches& cb = coloured_;
   const bool xpbd = settings_.method == Method::Xpbd;
   const auto fill = [xpbd](std::vector<Real>& out, const std::vector<Real>& from, const std::vector<Index>& order) {

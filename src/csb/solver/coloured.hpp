@@ -20,6 +20,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <type_traits>
 #include <vector>
 
@@ -31,6 +32,8 @@ namespace csb {
 // and predictions, 0 in those of velocities).
 template <class S>
 constexpr Index kStride = std::is_same_v<S, float> ? 4 : 3;
+// The most particles the batches' offsets (kStride<float> times an index, in an Index) can address.
+constexpr Index kMostColouredParticles = std::numeric_limits<Index>::max() / kStride<float>;
 
 // S: the scalar the solver runs in, double (Real) or, with Precision::Single, float: the
 // single-precision batches are the double ones rounded once (narrowed), see PbdStepper's
